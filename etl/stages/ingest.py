@@ -1,0 +1,265 @@
+"""Stage ingest: an OSM extract (.osm.pbf / .osm) into osm.building, osm.reject and osm.building_relation.
+
+Two streaming passes with pyosmium, node locations in libosmium's index (never a Python dict):
+  A. relations only: type=building relations and their members (outline/part roles);
+  B. everything, C++-filtered to objects with building / building:part keys: closed ways become rows with
+     their ring as a linestring; multipolygon relations come out of libosmium's area assembler with holes.
+Every candidate (a way or multipolygon relation whose building or building:part is not "no") becomes exactly
+one COPY row into osm.building_import, a reject row when its geometry cannot be built in Python (unclosed
+way, missing nodes, failed assembly). osm.finish_ingest() then builds, repairs and links set-based in SQL.
+The whole stage is one transaction: re-running it on the same file gives the same database.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import osmium
+import osmium.geom
+import psycopg
+
+from ..progress import Progress, summary
+from ..settings import Settings
+from ..tags import BuildingTags, building_kind, parse_building_tags
+
+_IMPORT_COLUMNS = (
+    "osm_type", "osm_id", "kind", "building", "part", "name", "height", "min_height", "levels", "min_level",
+    "roof_levels", "roof_height", "roof_angle", "roof_shape", "roof_direction", "roof_orientation",
+    "building_colour", "roof_colour", "building_material", "roof_material", "tags", "tag_issues",
+    "geom_kind", "geom", "reject_reason", "reject_detail",
+)
+_COPY_IMPORT = f"COPY osm.building_import ({', '.join(_IMPORT_COLUMNS)}) FROM STDIN"
+
+_TYPE_CHAR = {"n": "N", "w": "W", "r": "R"}
+
+
+@dataclass
+class IngestCounts:
+    candidates: int = 0
+    ways: int = 0
+    relations: int = 0
+    python_rejects: int = 0
+    building_relations: int = 0
+    nodes_skipped: int = 0
+    by_reason: dict[str, int] = field(default_factory=dict)
+
+
+def _row(
+    osm_type: str,
+    osm_id: int,
+    parsed: BuildingTags,
+    tags: dict[str, str],
+    geom_kind: str | None,
+    geom_hex: str | None,
+    reject: tuple[str, str] | None = None,
+) -> tuple[object, ...]:
+    issues = json.dumps([i.as_dict() for i in parsed.issues]) if parsed.issues else None
+    return (
+        osm_type, osm_id, parsed.kind, parsed.building, parsed.part, parsed.name, parsed.height,
+        parsed.min_height, parsed.levels, parsed.min_level, parsed.roof_levels, parsed.roof_height,
+        parsed.roof_angle, parsed.roof_shape, parsed.roof_direction, parsed.roof_orientation,
+        parsed.building_colour, parsed.roof_colour, parsed.building_material, parsed.roof_material,
+        json.dumps(tags, ensure_ascii=False), issues, geom_kind,
+        # EWKB hex with SRID 4326, which the geometry column's input function accepts as text.
+        None if geom_hex is None else _ewkb_4326(geom_hex),
+        reject[0] if reject else None, reject[1] if reject else None,
+    )
+
+
+def _ewkb_4326(wkb_hex: str) -> str:
+    """Add SRID 4326 to little-endian ISO WKB hex from osmium (sets the EWKB SRID flag on the type)."""
+    # byte order (1 byte) + type (uint32 LE); osmium writes little-endian without SRID.
+    assert wkb_hex[:2] == "01"
+    gtype = int.from_bytes(bytes.fromhex(wkb_hex[2:10]), "little") | 0x20000000
+    return "01" + gtype.to_bytes(4, "little").hex() + (4326).to_bytes(4, "little").hex() + wkb_hex[10:]
+
+
+def read_building_relations(path: Path) -> Iterator[tuple[int, dict[str, str], list[tuple[str, int, str]]]]:
+    """Pass A: (relation id, tags, members) of every type=building relation."""
+    fp = osmium.FileProcessor(str(path), osmium.osm.RELATION).with_filter(
+        osmium.filter.TagFilter(("type", "building"))
+    )
+    for rel in fp:
+        members = [(_TYPE_CHAR[m.type], m.ref, m.role) for m in rel.members]
+        yield rel.id, {t.k: t.v for t in rel.tags}, members
+
+
+def read_buildings(
+    path: Path, settings: Settings, counts: IngestCounts
+) -> Iterator[tuple[object, ...]]:
+    """Pass B: one staging row per candidate building/part."""
+    wkb = osmium.geom.WKBFactory()
+    key_filter = osmium.filter.KeyFilter("building", "building:part")
+    fp = (
+        osmium.FileProcessor(str(path))
+        .with_locations(settings.location_index)
+        .with_areas(key_filter)
+        .with_filter(osmium.filter.KeyFilter("building", "building:part"))
+    )
+    mp_candidates: dict[int, tuple[BuildingTags, dict[str, str]]] = {}
+    assembled: set[int] = set()
+    for obj in fp:
+        if obj.is_area():
+            if obj.from_way():
+                continue  # ways are built from their node list below, so broken ones can be reported
+            rid = obj.orig_id()
+            tags = {t.k: t.v for t in obj.tags}
+            parsed = parse_building_tags(tags, settings.max_height_m, settings.max_levels)
+            if parsed is None:
+                continue
+            try:
+                geom_hex = wkb.create_multipolygon(obj)
+            except Exception as e:  # noqa: BLE001 - libosmium raises several types; all mean "no geometry"
+                assembled.add(rid)
+                yield _reject(counts, "R", rid, parsed, tags, "multipolygon_assembly_failed", str(e))
+                continue
+            assembled.add(rid)
+            yield _row("R", rid, parsed, tags, "M", geom_hex)
+        elif obj.is_way():
+            tags = {t.k: t.v for t in obj.tags}
+            parsed = parse_building_tags(tags, settings.max_height_m, settings.max_levels)
+            if parsed is None:
+                continue
+            counts.candidates += 1
+            counts.ways += 1
+            nodes = obj.nodes
+            if len(nodes) < 2 or not obj.is_closed():
+                first = nodes[0].ref if len(nodes) else None
+                last = nodes[-1].ref if len(nodes) else None
+                yield _reject(counts, "W", obj.id, parsed, tags, "unclosed_way",
+                              f"{len(nodes)} nodes, first node {first} != last node {last}")
+                continue
+            missing = [n.ref for n in nodes if not n.location.valid()]
+            if missing:
+                shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
+                yield _reject(counts, "W", obj.id, parsed, tags, "missing_nodes",
+                              f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
+                continue
+            yield _row("W", obj.id, parsed, tags, "L", wkb.create_linestring(obj))
+        elif obj.is_node():
+            counts.nodes_skipped += 1  # building=* on a node has no footprint; not a candidate
+        elif obj.is_relation():
+            tags = {t.k: t.v for t in obj.tags}
+            if building_kind(tags) is None:
+                continue
+            rtype = tags.get("type")
+            if rtype == "building":
+                continue  # a grouping relation (pass A), not a geometry
+            parsed = parse_building_tags(tags, settings.max_height_m, settings.max_levels)
+            assert parsed is not None
+            counts.candidates += 1
+            counts.relations += 1
+            if rtype in ("multipolygon", "boundary"):  # the two types libosmium assembles
+                mp_candidates[obj.id] = (parsed, tags)
+            else:
+                yield _reject(counts, "R", obj.id, parsed, tags, "unsupported_relation",
+                              f"type={rtype!r}: only multipolygon relations have a building geometry")
+    # Multipolygon relations libosmium could not assemble (missing members, rings that do not close, ...).
+    for rid in sorted(set(mp_candidates) - assembled):
+        parsed, tags = mp_candidates[rid]
+        yield _reject(counts, "R", rid, parsed, tags, "multipolygon_assembly_failed",
+                      "libosmium could not assemble the rings (member ways missing from the file, "
+                      "or rings that do not close)")
+    # Areas seen for relations that were not candidates cannot happen (same key filter); keep counts honest.
+    stray = assembled - set(mp_candidates)
+    if stray:
+        raise RuntimeError(f"areas for {len(stray)} relations that were never seen as candidates")
+
+
+def _reject(
+    counts: IngestCounts, osm_type: str, osm_id: int, parsed: BuildingTags, tags: dict[str, str],
+    reason: str, detail: str,
+) -> tuple[object, ...]:
+    counts.python_rejects += 1
+    counts.by_reason[reason] = counts.by_reason.get(reason, 0) + 1
+    return _row(osm_type, osm_id, parsed, tags, None, None, (reason, detail))
+
+
+def _copy_rows(cur: psycopg.Cursor, statement: str, rows: Iterable[tuple[object, ...]], progress: Progress) -> None:
+    with cur.copy(statement) as copy:  # type: ignore[arg-type]
+        for row in rows:
+            copy.write_row(row)
+            progress.update()
+
+
+def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | None) -> dict[str, object]:
+    """Ingest ``path`` in one transaction. Returns the counts recorded in meta.pipeline_run."""
+    if not path.exists():
+        raise FileNotFoundError(f"OSM file not found: {path}")
+    t0 = time.perf_counter()
+    counts = IngestCounts()
+    with conn.transaction(), conn.cursor() as cur:
+        # Downstream tables hold derived data of the previous dataset; they are rebuilt by later stages.
+        cur.execute(
+            "TRUNCATE osm.building_import, osm.building, osm.building_relation, osm.building_relation_member,"
+            " lod.building_mesh, tiles.building_tile, tiles.tile, tiles.grid CASCADE"
+        )
+        cur.execute("DELETE FROM osm.reject")
+        cur.execute("DELETE FROM meta.diagnostic")
+
+        rels = list(read_building_relations(path))  # few; needed before parts are linked
+        counts.building_relations = len(rels)
+        if rels:
+            with cur.copy("COPY osm.building_relation (relation_id, name, tags) FROM STDIN") as copy:
+                for rid, tags, _ in rels:
+                    copy.write_row((rid, tags.get("name"), json.dumps(tags, ensure_ascii=False)))
+            with cur.copy(
+                "COPY osm.building_relation_member (relation_id, seq, member_type, member_id, role) FROM STDIN"
+            ) as copy:
+                for rid, _, members in rels:
+                    for seq, (mtype, ref, role) in enumerate(members):
+                        copy.write_row((rid, seq, mtype, ref, role))
+
+        progress = Progress("ingest", "buildings")
+        _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
+        print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
+              file=sys.stderr, flush=True)
+        staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()
+        assert staged is not None
+        cur.execute("CALL osm.finish_ingest(%s, %s, %s)", (settings.min_area_m2, str(path), sha256))
+        loaded = cur.execute("SELECT count(*) FROM osm.building").fetchone()
+        rejected = cur.execute(
+            "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason"
+        ).fetchall()
+        by_kind = dict(cur.execute("SELECT kind, count(*) FROM osm.building GROUP BY kind").fetchall())
+        repaired = cur.execute("SELECT count(*) FROM osm.building WHERE repaired").fetchone()
+        srid = cur.execute("SELECT srid, srid_name FROM meta.dataset").fetchone()
+    assert loaded is not None and repaired is not None and srid is not None
+    n_rejected = sum(n for _, n in rejected)
+    n_in = int(staged[0])
+    if n_in != counts.candidates or n_in != loaded[0] + n_rejected:
+        raise RuntimeError(
+            f"ingest lost objects: {counts.candidates} candidates read, {n_in} staged, "
+            f"{loaded[0]} loaded + {n_rejected} rejected"
+        )
+    seconds = time.perf_counter() - t0
+    result: dict[str, object] = {
+        "in": n_in,
+        "loaded": int(loaded[0]),
+        "rejected": n_rejected,
+        "repaired": int(repaired[0]),
+        "buildings": int(by_kind.get("building", 0)),
+        "parts": int(by_kind.get("part", 0)),
+        "from_ways": counts.ways,
+        "from_relations": counts.relations,
+        "building_relations": counts.building_relations,
+        "building_nodes_skipped": counts.nodes_skipped,
+        "rejected_by_reason": {r: int(n) for r, n in rejected},
+        "srid": int(srid[0]),
+        "seconds": round(seconds, 3),
+    }
+    reasons = ", ".join(f"{r} {n}" for r, n in rejected) or "none"
+    print(f"  working CRS: EPSG:{srid[0]} ({srid[1]}); rejects: {reasons}", file=sys.stderr)
+    summary(
+        "ingest",
+        f"in {n_in:,} = loaded {loaded[0]:,} ({by_kind.get('building', 0):,} buildings, "
+        f"{by_kind.get('part', 0):,} parts; {repaired[0]:,} repaired) + rejected {n_rejected:,}",
+        seconds,
+        n_in,
+    )
+    return result

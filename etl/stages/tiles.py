@@ -1,0 +1,39 @@
+"""Stage tiles: the quadtree over the LOD1 meshes (tiles.build_quadtree, set-based in SQL)."""
+
+from __future__ import annotations
+
+import time
+
+import psycopg
+
+from ..progress import summary
+from ..settings import Settings
+
+
+def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
+    t0 = time.perf_counter()
+    with conn.transaction():
+        conn.execute(
+            "CALL tiles.build_quadtree(%s, %s, %s, %s, %s, %s)",
+            (1, settings.tile_max_features, settings.tile_max_triangles, settings.tile_max_level,
+             settings.tile_ge_factor, settings.base_height_m),
+        )
+        n_tiles, n_leaves, depth = conn.execute(
+            "SELECT count(*), count(*) FILTER (WHERE is_leaf), max(level) FROM tiles.tile"
+        ).fetchone()  # type: ignore[misc]
+        n_features, max_leaf = conn.execute(
+            "SELECT count(*), (SELECT max(n_features) FROM tiles.tile WHERE is_leaf) FROM tiles.building_tile"
+        ).fetchone()  # type: ignore[misc]
+        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 1").fetchone()[0]  # type: ignore[index]
+    if n_features != meshes:
+        raise RuntimeError(f"tiles lost features: {meshes} meshes, {n_features} assigned to tiles")
+    seconds = time.perf_counter() - t0
+    summary(
+        "tiles",
+        f"{n_features:,} features in {n_leaves:,} leaf tiles ({n_tiles:,} tiles, depth {depth}, "
+        f"largest leaf {max_leaf:,} features)",
+        seconds,
+        n_features,
+    )
+    return {"features": n_features, "tiles": n_tiles, "leaves": n_leaves, "depth": depth,
+            "max_leaf_features": max_leaf, "seconds": round(seconds, 3)}

@@ -1,0 +1,213 @@
+"""Tileset checks against the 3D Tiles 1.1 specification (the CesiumGS validator is not installable here).
+
+``check_tileset(path)`` returns a list of problems (empty = passes). It checks what the specification
+requires of tileset.json and tiles, plus the rules a client silently depends on:
+  * asset.version "1.0"/"1.1"; top-level geometricError and root present; extensionsRequired ⊆ extensionsUsed;
+  * every tile: exactly one bounding volume of box (12 numbers), region (6, radians in range, south <= north,
+    minimum height <= maximum) or sphere (4, radius >= 0); geometricError a number >= 0 and not larger than
+    its parent's (the top-level value counts as the root's parent); refine present on the root and one of
+    ADD/REPLACE wherever present; transform 16 finite numbers; children a non-empty array; content with a
+    uri (or contents, 1.1) that resolves to an existing file, and glb content that is a GLB 2.0 container;
+  * child bounding volumes inside their parent's (regions compared directly; boxes and spheres compared by
+    their ECEF corners after the accumulated transforms), with a small tolerance;
+  * the top-level geometricError is sized to the tileset's extent (at least half the root volume's
+    diagonal): CesiumJS skips the whole tileset, without an error, when it is too small.
+Pure Python + numpy; no database.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from pathlib import Path
+from typing import Any
+from urllib.parse import unquote, urlparse
+
+import numpy as np
+
+from .geodesy import geodetic_to_ecef
+
+TOLERANCE_RAD = 1e-9
+TOLERANCE_M = 1e-3
+ROOT_ERROR_FRACTION = 0.5
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _numbers(v: object, n: int) -> bool:
+    return isinstance(v, list) and len(v) == n and all(_is_number(x) for x in v)
+
+
+def _matrix(transform: list[float] | None) -> np.ndarray:
+    return np.eye(4) if transform is None else np.array(transform, dtype=float).reshape(4, 4).T
+
+
+def volume_corners(bv: dict[str, Any], world: np.ndarray) -> np.ndarray:
+    """ECEF points spanning a bounding volume (corners; for regions also edge midpoints)."""
+    if "region" in bv:
+        w, s, e, n, lo, hi = bv["region"]
+        lons = np.array([w, (w + e) / 2, e])
+        lats = np.array([s, (s + n) / 2, n])
+        g = np.array(np.meshgrid(lons, lats, [lo, hi])).reshape(3, -1)
+        return geodetic_to_ecef(g[0], g[1], g[2])
+    if "box" in bv:
+        b = np.array(bv["box"], dtype=float)
+        c, axes = b[:3], b[3:].reshape(3, 3)
+        signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+        local = c + signs @ axes
+    else:
+        c, r = np.array(bv["sphere"][:3], dtype=float), float(bv["sphere"][3])
+        signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+        local = c + r * signs
+    return (np.c_[local, np.ones(len(local))] @ world.T)[:, :3]
+
+
+def _inside(child: dict[str, Any], parent: dict[str, Any], cw: np.ndarray, pw: np.ndarray) -> bool:
+    if "region" in child and "region" in parent:
+        c, p = child["region"], parent["region"]
+        t = TOLERANCE_RAD
+        return (c[0] >= p[0] - t and c[1] >= p[1] - t and c[2] <= p[2] + t and c[3] <= p[3] + t
+                and c[4] >= p[4] - TOLERANCE_M and c[5] <= p[5] + TOLERANCE_M)
+    # Conservative for mixed kinds: the child's ECEF corners must lie in the parent's ECEF box.
+    pts = volume_corners(child, cw)
+    ppts = volume_corners(parent, pw)
+    lo, hi = ppts.min(axis=0) - TOLERANCE_M, ppts.max(axis=0) + TOLERANCE_M
+    return bool(np.all(pts >= lo) and np.all(pts <= hi))
+
+
+def _check_bv(bv: object, where: str, problems: list[str]) -> bool:
+    if not isinstance(bv, dict):
+        problems.append(f"{where}: boundingVolume missing or not an object")
+        return False
+    kinds = [k for k in ("box", "region", "sphere") if k in bv]
+    if len(kinds) != 1:
+        problems.append(f"{where}: boundingVolume needs exactly one of box/region/sphere, has {kinds or 'none'}")
+        return False
+    k = kinds[0]
+    v = bv[k]
+    if k == "box" and not _numbers(v, 12):
+        problems.append(f"{where}: box must be 12 numbers")
+        return False
+    if k == "sphere" and (not _numbers(v, 4) or v[3] < 0):
+        problems.append(f"{where}: sphere must be 4 numbers with radius >= 0")
+        return False
+    if k == "region":
+        if not _numbers(v, 6):
+            problems.append(f"{where}: region must be 6 numbers")
+            return False
+        w, s, e, n, lo, hi = v
+        if not (-math.pi <= w <= math.pi and -math.pi <= e <= math.pi):
+            problems.append(f"{where}: region west/east outside [-pi, pi]")
+        if not (-math.pi / 2 <= s <= n <= math.pi / 2):
+            problems.append(f"{where}: region needs -pi/2 <= south <= north <= pi/2")
+        if lo > hi:
+            problems.append(f"{where}: region minimum height {lo} > maximum height {hi}")
+        if w > e:
+            problems.append(f"{where}: region crosses the antimeridian (west > east), unsupported by these checks")
+    return True
+
+
+def _check_glb(path: Path, where: str, problems: list[str]) -> None:
+    with path.open("rb") as fh:
+        head = fh.read(12)
+    if len(head) < 12:
+        problems.append(f"{where}: {path.name} is too short to be a GLB")
+        return
+    magic, version, length = struct.unpack("<4sII", head)
+    if magic != b"glTF" or version != 2:
+        problems.append(f"{where}: {path.name} is not a GLB 2.0 file")
+    elif length != path.stat().st_size:
+        problems.append(f"{where}: {path.name} header length {length} != file size {path.stat().st_size}")
+
+
+def check_tileset(path: Path) -> list[str]:
+    problems: list[str] = []
+    try:
+        ts = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        return [f"{path}: cannot read tileset JSON: {e}"]
+    base = path.parent
+    asset = ts.get("asset")
+    if not isinstance(asset, dict) or asset.get("version") not in ("1.0", "1.1"):
+        problems.append("asset.version must be '1.0' or '1.1'")
+    top_error = ts.get("geometricError")
+    if not _is_number(top_error) or top_error < 0:
+        problems.append("top-level geometricError must be a number >= 0")
+        top_error = math.inf
+    used = set(ts.get("extensionsUsed", []))
+    required = set(ts.get("extensionsRequired", []))
+    if not required <= used:
+        problems.append(f"extensionsRequired {sorted(required - used)} not in extensionsUsed")
+    root = ts.get("root")
+    if not isinstance(root, dict):
+        problems.append("root tile missing")
+        return problems
+    if root.get("refine") not in ("ADD", "REPLACE"):
+        problems.append("root: refine is required on the root tile and must be ADD or REPLACE")
+    uris: set[str] = set()
+
+    def walk(tile: dict[str, Any], where: str, parent_error: float, parent_bv: dict[str, Any] | None,
+             parent_world: np.ndarray, world: np.ndarray) -> None:
+        if "transform" in tile:
+            if not _numbers(tile["transform"], 16):
+                problems.append(f"{where}: transform must be 16 numbers")
+            else:
+                world = world @ _matrix(tile["transform"])
+        bv = tile.get("boundingVolume")
+        ok_bv = _check_bv(bv, where, problems)
+        ge = tile.get("geometricError")
+        if not _is_number(ge) or ge < 0:
+            problems.append(f"{where}: geometricError must be a number >= 0")
+            ge = parent_error
+        elif ge > parent_error + 1e-9:
+            problems.append(f"{where}: geometricError {ge} exceeds its parent's {parent_error}")
+        if "refine" in tile and tile["refine"] not in ("ADD", "REPLACE"):
+            problems.append(f"{where}: refine must be ADD or REPLACE, not {tile['refine']!r}")
+        if ok_bv and parent_bv is not None and not _inside(bv, parent_bv, world, parent_world):  # type: ignore[arg-type]
+            problems.append(f"{where}: bounding volume not inside its parent's")
+        contents = ([tile["content"]] if "content" in tile else []) + list(tile.get("contents", []))
+        for c in contents:
+            uri = c.get("uri") if isinstance(c, dict) else None
+            if not isinstance(uri, str) or not uri:
+                problems.append(f"{where}: content needs a uri")
+                continue
+            parsed = urlparse(uri)
+            if parsed.scheme or parsed.netloc:
+                problems.append(f"{where}: content uri {uri} is not relative (cannot be checked offline)")
+                continue
+            target = (base / unquote(parsed.path)).resolve()
+            if not target.is_file():
+                problems.append(f"{where}: content uri {uri} does not resolve to a file")
+                continue
+            if uri in uris:
+                problems.append(f"{where}: content uri {uri} used twice")
+            uris.add(uri)
+            if target.suffix == ".glb":
+                _check_glb(target, where, problems)
+            if "boundingVolume" in c and _check_bv(c["boundingVolume"], where + ".content", problems) and ok_bv \
+                    and not _inside(c["boundingVolume"], bv, world, world):  # type: ignore[arg-type]
+                problems.append(f"{where}: content bounding volume not inside the tile's")
+        if "children" in tile:
+            kids = tile["children"]
+            if not isinstance(kids, list) or not kids:
+                problems.append(f"{where}: children must be a non-empty array")
+                return
+            for i, k in enumerate(kids):
+                if not isinstance(k, dict):
+                    problems.append(f"{where}.children[{i}]: not an object")
+                    continue
+                walk(k, f"{where}.children[{i}]", ge, bv if ok_bv else None, world, world)
+
+    walk(root, "root", top_error, None, np.eye(4), np.eye(4))
+    if isinstance(root.get("boundingVolume"), dict) and _is_number(ts.get("geometricError")):
+        pts = volume_corners(root["boundingVolume"], _matrix(root.get("transform")))
+        diagonal = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+        if ts["geometricError"] < ROOT_ERROR_FRACTION * diagonal:
+            problems.append(
+                f"top-level geometricError {ts['geometricError']:g} is too small for a tileset "
+                f"{diagonal:.0f} m across (needs >= {ROOT_ERROR_FRACTION * diagonal:.0f}): CesiumJS would load nothing"
+            )
+    return problems

@@ -1,0 +1,87 @@
+"""Tile content: ECEF triangles of a tile's features -> the arrays of one glTF primitive. Pure numpy.
+
+Coordinates go ECEF -> the tile's local east-north-up frame (float64, then float32: a tile spans at most a
+few km, so float32 keeps millimetres) -> glTF y-up. Triangles are flat shaded: a vertex is shared only by
+triangles with the same normal, colour and feature (np.unique over those keys), which keeps walls sharp.
+Roof (up-facing) triangles take roof:colour, the others building:colour, else neutral defaults.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
+
+DEFAULT_WALL = "#d8d2c4"
+DEFAULT_ROOF = "#9c8f84"
+UP_FACING = 0.7  # cos of the largest slope still coloured as roof
+
+
+def hex_rgba(colour: str | None, default: str) -> tuple[int, int, int, int]:
+    c = (colour or default).lstrip("#")
+    if len(c) != 6:
+        c = default.lstrip("#")
+    return int(c[0:2], 16), int(c[2:4], 16), int(c[4:6], 16), 255
+
+
+@dataclass(frozen=True)
+class ContentArrays:
+    positions: np.ndarray  # (n, 3) float32, glTF frame
+    normals: np.ndarray  # (n, 3) float32
+    colors: np.ndarray  # (n, 4) uint8
+    feature_ids: np.ndarray  # (n,) uint32
+    indices: np.ndarray  # (3m,) uint32
+    dropped_degenerate: int
+
+
+def tile_arrays(
+    triangles_ecef: np.ndarray,
+    feature_of_triangle: np.ndarray,
+    wall_rgba: np.ndarray,
+    roof_rgba: np.ndarray,
+    origin_lon: float,
+    origin_lat: float,
+    origin_h: float = 0.0,
+) -> ContentArrays:
+    """triangles_ecef (m, 3, 3); feature_of_triangle (m,); wall/roof_rgba (features, 4) uint8."""
+    origin = geodetic_to_ecef(origin_lon, origin_lat, origin_h)
+    rot = enu_rotation(origin_lon, origin_lat)  # columns: E, N, U in ECEF
+    enu = (np.asarray(triangles_ecef, dtype=np.float64) - origin) @ rot
+    gl = enu @ Z_UP_TO_Y_UP.T  # (E, N, U) -> (E, U, -N)
+
+    e1 = enu[:, 1] - enu[:, 0]
+    e2 = enu[:, 2] - enu[:, 0]
+    nrm = np.cross(e1, e2)
+    length = np.linalg.norm(nrm, axis=1)
+    keep = length > 1e-9  # zero-area triangles have no normal; they are invisible anyway
+    gl, nrm, length = gl[keep], nrm[keep], length[keep]
+    feat = np.asarray(feature_of_triangle)[keep]
+    nrm = nrm / length[:, None]
+    up = nrm[:, 2] > UP_FACING
+    colour = np.where(up[:, None], roof_rgba[feat], wall_rgba[feat]).astype(np.uint8)
+    nrm_gl = nrm @ Z_UP_TO_Y_UP.T
+
+    m = len(gl)
+    pos = gl.reshape(-1, 3).astype(np.float32)
+    normals = np.repeat(nrm_gl.astype(np.float32), 3, axis=0)
+    colors = np.repeat(colour, 3, axis=0)
+    fids = np.repeat(feat.astype(np.uint32), 3)
+    if m == 0:
+        return ContentArrays(pos, normals, colors, fids, np.zeros(0, np.uint32), int((~keep).sum()))
+    # Coplanar triangles get normals equal up to rounding noise; round them for the key so they share vertices.
+    nkey = np.round(normals, 4).astype(np.float32) + np.float32(0.0)  # + 0.0 folds -0.0 into 0.0
+    key = np.concatenate([
+        pos.view(np.uint32), nkey.view(np.uint32), colors.view(np.uint32).reshape(-1, 1), fids[:, None]
+    ], axis=1)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    # Keep vertices in first-use order (better locality for the GPU vertex cache than sorted keys).
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    sel = first[order]
+    return ContentArrays(
+        positions=pos[sel], normals=normals[sel], colors=colors[sel], feature_ids=fids[sel],
+        indices=rank[inverse.reshape(-1)].astype(np.uint32), dropped_degenerate=int((~keep).sum()),
+    )

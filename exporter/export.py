@@ -1,0 +1,126 @@
+"""Stage export: tiles in PostGIS -> a 3D Tiles 1.1 tileset directory.
+
+Streams tile by tile: for each leaf, api.buildings_for_tile(level, x, y) gives the features with their meshes
+transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid); content.py turns
+them into glTF arrays in the tile's local frame and gltf.py writes the glb with EXT_mesh_features +
+EXT_structural_metadata. The tileset is written into ``<out>.partial`` and swapped in at the end, so a failed
+export never leaves a half-written tileset behind.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psycopg
+
+from etl.geom.wkb import decode_triangles
+from etl.progress import Progress, summary
+from etl.settings import Settings
+
+from .content import DEFAULT_ROOF, DEFAULT_WALL, hex_rgba, tile_arrays
+from .gltf import Primitive, Property, write_glb
+from .tileset import TileRecord, build_tileset, region_centre
+
+_FEATURES = """
+SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_id, f.name, f.building, f.height, f.min_height, f.levels,
+       f.roof_shape, f.building_colour, f.roof_colour, f.building_material, f.roof_material, f.lod,
+       ST_AsBinary(ST_Transform(f.geom, 4978))
+FROM api.buildings_for_tile(%s, %s, %s) f
+"""
+
+OSM_TYPE = {"W": "way", "R": "relation"}
+
+
+def build_tile_glb(rows: list[tuple], region: tuple[float, ...], base_height: float) -> tuple[bytes, int]:
+    """glb bytes and triangle count for the feature rows of one tile (see _FEATURES for the columns)."""
+    tris = [decode_triangles(r[15]) for r in rows]
+    counts = np.array([len(t) for t in tris])
+    triangles = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+    feature = np.repeat(np.arange(len(rows)), counts)
+    wall = np.array([hex_rgba(r[10], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
+    roof = np.array([hex_rgba(r[11], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
+    lon, lat = region_centre(region)
+    arr = tile_arrays(triangles, feature, wall, roof, lon, lat, base_height)
+    cols = list(zip(*rows, strict=True))
+    props = [
+        Property("osm_id", cols[1], "INT64", "OSM id of the way or relation", required=True),
+        Property("osm_type", [OSM_TYPE[t] for t in cols[0]], None, "way or relation", required=True),
+        Property("kind", cols[2], None, "building (outline) or part (building:part)", required=True),
+        Property("building_osm_id", cols[3], "INT64", "OSM id of the building outline this belongs to",
+                 required=True),
+        Property("name", cols[4], None, "name=*"),
+        Property("building", cols[5], None, "building=* value"),
+        Property("height", cols[6], "FLOAT32", "top above ground (m)", required=True),
+        Property("min_height", cols[7], "FLOAT32", "bottom above ground (m)", required=True),
+        Property("levels", cols[8], "FLOAT32", "building:levels", no_data=-1.0),
+        Property("roof_shape", cols[9], None, "roof:shape"),
+        Property("building_colour", cols[10], None, "building:colour"),
+        Property("roof_colour", cols[11], None, "roof:colour"),
+        Property("building_material", cols[12], None, "building:material"),
+        Property("roof_material", cols[13], None, "roof:material"),
+        Property("lod", cols[14], "UINT8", "level of detail of the mesh", required=True),
+    ]
+    prim = Primitive(
+        positions=arr.positions, normals=arr.normals, colors=arr.colors, feature_ids=arr.feature_ids,
+        indices=arr.indices, properties=props, feature_count=len(rows),
+    )
+    return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
+
+
+def export_tileset(url: str, out: Path, settings: Settings) -> dict[str, object]:
+    t0 = time.perf_counter()
+    partial = out.with_name(out.name + ".partial")
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True)
+    n_features = n_triangles = n_bytes = 0
+    with psycopg.connect(url) as conn:
+        records = [
+            TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
+                       content_uri=r[8], n_features=r[4])
+            for r in conn.execute(
+                "SELECT level, x, y, is_leaf, n_features, n_triangles, region, geometric_error, content_uri"
+                " FROM api.tile_tree()"
+            )
+        ]
+        if not records:
+            raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
+        dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
+        leaves = [r for r in records if r.is_leaf]
+        total = sum(r.n_features for r in leaves)
+        progress = Progress("export", "buildings", total=total)
+        for rec in leaves:
+            rows = conn.execute(_FEATURES, (rec.level, rec.x, rec.y)).fetchall()
+            glb, tri = build_tile_glb(rows, rec.region, settings.base_height_m)
+            assert rec.content_uri is not None
+            path = partial / rec.content_uri
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(glb)
+            n_features += len(rows)
+            n_triangles += tri
+            n_bytes += len(glb)
+            progress.update(len(rows))
+    tileset = build_tileset(records, tileset_version=(dataset[0][:16] if dataset and dataset[0] else ""))
+    js = json.dumps(tileset, indent=1).encode()
+    (partial / "tileset.json").write_bytes(js)
+    n_bytes += len(js)
+    if out.exists():
+        shutil.rmtree(out)
+    partial.rename(out)
+    seconds = time.perf_counter() - t0
+    summary(
+        "export",
+        f"{n_features:,} features in {len(leaves):,} glb tiles, {n_triangles:,} triangles, "
+        f"{n_bytes / 1e6:.2f} MB ({n_bytes / max(n_features, 1):,.0f} bytes/feature) -> {out}",
+        seconds,
+        n_features,
+    )
+    print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
+    return {"features": n_features, "tiles": len(records), "glb": len(leaves), "triangles": n_triangles,
+            "bytes": n_bytes, "bytes_per_feature": round(n_bytes / max(n_features, 1), 1),
+            "seconds": round(seconds, 3), "out": str(out)}

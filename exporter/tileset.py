@@ -1,0 +1,126 @@
+"""tileset.json from the tile quadtree. Pure: tile records in, a 3D Tiles 1.1 tileset dict out.
+
+* Bounding volumes are regions (radians, metres above the WGS84 ellipsoid), which need no transform and nest
+  exactly: a parent's region is the union of its children's.
+* Leaves carry their glb content and the transform from the tile's local east-north-up frame (origin at the
+  centre of its region, on the ellipsoid) to ECEF; the glb stores coordinates in that frame, y up.
+* Geometric error: 0 for leaves; above, the value stored in tiles.tile (cell edge × tile_ge_factor), so it
+  halves level by level. The top-level geometricError is at least the diagonal of the root region: CesiumJS
+  silently loads nothing when it is too small for the distance the tileset is viewed from.
+* Refinement is ADD: inner tiles have no content of their own (until generalized parents arrive).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any, Literal, TypedDict
+
+import numpy as np
+
+from . import ATTRIBUTION, __version__
+from .geodesy import column_major, enu_to_ecef, geodetic_to_ecef
+
+Refine = Literal["ADD", "REPLACE"]
+
+
+class BoundingVolume(TypedDict, total=False):
+    region: list[float]
+    box: list[float]
+    sphere: list[float]
+
+
+class Content(TypedDict):
+    uri: str
+
+
+class Tile(TypedDict, total=False):
+    boundingVolume: BoundingVolume
+    geometricError: float
+    refine: Refine
+    content: Content
+    children: list[Tile]
+    transform: list[float]
+
+
+class Tileset(TypedDict, total=False):
+    asset: dict[str, str]
+    geometricError: float
+    root: Tile
+    extras: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class TileRecord:
+    level: int
+    x: int
+    y: int
+    is_leaf: bool
+    region: tuple[float, float, float, float, float, float]
+    geometric_error: float
+    content_uri: str | None
+    n_features: int = 0
+
+
+def region_centre(region: tuple[float, ...] | list[float]) -> tuple[float, float]:
+    west, south, east, north = region[:4]
+    return (west + east) / 2.0, (south + north) / 2.0
+
+
+def region_diagonal(region: tuple[float, ...] | list[float]) -> float:
+    """Straight-line distance in metres between opposite corners of a region."""
+    west, south, east, north, lo, hi = region
+    a = geodetic_to_ecef(west, south, lo)
+    b = geodetic_to_ecef(east, north, hi)
+    return float(np.linalg.norm(a - b))
+
+
+def leaf_transform(region: tuple[float, ...] | list[float], base: float = 0.0) -> list[float]:
+    lon, lat = region_centre(region)
+    return column_major(enu_to_ecef(lon, lat, base))
+
+
+def build_tileset(records: Iterable[TileRecord], tileset_version: str = "") -> Tileset:
+    by_key = {(r.level, r.x, r.y): r for r in records}
+    if (0, 0, 0) not in by_key:
+        raise ValueError("no root tile (0, 0, 0): run the tiles stage first")
+    children: dict[tuple[int, int, int], list[tuple[int, int, int]]] = {k: [] for k in by_key}
+    for (lvl, x, y) in sorted(by_key):
+        if lvl == 0:
+            continue
+        # the parent is the nearest existing ancestor (levels can only be skipped by a leaf's ancestors being
+        # inner tiles, which always exist; this is a guard, not a code path)
+        for up in range(1, lvl + 1):
+            parent = (lvl - up, x >> up, y >> up)
+            if parent in by_key:
+                children[parent].append((lvl, x, y))
+                break
+
+    def tile(key: tuple[int, int, int]) -> Tile:
+        r = by_key[key]
+        t: Tile = {"boundingVolume": {"region": [float(v) for v in r.region]},
+                   "geometricError": float(r.geometric_error)}
+        if r.is_leaf:
+            if not r.content_uri:
+                raise ValueError(f"leaf {key} has no content")
+            t["content"] = {"uri": r.content_uri}
+            t["transform"] = leaf_transform(r.region)
+        kids = children[key]
+        if kids:
+            t["children"] = [tile(k) for k in kids]
+        return t
+
+    root = tile((0, 0, 0))
+    root["refine"] = "ADD"
+    root_region = by_key[(0, 0, 0)].region
+    top_error = max(region_diagonal(root_region), float(root["geometricError"]))
+    asset = {"version": "1.1", "generator": f"citylod {__version__}"}
+    if tileset_version:
+        asset["tilesetVersion"] = tileset_version
+    return {
+        "asset": asset,
+        "geometricError": math.ceil(top_error),
+        "root": root,
+        "extras": {"copyright": ATTRIBUTION},
+    }

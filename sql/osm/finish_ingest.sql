@@ -1,0 +1,147 @@
+-- osm.finish_ingest(min_area_m2, source_file, source_sha256)
+-- Second half of the ingest stage, set-based over the COPY staging table osm.building_import:
+--   1. closed ways become polygons (ST_MakePolygon); rings with fewer than 4 points are rejected;
+--   2. the working CRS is chosen from the centre of the data (meta.utm_srid) and recorded in meta.dataset;
+--   3. invalid polygons are repaired with ST_MakeValid (polygonal part kept, flagged repaired with the GEOS
+--      reason); polygons that cannot be repaired, or are smaller than min_area_m2, go to osm.reject;
+--   4. osm.building is filled (EPSG:4326 and working-CRS footprints), rejects and tag diagnostics are written;
+--   5. parts are linked to their outline: by type=building relation (roles outline/part) first, else by the
+--      smallest outline containing the part's point on surface; outlines get n_parts and part_coverage.
+-- The caller truncates the target tables first and commits afterwards, so a run is all or nothing.
+-- Example: CALL osm.finish_ingest(1.0, 'helsinki.osm.pbf', '<sha256>');
+CREATE OR REPLACE PROCEDURE osm.finish_ingest(
+    min_area_m2 double precision,
+    source_file text,
+    source_sha256 text
+)
+LANGUAGE plpgsql
+AS $$
+DECLARE
+    v_srid integer;
+    v_centre geometry;
+BEGIN
+    CREATE TEMP TABLE _cand ON COMMIT DROP AS
+    SELECT i.*,
+           CASE
+               WHEN i.reject_reason IS NOT NULL OR i.geom IS NULL THEN NULL
+               WHEN i.geom_kind = 'L' THEN
+                   CASE WHEN ST_NPoints(i.geom) >= 4 AND ST_IsClosed(i.geom)
+                        THEN ST_MakePolygon(i.geom) END
+               ELSE i.geom
+           END AS poly
+    FROM osm.building_import i;
+
+    SELECT ST_Centroid(ST_Extent(poly)::geometry) INTO v_centre FROM _cand WHERE poly IS NOT NULL;
+    IF v_centre IS NULL THEN
+        v_srid := 4326;  -- nothing loadable; keep a valid row in meta.dataset
+    ELSE
+        v_srid := meta.utm_srid(ST_X(v_centre), ST_Y(v_centre));
+    END IF;
+
+    DELETE FROM meta.dataset;
+    INSERT INTO meta.dataset (srid, srid_name, source_file, source_sha256, bbox)
+    SELECT v_srid,
+           coalesce((SELECT split_part(split_part(srtext, '"', 2), '"', 1) FROM spatial_ref_sys WHERE srid = v_srid),
+                    'EPSG:' || v_srid),
+           source_file, source_sha256,
+           (SELECT ST_SetSRID(ST_Extent(poly)::geometry, 4326) FROM _cand WHERE poly IS NOT NULL);
+
+    CREATE TEMP TABLE _fixed ON COMMIT DROP AS
+    SELECT c.*, s.valid, s.invalid_reason, s.fixed,
+           CASE WHEN s.fixed IS NOT NULL AND NOT ST_IsEmpty(s.fixed)
+                THEN ST_Transform(s.fixed, v_srid) END AS fixed_local
+    FROM _cand c
+    CROSS JOIN LATERAL (
+        SELECT ST_IsValid(c.poly) AS valid,
+               CASE WHEN NOT ST_IsValid(c.poly) THEN ST_IsValidReason(c.poly) END AS invalid_reason,
+               CASE WHEN ST_IsValid(c.poly) THEN ST_Multi(c.poly)
+                    ELSE ST_Multi(ST_CollectionExtract(ST_MakeValid(c.poly), 3)) END AS fixed
+    ) s
+    WHERE c.poly IS NOT NULL;
+
+    -- A footprint valid in degrees can still self-touch after projection; repair again there if needed.
+    UPDATE _fixed SET fixed_local = ST_Multi(ST_CollectionExtract(ST_MakeValid(fixed_local), 3)),
+                      invalid_reason = coalesce(invalid_reason, 'invalid after projection: '
+                                                || ST_IsValidReason(fixed_local)),
+                      valid = false
+    WHERE fixed_local IS NOT NULL AND NOT ST_IsValid(fixed_local);
+
+    INSERT INTO osm.building (
+        id, osm_type, osm_id, kind, building, part, name, height, min_height, levels, min_level,
+        roof_levels, roof_height, roof_angle, roof_shape, roof_direction, roof_orientation,
+        building_colour, roof_colour, building_material, roof_material, tags,
+        geom, geom_local, area_m2, repaired, repair_reason)
+    SELECT CASE WHEN f.osm_type = 'R' THEN -f.osm_id ELSE f.osm_id END,
+           f.osm_type, f.osm_id, f.kind, f.building, f.part, f.name, f.height, f.min_height, f.levels,
+           f.min_level, f.roof_levels, f.roof_height, f.roof_angle, f.roof_shape, f.roof_direction,
+           f.roof_orientation, f.building_colour, f.roof_colour, f.building_material, f.roof_material, f.tags,
+           f.fixed, f.fixed_local, ST_Area(f.fixed_local), NOT f.valid, f.invalid_reason
+    FROM _fixed f
+    WHERE f.fixed_local IS NOT NULL AND NOT ST_IsEmpty(f.fixed_local)
+      AND ST_Area(f.fixed_local) >= min_area_m2;
+
+    INSERT INTO osm.reject (osm_type, osm_id, stage, reason, detail, tags, geom)
+    SELECT c.osm_type, c.osm_id, 'ingest', c.reject_reason, c.reject_detail, c.tags, c.geom
+    FROM _cand c WHERE c.reject_reason IS NOT NULL
+    UNION ALL
+    SELECT c.osm_type, c.osm_id, 'ingest', 'degenerate_ring',
+           format('closed way with %s distinct points; a polygon needs at least 3', ST_NPoints(c.geom) - 1),
+           c.tags, c.geom
+    FROM _cand c WHERE c.reject_reason IS NULL AND c.poly IS NULL
+    UNION ALL
+    SELECT f.osm_type, f.osm_id, 'ingest', 'invalid_geometry',
+           format('%s; ST_MakeValid left no polygon', f.invalid_reason), f.tags, f.poly
+    FROM _fixed f WHERE f.fixed_local IS NULL OR ST_IsEmpty(f.fixed_local)
+    UNION ALL
+    SELECT f.osm_type, f.osm_id, 'ingest', 'too_small',
+           format('footprint area %s m² < %s m²', round(ST_Area(f.fixed_local)::numeric, 3), min_area_m2),
+           f.tags, f.poly
+    FROM _fixed f
+    WHERE f.fixed_local IS NOT NULL AND NOT ST_IsEmpty(f.fixed_local) AND ST_Area(f.fixed_local) < min_area_m2;
+
+    INSERT INTO meta.diagnostic (stage, osm_type, osm_id, code, detail)
+    SELECT 'ingest', i.osm_type, i.osm_id, 'invalid_tag',
+           format('%s=%s: %s', e ->> 'key', e ->> 'value', e ->> 'detail')
+    FROM osm.building_import i CROSS JOIN LATERAL jsonb_array_elements(i.tag_issues) e
+    WHERE i.tag_issues IS NOT NULL
+    UNION ALL
+    SELECT 'ingest', b.osm_type, b.osm_id, 'geometry_repaired', b.repair_reason
+    FROM osm.building b WHERE b.repaired;
+
+    -- Parts named by a type=building relation belong to that relation's outline.
+    UPDATE osm.building p
+    SET parent_id = o.id, parent_source = 'relation'
+    FROM osm.building_relation_member mp
+    JOIN osm.building_relation_member mo ON mo.relation_id = mp.relation_id AND mo.role = 'outline'
+    JOIN osm.building o ON o.osm_type = mo.member_type AND o.osm_id = mo.member_id AND o.kind = 'building'
+    WHERE mp.role = 'part' AND p.kind = 'part' AND p.osm_type = mp.member_type AND p.osm_id = mp.member_id;
+
+    -- Other parts belong to the smallest outline that contains them.
+    UPDATE osm.building p
+    SET parent_id = s.outline_id, parent_source = 'contains'
+    FROM (
+        SELECT q.id,
+               (SELECT o.id FROM osm.building o
+                WHERE o.kind = 'building' AND ST_Covers(o.geom_local, ST_PointOnSurface(q.geom_local))
+                ORDER BY o.area_m2, o.id LIMIT 1) AS outline_id
+        FROM osm.building q
+        WHERE q.kind = 'part' AND q.parent_id IS NULL
+    ) s
+    WHERE p.id = s.id AND s.outline_id IS NOT NULL;
+
+    UPDATE osm.building o
+    SET n_parts = s.n, part_coverage = s.coverage
+    FROM (
+        SELECT o2.id, count(*) AS n,
+               least(1.0, ST_Area(ST_Intersection(o2.geom_local, ST_Union(p.geom_local)))
+                          / nullif(o2.area_m2, 0)) AS coverage
+        FROM osm.building o2 JOIN osm.building p ON p.parent_id = o2.id
+        GROUP BY o2.id, o2.geom_local, o2.area_m2
+    ) s
+    WHERE o.id = s.id;
+
+    TRUNCATE osm.building_import;
+END
+$$;
+COMMENT ON PROCEDURE osm.finish_ingest(double precision, text, text) IS
+    'Turns the ingest staging table into osm.building and osm.reject: polygons, working CRS, repair, part linking.';

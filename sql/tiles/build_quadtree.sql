@@ -1,0 +1,129 @@
+-- tiles.build_quadtree(lod, max_features, max_triangles, max_level, ge_factor, base_height)
+-- Builds the tile quadtree over the meshes of one LOD, set-based, one statement per level:
+--   * features are grouped by building (an outline with its parts) and placed by the centre of the
+--     outline's bounding box, so a building and its parts always share a tile;
+--   * the level-0 cell is the square around all of them in the working CRS; a cell becomes a leaf when it
+--     holds at most max_features meshes and max_triangles triangles, holds a single building, or is at
+--     max_level; otherwise its groups move on to the four cells of the next level;
+--   * tiles.tile gets every cell (leaves with a content URI), its 3D Tiles bounding region (exact extent of
+--     the footprints below it, heights above the ellipsoid from base_height) and geometric error
+--     (0 for leaves, cell edge × ge_factor above); tiles.building_tile gets each mesh's leaf.
+-- Example: CALL tiles.build_quadtree(1, 500, 100000, 16, 0.5, 0);
+CREATE OR REPLACE PROCEDURE tiles.build_quadtree(
+    lod integer,
+    max_features integer,
+    max_triangles integer,
+    max_level integer,
+    ge_factor double precision,
+    base_height double precision
+)
+LANGUAGE plpgsql
+AS $$
+DECLARE
+    v_srid integer := meta.working_srid();
+    v_ox double precision;
+    v_oy double precision;
+    v_size double precision;
+    v_cell double precision;
+    v_level integer := 0;
+BEGIN
+    IF v_srid IS NULL THEN
+        RAISE EXCEPTION 'no dataset loaded (meta.dataset is empty): run the ingest stage first';
+    END IF;
+    DELETE FROM tiles.building_tile;
+    DELETE FROM tiles.tile;
+    DELETE FROM tiles.grid;
+
+    CREATE TEMP TABLE _grp ON COMMIT DROP AS
+    SELECT g.group_id, ST_X(c.pt) AS ax, ST_Y(c.pt) AS ay, g.n_features, g.n_triangles,
+           NULL::integer AS lvl, NULL::integer AS tx, NULL::integer AS ty
+    FROM (
+        SELECT coalesce(b.parent_id, b.id) AS group_id, count(*) AS n_features, sum(m.n_triangles) AS n_triangles
+        FROM lod.building_mesh m JOIN osm.building b ON b.id = m.building_id
+        WHERE m.lod = build_quadtree.lod
+        GROUP BY 1
+    ) g
+    JOIN osm.building o ON o.id = g.group_id
+    CROSS JOIN LATERAL (SELECT ST_Centroid(ST_Envelope(o.geom_local)) AS pt) c;
+
+    IF NOT EXISTS (SELECT 1 FROM _grp) THEN
+        RAISE EXCEPTION 'no LOD% meshes: run the lod stage first', lod;
+    END IF;
+
+    SELECT min(ax), min(ay), greatest(max(ax) - min(ax), max(ay) - min(ay), 1.0) * (1 + 1e-9)
+    INTO v_ox, v_oy, v_size FROM _grp;
+    INSERT INTO tiles.grid (srid, origin_x, origin_y, size, max_features, max_triangles, max_level)
+    VALUES (v_srid, v_ox, v_oy, v_size, max_features, max_triangles, max_level);
+
+    CREATE TEMP TABLE _cell (level integer, x integer, y integer, nf bigint, nt bigint, is_leaf boolean)
+        ON COMMIT DROP;
+    LOOP
+        v_cell := v_size / (2 ^ v_level);
+        INSERT INTO _cell (level, x, y, nf, nt, is_leaf)
+        SELECT v_level, cx, cy, sum(n_features), sum(n_triangles),
+               (sum(n_features) <= max_features AND sum(n_triangles) <= max_triangles)
+               OR count(*) = 1 OR v_level >= max_level
+        FROM (
+            SELECT least(floor((ax - v_ox) / v_cell), 2 ^ v_level - 1)::integer AS cx,
+                   least(floor((ay - v_oy) / v_cell), 2 ^ v_level - 1)::integer AS cy,
+                   n_features, n_triangles
+            FROM _grp WHERE lvl IS NULL
+        ) s
+        GROUP BY cx, cy;
+
+        UPDATE _grp g SET lvl = c.level, tx = c.x, ty = c.y
+        FROM _cell c
+        WHERE g.lvl IS NULL AND c.level = v_level AND c.is_leaf
+          AND c.x = least(floor((g.ax - v_ox) / v_cell), 2 ^ v_level - 1)::integer
+          AND c.y = least(floor((g.ay - v_oy) / v_cell), 2 ^ v_level - 1)::integer;
+
+        EXIT WHEN NOT EXISTS (SELECT 1 FROM _grp WHERE lvl IS NULL);
+        v_level := v_level + 1;
+    END LOOP;
+
+    -- Leaves: exact region of their footprints, heights of their meshes.
+    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri)
+    SELECT c.level, c.x, c.y, true, c.nf, c.nt,
+           ST_MakeEnvelope(v_ox + c.x * v_size / 2 ^ c.level, v_oy + c.y * v_size / 2 ^ c.level,
+                           v_ox + (c.x + 1) * v_size / 2 ^ c.level, v_oy + (c.y + 1) * v_size / 2 ^ c.level, v_srid),
+           ARRAY[radians(ST_XMin(e.ext)), radians(ST_YMin(e.ext)), radians(ST_XMax(e.ext)), radians(ST_YMax(e.ext)),
+                 base_height + e.zmin, base_height + e.zmax],
+           0.0,
+           format('content/%s/%s/%s.glb', c.level, c.x, c.y)
+    FROM _cell c
+    JOIN (
+        SELECT g.lvl, g.tx, g.ty, ST_Extent(b.geom)::box2d AS ext, min(m.min_height) AS zmin, max(m.height) AS zmax
+        FROM _grp g
+        JOIN osm.building b ON coalesce(b.parent_id, b.id) = g.group_id
+        JOIN lod.building_mesh m ON m.building_id = b.id AND m.lod = build_quadtree.lod
+        GROUP BY g.lvl, g.tx, g.ty
+    ) e ON e.lvl = c.level AND e.tx = c.x AND e.ty = c.y
+    WHERE c.is_leaf;
+
+    -- Inner tiles: union of the leaves below them (each leaf expanded to all its ancestors).
+    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri)
+    SELECT a.level, a.x, a.y, false, sum(l.n_features), sum(l.n_triangles),
+           ST_MakeEnvelope(v_ox + a.x * v_size / 2 ^ a.level, v_oy + a.y * v_size / 2 ^ a.level,
+                           v_ox + (a.x + 1) * v_size / 2 ^ a.level, v_oy + (a.y + 1) * v_size / 2 ^ a.level, v_srid),
+           ARRAY[min(l.region[1]), min(l.region[2]), max(l.region[3]), max(l.region[4]),
+                 min(l.region[5]), max(l.region[6])],
+           ge_factor * v_size / 2 ^ a.level,
+           NULL
+    FROM tiles.tile l
+    CROSS JOIN LATERAL (
+        SELECT k AS level, l.x >> (l.level - k) AS x, l.y >> (l.level - k) AS y
+        FROM generate_series(0, l.level - 1) k
+    ) a
+    WHERE l.is_leaf
+    GROUP BY a.level, a.x, a.y;
+
+    INSERT INTO tiles.building_tile (building_id, level, x, y)
+    SELECT m.building_id, g.lvl, g.tx, g.ty
+    FROM lod.building_mesh m
+    JOIN osm.building b ON b.id = m.building_id
+    JOIN _grp g ON g.group_id = coalesce(b.parent_id, b.id)
+    WHERE m.lod = build_quadtree.lod;
+END
+$$;
+COMMENT ON PROCEDURE tiles.build_quadtree(integer, integer, integer, integer, double precision, double precision) IS
+    'Fills tiles.grid, tiles.tile and tiles.building_tile: a quadtree over the meshes of one LOD split by a feature/triangle budget.';

@@ -1,0 +1,126 @@
+"""Stage export: valid glb (Khronos glTF-Validator, 0 errors), a tileset that passes the 3D Tiles checks and
+parses in 3d-tiles-tools, per-feature metadata, and buildings at their real place on the globe."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from exporter.checks import check_tileset
+from exporter.geodesy import Y_UP_TO_Z_UP
+from exporter.gltf import accessor_array, property_table, read_glb
+from tests.conftest import REPO, node_bin
+
+CITIES = ["fixtures", "munich", "london"]
+
+
+@pytest.mark.parametrize("name", CITIES)
+def test_khronos_validator_zero_errors(city, name) -> None:
+    c = city(name)
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(c.tiles)],
+                          capture_output=True, text=True)
+    report = json.loads(proc.stdout)
+    assert report["files"] == len(list(c.tiles.rglob("*.glb"))) > 0
+    assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
+    assert proc.returncode == 0
+
+
+@pytest.mark.parametrize("name", CITIES)
+def test_tileset_passes_the_3d_tiles_checks(city, name) -> None:
+    assert check_tileset(city(name).tiles / "tileset.json") == []
+
+
+@pytest.mark.parametrize("name", CITIES)
+def test_3d_tiles_tools_parses_the_tileset(city, conn_of, name) -> None:
+    c = city(name)
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/parse_tileset.mjs"), str(c.tiles / "tileset.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    n_tiles, n_leaves = conn_of(c.url).execute(
+        "SELECT count(*), count(*) FILTER (WHERE is_leaf) FROM tiles.tile").fetchone()
+    assert out["tiles"] == n_tiles
+    assert out["contentTypes"] == {"CONTENT_TYPE_GLB": n_leaves} and out["unresolved"] == []
+
+
+def tile_of(conn, building_id: int):
+    return conn.execute(
+        """SELECT t.content_uri FROM tiles.building_tile bt JOIN tiles.tile t USING (level, x, y)
+           WHERE bt.building_id = %s""", (building_id,)).fetchone()[0]
+
+
+def tile_json(tiles_dir, uri: str) -> dict:
+    def find(t):
+        if t.get("content", {}).get("uri") == uri:
+            return t
+        for k in t.get("children", []):
+            if (r := find(k)) is not None:
+                return r
+        return None
+
+    return find(json.loads((tiles_dir / "tileset.json").read_text())["root"])
+
+
+def feature_vertices(tiles_dir, uri: str, osm_id: int):
+    gltf, binary = read_glb((tiles_dir / uri).read_bytes())
+    table = property_table(gltf, binary)
+    fid = table["osm_id"].index(osm_id)
+    prim = gltf["meshes"][0]["primitives"][0]
+    pos = accessor_array(gltf, binary, prim["attributes"]["POSITION"]).astype(np.float64)
+    fids = accessor_array(gltf, binary, prim["attributes"]["_FEATURE_ID_0"])
+    return pos[fids == fid], {k: v[fid] for k, v in table.items()}
+
+
+def test_building_sits_at_its_place_on_the_globe(city, conn_of) -> None:
+    """Exported vertices -> (y-up to z-up) -> tile transform = ECEF; PostGIS ST_Transform(..., 4978) of the
+    same corners must agree to the centimetre."""
+    c = city("fixtures")
+    conn = conn_of(c.url)
+    for osm_id, bottom, top in ((10001, 0.0, 12.0), (11001, 0.0, 12.0), (13003, 5.0, 20.0)):
+        uri = tile_of(conn, osm_id)
+        verts, props = feature_vertices(c.tiles, uri, osm_id)
+        m = np.array(tile_json(c.tiles, uri)["transform"]).reshape(4, 4).T
+        ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
+        truth = np.array(conn.execute(
+            """SELECT ST_X(p), ST_Y(p), ST_Z(p) FROM (
+                   SELECT ST_Transform(ST_Translate(ST_Force3D((ST_DumpPoints(geom_local)).geom), 0, 0, z), 4978) p
+                   FROM osm.building, unnest(ARRAY[%s, %s]::float8[]) z WHERE osm_id = %s) q""",
+            (bottom, top, osm_id)).fetchall())
+        assert len(truth) >= 8
+        # every exported vertex is a true corner (bottom or top), and every true corner is exported
+        d = np.linalg.norm(ecef[:, None, :] - truth[None, :, :], axis=2)
+        assert d.min(axis=1).max() < 0.01
+        assert d.min(axis=0).max() < 0.01
+        assert props["osm_id"] == osm_id
+
+
+def test_feature_metadata(city, conn_of) -> None:
+    c = city("fixtures")
+    conn = conn_of(c.url)
+    _, sq = feature_vertices(c.tiles, tile_of(conn, 10001), 10001)
+    assert (sq["name"], sq["osm_type"], sq["kind"], sq["height"], sq["min_height"], sq["lod"]) == (
+        "Square 100", "way", "building", 12.0, 0.0, 1)
+    _, part = feature_vertices(c.tiles, tile_of(conn, 13003), 13003)
+    assert (part["kind"], part["building_osm_id"], part["min_height"], part["height"]) == ("part", 13001, 5.0, 20.0)
+    assert part["name"] == "Parts 130"  # a part without a name shows its building's
+    _, court = feature_vertices(c.tiles, tile_of(conn, -1201), 1201)
+    assert (court["osm_type"], court["building"]) == ("relation", "apartments")
+
+
+def test_triangle_counts_and_run_record(city, conn_of) -> None:
+    c = city("munich")
+    conn = conn_of(c.url)
+    total = 0
+    for p in c.tiles.rglob("*.glb"):
+        gltf, _ = read_glb(p.read_bytes())
+        prim = gltf["meshes"][0]["primitives"][0]
+        total += gltf["accessors"][prim["indices"]]["count"] // 3
+        assert gltf["asset"]["copyright"].startswith("© OpenStreetMap contributors")
+    stored = conn.execute("SELECT sum(n_triangles) FROM lod.building_mesh").fetchone()[0]
+    assert 0.99 * stored <= total <= stored  # only zero-area triangles are dropped
+    counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' AND status = 'ok'").fetchone()[0]
+    assert counts["triangles"] == total
+    assert counts["features"] == conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0]
+    ts = json.loads((c.tiles / "tileset.json").read_text())
+    assert ts["asset"]["version"] == "1.1" and ts["extras"]["copyright"].startswith("©")

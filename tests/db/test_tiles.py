@@ -1,0 +1,102 @@
+"""Stage tiles: every feature in exactly one leaf, a building never split, budgets respected, regions nested."""
+
+import math
+
+import pytest
+
+from tests.conftest import run_etl
+
+
+def test_fixture_tree(city, conn_of) -> None:
+    conn = conn_of(city("fixtures").url)
+    n_mesh = conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0]
+    rows = conn.execute("SELECT building_id, count(*) FROM tiles.building_tile GROUP BY 1").fetchall()
+    assert len(rows) == n_mesh and all(n == 1 for _, n in rows)
+    assert split_buildings(conn) == []
+
+
+def split_buildings(conn) -> list:
+    """Buildings (outline + parts) whose meshes landed in more than one tile."""
+    return conn.execute(
+        """SELECT coalesce(b.parent_id, b.id) FROM tiles.building_tile bt JOIN osm.building b ON b.id = bt.building_id
+           GROUP BY 1 HAVING count(DISTINCT (bt.level, bt.x, bt.y)) > 1"""
+    ).fetchall()
+
+
+@pytest.fixture(scope="module")
+def small_budget(city, new_db):
+    """Munich tiled with a budget of 60 features per tile, to get a deep tree."""
+    src = city("munich")
+    url = new_db("tiles_budget")
+    run_etl(url, "ingest", "--osm", str(src.osm))
+    run_etl(url, "lod")
+    run_etl(url, "tiles", env={"CITYLOD_TILE_MAX_FEATURES": "60"})
+    return url
+
+
+def test_budget_and_single_assignment(small_budget, conn_of) -> None:
+    conn = conn_of(small_budget)
+    assert conn.execute("SELECT max(level) FROM tiles.tile").fetchone()[0] >= 3
+    over = conn.execute(
+        """SELECT t.level, t.x, t.y, t.n_features,
+                  (SELECT count(DISTINCT coalesce(b.parent_id, b.id)) FROM tiles.building_tile bt
+                   JOIN osm.building b ON b.id = bt.building_id
+                   WHERE (bt.level, bt.x, bt.y) = (t.level, t.x, t.y)) AS groups
+           FROM tiles.tile t WHERE t.is_leaf AND t.n_features > 60"""
+    ).fetchall()
+    assert all(groups == 1 for *_, groups in over), over  # only a single big building may exceed the budget
+    total = conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0]
+    assigned = conn.execute("SELECT count(*), count(DISTINCT building_id) FROM tiles.building_tile").fetchone()
+    assert assigned == (total, total)
+    assert split_buildings(conn) == []
+    assert conn.execute("SELECT count(*) FROM osm.building WHERE parent_id IS NOT NULL").fetchone()[0] > 100
+    assert conn.execute("SELECT sum(n_features) FROM tiles.tile WHERE is_leaf").fetchone()[0] == total
+    assert conn.execute("SELECT n_features FROM tiles.tile WHERE level = 0").fetchone()[0] == total
+
+
+def test_every_leaf_has_its_parents(small_budget, conn_of) -> None:
+    conn = conn_of(small_budget)
+    orphans = conn.execute(
+        """SELECT c.level, c.x, c.y FROM tiles.tile c WHERE c.level > 0 AND NOT EXISTS (
+               SELECT 1 FROM tiles.tile p WHERE p.level = c.level - 1 AND p.x = c.x / 2 AND p.y = c.y / 2
+               AND NOT p.is_leaf)"""
+    ).fetchall()
+    assert orphans == []
+
+
+def test_regions_nest_and_errors_halve(small_budget, conn_of) -> None:
+    conn = conn_of(small_budget)
+    tiles = {(lv, x, y): (leaf, reg, ge) for lv, x, y, leaf, reg, ge in conn.execute(
+        "SELECT level, x, y, is_leaf, region, geometric_error FROM tiles.tile")}
+    size = conn.execute("SELECT size FROM tiles.grid").fetchone()[0]
+    for (lv, x, y), (leaf, reg, ge) in tiles.items():
+        assert reg[0] <= reg[2] and reg[1] <= reg[3] and reg[4] < reg[5]
+        assert ge == (0.0 if leaf else pytest.approx(0.5 * size / 2**lv))
+        if lv:
+            p = tiles[(lv - 1, x // 2, y // 2)][1]
+            assert p[0] <= reg[0] and p[1] <= reg[1] and reg[2] <= p[2] and reg[3] <= p[3]
+            assert p[4] <= reg[4] and reg[5] <= p[5]
+
+
+def test_leaf_region_bounds_its_buildings(small_budget, conn_of) -> None:
+    conn = conn_of(small_budget)
+    outside = conn.execute(
+        """SELECT count(*) FROM tiles.building_tile bt JOIN tiles.tile t USING (level, x, y)
+           JOIN osm.building b ON b.id = bt.building_id JOIN lod.building_mesh m ON m.building_id = b.id
+           WHERE radians(ST_XMin(b.geom)) < t.region[1] OR radians(ST_YMin(b.geom)) < t.region[2]
+              OR radians(ST_XMax(b.geom)) > t.region[3] OR radians(ST_YMax(b.geom)) > t.region[4]
+              OR m.min_height < t.region[5] OR m.height > t.region[6]"""
+    ).fetchone()[0]
+    assert outside == 0
+    # the region is tight: the root spans the data, not the padded quadtree cell
+    w, s, e, n = conn.execute("SELECT region[1:4] FROM tiles.tile WHERE level = 0").fetchone()[0]
+    ext = conn.execute(
+        """SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e) FROM (
+               SELECT ST_Extent(b.geom) e FROM osm.building b JOIN lod.building_mesh m ON m.building_id = b.id) q"""
+    ).fetchone()
+    assert (w, s, e, n) == pytest.approx(tuple(math.radians(v) for v in ext))
+
+
+def test_tiles_without_lod_is_a_clear_error(new_db) -> None:
+    proc = run_etl(new_db("tiles_empty"), "tiles", check=False)
+    assert proc.returncode != 0 and "ingest" in proc.stderr

@@ -1,0 +1,89 @@
+"""GLB writer: the container, accessors and the EXT_structural_metadata table read back exactly, and the
+Khronos glTF-Validator finds no error."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from exporter.content import tile_arrays
+from exporter.geodesy import enu_rotation, geodetic_to_ecef
+from exporter.gltf import Primitive, Property, accessor_array, property_table, read_glb, write_glb
+from tests.conftest import REPO, node_bin
+
+
+def cube_primitive() -> Primitive:
+    # two features: a unit cube's top (feature 0) and bottom (feature 1) as 2 triangles each
+    pos = np.array([[0, 1, 0], [1, 1, 0], [1, 1, -1], [0, 1, -1], [0, 0, 0], [1, 0, 0], [1, 0, -1], [0, 0, -1]],
+                   dtype=np.float32)
+    nrm = np.array([[0, 1, 0]] * 4 + [[0, -1, 0]] * 4, dtype=np.float32)
+    col = np.full((8, 4), 200, dtype=np.uint8)
+    fid = np.array([0, 0, 0, 0, 1, 1, 1, 1])
+    idx = np.array([0, 1, 2, 0, 2, 3, 4, 6, 5, 4, 7, 6], dtype=np.uint32)
+    props = [
+        Property("osm_id", [123456789012, 42], "INT64", required=True),
+        Property("name", ["Tuomiokirkko", None], None),
+        Property("empty", [None, None], None),
+        Property("height", [12.5, 3.0], "FLOAT32", required=True),
+        Property("levels", [None, 2.0], "FLOAT32", no_data=-1.0),
+    ]
+    return Primitive(pos, nrm, col, fid, idx, props, feature_count=2)
+
+
+def test_roundtrip() -> None:
+    glb = write_glb(cube_primitive())
+    assert glb[:4] == b"glTF" and len(glb) % 4 == 0
+    gltf, binary = read_glb(glb)
+    prim = gltf["meshes"][0]["primitives"][0]
+    assert np.array_equal(accessor_array(gltf, binary, prim["attributes"]["POSITION"]), cube_primitive().positions)
+    assert accessor_array(gltf, binary, prim["indices"]).tolist() == cube_primitive().indices.tolist()
+    fids = accessor_array(gltf, binary, prim["attributes"]["_FEATURE_ID_0"])
+    assert fids.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    ext = prim["extensions"]["EXT_mesh_features"]["featureIds"][0]
+    assert ext == {"featureCount": 2, "attribute": 0, "propertyTable": 0}
+    table = property_table(gltf, binary)
+    assert table["osm_id"] == [123456789012, 42]
+    assert table["name"] == ["Tuomiokirkko", ""]
+    assert table["height"] == [12.5, 3.0]
+    assert table["levels"] == [-1.0, 2.0]
+    assert "empty" not in table  # all noData: column omitted, class property kept
+    cls = gltf["extensions"]["EXT_structural_metadata"]["schema"]["classes"]["building"]["properties"]
+    assert cls["empty"]["noData"] == "" and cls["levels"]["noData"] == -1.0
+    assert all(v["byteOffset"] % 8 == 0 and v["byteLength"] > 0 for v in gltf["bufferViews"])
+    assert gltf["asset"]["copyright"].startswith("©")
+
+
+def test_property_length_mismatch_is_an_error() -> None:
+    p = cube_primitive()
+    p.properties.append(Property("bad", [1], "INT32"))
+    with pytest.raises(ValueError):
+        write_glb(p)
+
+
+def test_tile_arrays_place_and_dedupe() -> None:
+    lon, lat = np.radians(24.95), np.radians(60.17)
+    origin = geodetic_to_ecef(lon, lat, 0.0)
+    rot = enu_rotation(lon, lat)
+    # one horizontal square roof 10 m up and 5 m east, 3 m north of the origin, as two triangles
+    enu = np.array([[[5, 3, 10], [6, 3, 10], [6, 4, 10]], [[5, 3, 10], [6, 4, 10], [5, 4, 10]]], dtype=float)
+    ecef = origin + enu @ rot.T
+    wall = np.array([[10, 20, 30, 255]], dtype=np.uint8)
+    roof = np.array([[200, 100, 50, 255]], dtype=np.uint8)
+    arr = tile_arrays(ecef, np.array([0, 0]), wall, roof, lon, lat)
+    assert len(arr.positions) == 4 and len(arr.indices) == 6  # shared corners merged
+    # glTF frame is (E, U, -N)
+    assert np.allclose(sorted(map(tuple, arr.positions)), sorted([(5, 10, -3), (6, 10, -3), (6, 10, -4), (5, 10, -4)]),
+                       atol=1e-3)
+    assert np.allclose(arr.normals, [0, 1, 0], atol=1e-6)
+    assert (arr.colors == roof[0]).all()  # up-facing: roof colour
+
+
+def test_khronos_validator_accepts(tmp_path) -> None:
+    f = tmp_path / "cube.glb"
+    f.write_bytes(write_glb(cube_primitive()))
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(f)], capture_output=True, text=True)
+    report = json.loads(proc.stdout)
+    assert report["files"] == 1
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    assert proc.returncode == 0

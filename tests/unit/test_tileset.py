@@ -1,0 +1,90 @@
+"""tileset.json building and the 3D Tiles checks: a correct tree passes, and each broken rule is caught."""
+
+import copy
+import json
+import math
+
+import numpy as np
+import pytest
+
+from exporter.checks import check_tileset
+from exporter.geodesy import column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
+from exporter.tileset import TileRecord, build_tileset, region_diagonal
+
+D = math.radians
+
+
+def records() -> list[TileRecord]:
+    root = (D(24.90), D(60.10), D(25.00), D(60.20), 0.0, 60.0)
+    a = (D(24.90), D(60.10), D(24.95), D(60.20), 0.0, 60.0)
+    b = (D(24.95), D(60.12), D(25.00), D(60.20), 0.0, 30.0)
+    return [
+        TileRecord(0, 0, 0, False, root, 500.0, None),
+        TileRecord(1, 0, 0, True, a, 0.0, "content/1/0/0.glb"),
+        TileRecord(1, 1, 0, True, b, 0.0, "content/1/1/0.glb"),
+    ]
+
+
+def write(tmp_path, ts) -> object:
+    (tmp_path / "content/1/0").mkdir(parents=True, exist_ok=True)
+    (tmp_path / "content/1/1").mkdir(parents=True, exist_ok=True)
+    glb = b"glTF" + (2).to_bytes(4, "little") + (12).to_bytes(4, "little")
+    (tmp_path / "content/1/0/0.glb").write_bytes(glb)
+    (tmp_path / "content/1/1/0.glb").write_bytes(glb)
+    p = tmp_path / "tileset.json"
+    p.write_text(json.dumps(ts))
+    return p
+
+
+def test_geodesy_roundtrip_and_enu() -> None:
+    p = geodetic_to_ecef(D(24.95), D(60.17), 120.0)
+    lon, lat, h = ecef_to_geodetic(p)
+    assert (math.degrees(lon), math.degrees(lat), h) == pytest.approx((24.95, 60.17, 120.0), abs=1e-9)
+    m = enu_to_ecef(D(24.95), D(60.17), 0.0)
+    up = m[:3, :3] @ [0, 0, 1]
+    assert np.allclose(m @ [0, 0, 10, 1], np.r_[geodetic_to_ecef(D(24.95), D(60.17), 10.0), 1], atol=1e-6)
+    assert np.isclose(np.linalg.norm(up), 1.0)
+    assert column_major(m)[12:15] == pytest.approx(list(m[:3, 3]))
+
+
+def test_build_and_check(tmp_path) -> None:
+    ts = build_tileset(records())
+    assert ts["asset"]["version"] == "1.1"
+    assert ts["root"]["refine"] == "ADD"
+    assert len(ts["root"]["children"]) == 2
+    assert "content" not in ts["root"] and all("content" in c and "transform" in c for c in ts["root"]["children"])
+    assert ts["geometricError"] >= region_diagonal(records()[0].region)
+    assert check_tileset(write(tmp_path, ts)) == []
+
+
+@pytest.mark.parametrize(
+    ("mutate", "needle"),
+    [
+        (lambda t: t["asset"].update(version="2.0"), "asset.version"),
+        (lambda t: t.update(geometricError=10.0), "too small"),
+        (lambda t: t["root"].pop("refine"), "refine is required"),
+        (lambda t: t["root"]["children"][0].update(refine="MERGE"), "refine must be"),
+        (lambda t: t["root"]["children"][0].update(geometricError=900.0), "exceeds its parent"),
+        (lambda t: t["root"]["children"][0].update(geometricError=-1), ">= 0"),
+        (lambda t: t["root"]["children"][1]["boundingVolume"]["region"].__setitem__(5, 99.0), "not inside"),
+        (lambda t: t["root"]["children"][1]["boundingVolume"]["region"].__setitem__(2, D(25.5)), "not inside"),
+        (lambda t: t["root"]["children"][0].update(content={"uri": "content/nope.glb"}), "does not resolve"),
+        (lambda t: t["root"]["children"][0].update(transform=[1, 0, 0]), "16 numbers"),
+        (lambda t: t["root"].update(children=[]), "non-empty"),
+        (lambda t: t["root"]["children"][0].update(boundingVolume={"region": [0, 1, 0, 0, 0, 1]}), "south <= north"),
+        (lambda t: t["root"]["children"][0].update(boundingVolume={"box": [0] * 11}), "12 numbers"),
+        (lambda t: t["root"]["children"][0].update(boundingVolume={}), "exactly one"),
+        (lambda t: t.update(extensionsRequired=["X"]), "extensionsRequired"),
+    ],
+)
+def test_checks_catch_each_rule(tmp_path, mutate, needle) -> None:
+    ts = copy.deepcopy(build_tileset(records()))
+    mutate(ts)
+    problems = check_tileset(write(tmp_path, ts))
+    assert any(needle in p for p in problems), problems
+
+
+def test_checks_non_glb_content(tmp_path) -> None:
+    p = write(tmp_path, build_tileset(records()))
+    (tmp_path / "content/1/0/0.glb").write_bytes(b"not a glb at all")
+    assert any("not a GLB" in x for x in check_tileset(p))
