@@ -3,7 +3,8 @@
 Coordinates go ECEF -> the tile's local east-north-up frame (float64, then float32: a tile spans at most a
 few km, so float32 keeps millimetres) -> glTF y-up. Triangles are flat shaded: a vertex is shared only by
 triangles with the same normal, colour and feature (np.unique over those keys), which keeps walls sharp.
-Roof (up-facing) triangles take roof:colour, the others building:colour, else neutral defaults.
+Roof (up-facing) triangles take roof:colour, the others building:colour, else neutral defaults. Tag colours
+are sRGB; glTF vertex colours are linear, so they are converted (16-bit, so dark colours keep their steps).
 """
 
 from __future__ import annotations
@@ -26,11 +27,19 @@ def hex_rgba(colour: str | None, default: str) -> tuple[int, int, int, int]:
     return int(c[0:2], 16), int(c[2:4], 16), int(c[4:6], 16), 255
 
 
+def srgb_to_linear16(rgba: np.ndarray) -> np.ndarray:
+    """sRGB bytes (…, 4) -> linear RGB + linear alpha as normalized uint16, the glTF COLOR_0 encoding."""
+    c = np.asarray(rgba, dtype=np.float64) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    lin[..., 3] = c[..., 3]  # alpha is already linear
+    return np.round(lin * 65535.0).astype(np.uint16)
+
+
 @dataclass(frozen=True)
 class ContentArrays:
     positions: np.ndarray  # (n, 3) float32, glTF frame
     normals: np.ndarray  # (n, 3) float32
-    colors: np.ndarray  # (n, 4) uint8
+    colors: np.ndarray  # (n, 4) uint16, linear
     feature_ids: np.ndarray  # (n,) uint32
     indices: np.ndarray  # (3m,) uint32
     dropped_degenerate: int
@@ -43,10 +52,10 @@ def tile_arrays(
     roof_rgba: np.ndarray,
     origin_lon: float,
     origin_lat: float,
-    origin_h: float = 0.0,
 ) -> ContentArrays:
-    """triangles_ecef (m, 3, 3); feature_of_triangle (m,); wall/roof_rgba (features, 4) uint8."""
-    origin = geodetic_to_ecef(origin_lon, origin_lat, origin_h)
+    """triangles_ecef (m, 3, 3); feature_of_triangle (m,); wall/roof_rgba (features, 4) sRGB uint8.
+    The local frame's origin is on the ellipsoid at (origin_lon, origin_lat): the tile transform's."""
+    origin = geodetic_to_ecef(origin_lon, origin_lat, 0.0)
     rot = enu_rotation(origin_lon, origin_lat)  # columns: E, N, U in ECEF
     enu = (np.asarray(triangles_ecef, dtype=np.float64) - origin) @ rot
     gl = enu @ Z_UP_TO_Y_UP.T  # (E, N, U) -> (E, U, -N)
@@ -60,7 +69,7 @@ def tile_arrays(
     feat = np.asarray(feature_of_triangle)[keep]
     nrm = nrm / length[:, None]
     up = nrm[:, 2] > UP_FACING
-    colour = np.where(up[:, None], roof_rgba[feat], wall_rgba[feat]).astype(np.uint8)
+    colour = np.where(up[:, None], srgb_to_linear16(roof_rgba)[feat], srgb_to_linear16(wall_rgba)[feat])
     nrm_gl = nrm @ Z_UP_TO_Y_UP.T
 
     m = len(gl)
@@ -73,9 +82,11 @@ def tile_arrays(
     # Coplanar triangles get normals equal up to rounding noise; round them for the key so they share vertices.
     nkey = np.round(normals, 4).astype(np.float32) + np.float32(0.0)  # + 0.0 folds -0.0 into 0.0
     key = np.concatenate([
-        pos.view(np.uint32), nkey.view(np.uint32), colors.view(np.uint32).reshape(-1, 1), fids[:, None]
+        pos.view(np.uint32), nkey.view(np.uint32), np.ascontiguousarray(colors).view(np.uint32), fids[:, None]
     ], axis=1)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    # Rows as opaque 36-byte records: sorting those is ~2.5x faster than np.unique(axis=0), same result.
+    rows = np.ascontiguousarray(key).view(np.dtype((np.void, key.shape[1] * 4))).ravel()
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
     # Keep vertices in first-use order (better locality for the GPU vertex cache than sorted keys).
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)

@@ -1,7 +1,8 @@
 """Stage export: tiles in PostGIS -> a 3D Tiles 1.1 tileset directory.
 
 Streams tile by tile: for each leaf, api.buildings_for_tile(level, x, y) gives the features with their meshes
-transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid); content.py turns
+lifted by the base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the
+ellipsoid); content.py turns
 them into glTF arrays in the tile's local frame and gltf.py writes the glb with EXT_mesh_features +
 EXT_structural_metadata. The tileset is written into ``<out>.partial`` and swapped in at the end, so a failed
 export never leaves a half-written tileset behind.
@@ -10,14 +11,17 @@ export never leaves a half-written tileset behind.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import psycopg
 
+from etl.db import connect
 from etl.geom.wkb import decode_triangles
 from etl.progress import Progress, summary
 from etl.settings import Settings
@@ -29,14 +33,14 @@ from .tileset import TileRecord, build_tileset, region_centre
 _FEATURES = """
 SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_id, f.name, f.building, f.height, f.min_height, f.levels,
        f.roof_shape, f.building_colour, f.roof_colour, f.building_material, f.roof_material, f.lod,
-       ST_AsBinary(ST_Transform(f.geom, 4978))
+       ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978))
 FROM api.buildings_for_tile(%s, %s, %s) f
 """
 
 OSM_TYPE = {"W": "way", "R": "relation"}
 
 
-def build_tile_glb(rows: list[tuple], region: tuple[float, ...], base_height: float) -> tuple[bytes, int]:
+def build_tile_glb(rows: list[tuple], region: tuple[float, ...]) -> tuple[bytes, int]:
     """glb bytes and triangle count for the feature rows of one tile (see _FEATURES for the columns)."""
     tris = [decode_triangles(r[15]) for r in rows]
     counts = np.array([len(t) for t in tris])
@@ -45,7 +49,7 @@ def build_tile_glb(rows: list[tuple], region: tuple[float, ...], base_height: fl
     wall = np.array([hex_rgba(r[10], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
     roof = np.array([hex_rgba(r[11], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
     lon, lat = region_centre(region)
-    arr = tile_arrays(triangles, feature, wall, roof, lon, lat, base_height)
+    arr = tile_arrays(triangles, feature, wall, roof, lon, lat)
     cols = list(zip(*rows, strict=True))
     props = [
         Property("osm_id", cols[1], "INT64", "OSM id of the way or relation", required=True),
@@ -72,14 +76,46 @@ def build_tile_glb(rows: list[tuple], region: tuple[float, ...], base_height: fl
     return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
 
 
-def export_tileset(url: str, out: Path, settings: Settings) -> dict[str, object]:
+def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: float, workers: int,
+                   progress: Progress) -> tuple[int, int, int]:
+    """Write every leaf's glb; tiles are independent, so ``workers`` threads each with their own connection
+    share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
+    local = threading.local()
+    lock = threading.Lock()
+    conns: list = []
+
+    def one(rec: TileRecord) -> tuple[int, int, int]:
+        if not hasattr(local, "conn"):
+            local.conn = connect(url)
+            with lock:
+                conns.append(local.conn)
+        rows = local.conn.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y)).fetchall()
+        glb, tri = build_tile_glb(rows, rec.region)
+        assert rec.content_uri is not None
+        path = out / rec.content_uri
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(glb)
+        return len(rows), tri, len(glb)
+
+    n_features = n_triangles = n_bytes = 0
+    try:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            for f, t, b in pool.map(one, leaves):
+                n_features, n_triangles, n_bytes = n_features + f, n_triangles + t, n_bytes + b
+                progress.update(f)
+    finally:
+        for c in conns:
+            c.close()
+    return n_features, n_triangles, n_bytes
+
+
+def export_tileset(url: str, out: Path, settings: Settings, workers: int | None = None) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
-    n_features = n_triangles = n_bytes = 0
-    with psycopg.connect(url) as conn:
+    with connect(url) as conn:
         records = [
             TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
                        content_uri=r[8], n_features=r[4])
@@ -91,20 +127,10 @@ def export_tileset(url: str, out: Path, settings: Settings) -> dict[str, object]
         if not records:
             raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
         dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
-        leaves = [r for r in records if r.is_leaf]
-        total = sum(r.n_features for r in leaves)
-        progress = Progress("export", "buildings", total=total)
-        for rec in leaves:
-            rows = conn.execute(_FEATURES, (rec.level, rec.x, rec.y)).fetchall()
-            glb, tri = build_tile_glb(rows, rec.region, settings.base_height_m)
-            assert rec.content_uri is not None
-            path = partial / rec.content_uri
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(glb)
-            n_features += len(rows)
-            n_triangles += tri
-            n_bytes += len(glb)
-            progress.update(len(rows))
+    leaves = [r for r in records if r.is_leaf]
+    progress = Progress("export", "buildings", total=sum(r.n_features for r in leaves))
+    n_features, n_triangles, n_bytes = _export_leaves(
+        url, leaves, partial, settings.base_height_m, workers or min(4, os.cpu_count() or 1), progress)
     tileset = build_tileset(records, tileset_version=(dataset[0][:16] if dataset and dataset[0] else ""))
     js = json.dumps(tileset, indent=1).encode()
     (partial / "tileset.json").write_bytes(js)

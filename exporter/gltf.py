@@ -18,7 +18,7 @@ import numpy as np
 
 from . import ATTRIBUTION, __version__
 
-FLOAT, UNSIGNED_BYTE, UNSIGNED_INT = 5126, 5121, 5125
+FLOAT, UNSIGNED_BYTE, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 #: Metadata component types -> numpy dtypes (EXT_structural_metadata SCALAR properties).
@@ -44,7 +44,7 @@ class Property:
 class Primitive:
     positions: np.ndarray  # (n, 3) float32, glTF frame (y up)
     normals: np.ndarray  # (n, 3) float32, unit length
-    colors: np.ndarray  # (n, 4) uint8 RGBA
+    colors: np.ndarray  # (n, 4) linear RGBA, uint8 or uint16 (normalized)
     feature_ids: np.ndarray  # (n,) int, 0..features-1
     indices: np.ndarray  # (m * 3,) uint32
     properties: list[Property] = field(default_factory=list)
@@ -99,12 +99,15 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
     attrs = {
         "POSITION": b.accessor(pos, FLOAT, "VEC3", ARRAY_BUFFER, minmax=True),
         "NORMAL": b.accessor(np.asarray(prim.normals, dtype=np.float32), FLOAT, "VEC3", ARRAY_BUFFER),
-        "COLOR_0": b.accessor(np.asarray(prim.colors, dtype=np.uint8), UNSIGNED_BYTE, "VEC4", ARRAY_BUFFER,
-                              normalized=True),
+        "COLOR_0": b.accessor(np.asarray(prim.colors), UNSIGNED_SHORT if prim.colors.dtype == np.uint16
+                              else UNSIGNED_BYTE, "VEC4", ARRAY_BUFFER, normalized=True),
         "_FEATURE_ID_0": b.accessor(np.asarray(prim.feature_ids, dtype=np.float32), FLOAT, "SCALAR",
                                     ARRAY_BUFFER),
     }
-    idx = b.accessor(np.asarray(prim.indices, dtype=np.uint32), UNSIGNED_INT, "SCALAR", ELEMENT_ARRAY_BUFFER)
+    # 16-bit indices whenever the vertices fit: half the index bytes for almost every tile
+    small = n <= 0xFFFF
+    idx = b.accessor(np.asarray(prim.indices, dtype=np.uint16 if small else np.uint32),
+                     UNSIGNED_SHORT if small else UNSIGNED_INT, "SCALAR", ELEMENT_ARRAY_BUFFER)
 
     class_props: dict[str, object] = {}
     table_props: dict[str, object] = {}

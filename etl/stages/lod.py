@@ -17,6 +17,7 @@ import psycopg
 import shapely
 
 from .. import heights as heights_mod
+from ..db import connect
 from ..geom.extrude import extrude
 from ..geom.wkb import encode_triangles_batch
 from ..progress import Progress, summary
@@ -80,7 +81,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     counts = {"meshes": 0, "rejected": 0, "triangles": 0}
     progress = Progress("lod", "buildings")
     # One connection streams the input, this one writes: all output lands in a single transaction.
-    with psycopg.connect(url) as reader, conn.transaction(), conn.cursor() as cur:
+    with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
         cur.execute("DELETE FROM lod.building_mesh WHERE lod = 1")
         cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
         cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")

@@ -10,7 +10,7 @@ import pytest
 from exporter.checks import check_tileset
 from exporter.geodesy import Y_UP_TO_Z_UP
 from exporter.gltf import accessor_array, property_table, read_glb
-from tests.conftest import REPO, node_bin
+from tests.conftest import REPO, node_bin, run_etl
 
 CITIES = ["fixtures", "munich", "london"]
 
@@ -72,27 +72,46 @@ def feature_vertices(tiles_dir, uri: str, osm_id: int):
     return pos[fids == fid], {k: v[fid] for k, v in table.items()}
 
 
-def test_building_sits_at_its_place_on_the_globe(city, conn_of) -> None:
-    """Exported vertices -> (y-up to z-up) -> tile transform = ECEF; PostGIS ST_Transform(..., 4978) of the
-    same corners must agree to the centimetre."""
-    c = city("fixtures")
-    conn = conn_of(c.url)
+def assert_placed(conn, tiles_dir, base: float = 0.0) -> float:
+    """Exported vertices -> (y-up to z-up) -> tile transform = ECEF; PostGIS ST_Transform(..., 4978) of the same
+    corners must agree to the centimetre. Returns the largest distance found (m)."""
+    worst = 0.0
     for osm_id, bottom, top in ((10001, 0.0, 12.0), (11001, 0.0, 12.0), (13003, 5.0, 20.0)):
         uri = tile_of(conn, osm_id)
-        verts, props = feature_vertices(c.tiles, uri, osm_id)
-        m = np.array(tile_json(c.tiles, uri)["transform"]).reshape(4, 4).T
+        verts, props = feature_vertices(tiles_dir, uri, osm_id)
+        m = np.array(tile_json(tiles_dir, uri)["transform"]).reshape(4, 4).T
         ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
         truth = np.array(conn.execute(
             """SELECT ST_X(p), ST_Y(p), ST_Z(p) FROM (
                    SELECT ST_Transform(ST_Translate(ST_Force3D((ST_DumpPoints(geom_local)).geom), 0, 0, z), 4978) p
                    FROM osm.building, unnest(ARRAY[%s, %s]::float8[]) z WHERE osm_id = %s) q""",
-            (bottom, top, osm_id)).fetchall())
+            (base + bottom, base + top, osm_id)).fetchall())
         assert len(truth) >= 8
         # every exported vertex is a true corner (bottom or top), and every true corner is exported
         d = np.linalg.norm(ecef[:, None, :] - truth[None, :, :], axis=2)
-        assert d.min(axis=1).max() < 0.01
-        assert d.min(axis=0).max() < 0.01
+        worst = max(worst, d.min(axis=1).max(), d.min(axis=0).max())
         assert props["osm_id"] == osm_id
+    assert worst < 0.01
+    return worst
+
+
+def test_building_sits_at_its_place_on_the_globe(city, conn_of) -> None:
+    c = city("fixtures")
+    assert_placed(conn_of(c.url), c.tiles)
+
+
+def test_base_height_lifts_content_and_regions_alike(city, new_db, conn_of, tmp_path) -> None:
+    url = new_db("export_base")
+    env = {"CITYLOD_BASE_HEIGHT_M": "100"}
+    run_etl(url, "ingest", "--osm", str(city("fixtures").osm))
+    run_etl(url, "lod")
+    run_etl(url, "tiles", env=env)
+    run_etl(url, "export", "--out", str(tmp_path / "ts"), env=env)
+    conn = conn_of(url)
+    assert_placed(conn, tmp_path / "ts", base=100.0)
+    lo, hi = conn.execute("SELECT min(region[5]), max(region[6]) FROM tiles.tile").fetchone()
+    assert lo == 100.0 and hi > 100.0
+    assert check_tileset(tmp_path / "ts" / "tileset.json") == []
 
 
 def test_feature_metadata(city, conn_of) -> None:

@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from exporter.content import tile_arrays
+from exporter.content import srgb_to_linear16, tile_arrays
 from exporter.geodesy import enu_rotation, geodetic_to_ecef
 from exporter.gltf import Primitive, Property, accessor_array, property_table, read_glb, write_glb
 from tests.conftest import REPO, node_bin
@@ -38,6 +38,7 @@ def test_roundtrip() -> None:
     prim = gltf["meshes"][0]["primitives"][0]
     assert np.array_equal(accessor_array(gltf, binary, prim["attributes"]["POSITION"]), cube_primitive().positions)
     assert accessor_array(gltf, binary, prim["indices"]).tolist() == cube_primitive().indices.tolist()
+    assert gltf["accessors"][prim["indices"]]["componentType"] == 5123  # 16-bit indices when they fit
     fids = accessor_array(gltf, binary, prim["attributes"]["_FEATURE_ID_0"])
     assert fids.tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
     ext = prim["extensions"]["EXT_mesh_features"]["featureIds"][0]
@@ -52,6 +53,18 @@ def test_roundtrip() -> None:
     assert cls["empty"]["noData"] == "" and cls["levels"]["noData"] == -1.0
     assert all(v["byteOffset"] % 8 == 0 and v["byteLength"] > 0 for v in gltf["bufferViews"])
     assert gltf["asset"]["copyright"].startswith("©")
+
+
+def test_large_primitive_uses_32_bit_indices() -> None:
+    n = 70_000
+    pos = np.zeros((n, 3), dtype=np.float32)
+    pos[:, 0] = np.arange(n)
+    p = Primitive(pos, np.tile(np.float32([0, 1, 0]), (n, 1)), np.full((n, 4), 255, np.uint8), np.zeros(n),
+                  np.arange(n - n % 3, dtype=np.uint32), [Property("osm_id", [1], "INT64")], feature_count=1)
+    gltf, binary = read_glb(write_glb(p))
+    idx = gltf["meshes"][0]["primitives"][0]["indices"]
+    assert gltf["accessors"][idx]["componentType"] == 5125
+    assert accessor_array(gltf, binary, idx)[-1] == n - n % 3 - 1
 
 
 def test_property_length_mismatch_is_an_error() -> None:
@@ -76,7 +89,10 @@ def test_tile_arrays_place_and_dedupe() -> None:
     assert np.allclose(sorted(map(tuple, arr.positions)), sorted([(5, 10, -3), (6, 10, -3), (6, 10, -4), (5, 10, -4)]),
                        atol=1e-3)
     assert np.allclose(arr.normals, [0, 1, 0], atol=1e-6)
-    assert (arr.colors == roof[0]).all()  # up-facing: roof colour
+    assert (arr.colors == srgb_to_linear16(roof)[0]).all()  # up-facing: roof colour, linearised
+    # sRGB mid-grey 128 is linear 0.2159; black, white and alpha are unchanged
+    lin = srgb_to_linear16(np.array([[255, 128, 0, 128]], np.uint8))[0] / 65535
+    assert lin == pytest.approx([1.0, 0.2159, 0.0, 128 / 255], abs=2e-4)
 
 
 def test_khronos_validator_accepts(tmp_path) -> None:

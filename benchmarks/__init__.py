@@ -1,0 +1,1 @@
+"""Benchmarks of the citylod pipeline (``python -m benchmarks.bench``, ``make bench``)."""

@@ -1,0 +1,509 @@
+"""``python -m benchmarks.bench``: time every pipeline stage on the real extracts, next to osm2pgsql.
+
+For each extract a fresh database ``citylod_bench`` is created in the same cluster the pipeline uses
+(DATABASE_URL when set, else the local cluster under var/pg) and migrated. Then ingest, lod, tiles and export
+run as separate ``python -m etl`` processes, exactly as ``make`` runs them, ``--repeat`` times. For each one
+the wall-clock seconds and the child's peak RSS (from ``os.wait4``) are measured; the building counts come
+from the ``meta.pipeline_run`` row that the stage wrote. osm2pgsql loads the same file with a flex style
+(benchmarks/osm2pgsql/buildings.lua) into ``citylod_bench_o2p`` as the reference loader.
+
+``--write BENCHMARKS.md`` regenerates that file from scratch. Progress goes to stderr; the children's output
+goes to build/bench/logs/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import psycopg
+from psycopg import sql
+from psycopg.conninfo import conninfo_to_dict
+
+from etl import cluster
+from etl.settings import REPO
+
+SHARED_OSM = REPO.parent / "shared" / "data" / "osm"
+# Liechtenstein first: it is the benchmark extract the headline figures quote.
+DEFAULT_EXTRACTS = (
+    "liechtenstein_2022-07-24.osm.pbf",
+    "malta_2018-08-27.osm.pbf",
+    "munich_altstadt.osm.pbf",
+    "london_city.osm.pbf",
+)
+DEMO_OSM = REPO / "data" / "Helsinki.osm.pbf"
+HEADLINE = "liechtenstein_2022-07-24"
+
+BENCH_DB = "citylod_bench"
+O2P_DB = "citylod_bench_o2p"
+STYLE = Path(__file__).resolve().parent / "osm2pgsql" / "buildings.lua"
+OUT_ROOT = REPO / "build" / "bench"
+LOG_DIR = OUT_ROOT / "logs"
+
+STAGES = ("ingest", "lod", "tiles", "export")
+# Which pipeline_run count is "the buildings this stage handled".
+BUILDINGS_KEY = {"ingest": "in", "lod": "in", "tiles": "features", "export": "features"}
+# Counts that legitimately differ between repeats of the same input.
+VOLATILE_COUNTS = frozenset({"seconds", "out"})
+
+
+def log(msg: str) -> None:
+    print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+# --- measuring one child process ----------------------------------------------------------------------------
+
+
+@dataclass
+class Sample:
+    seconds: float  # wall clock of the whole process, interpreter start-up included
+    rss_mib: float  # peak resident set of the child (and of any children it reaped)
+    counts: dict[str, Any] = field(default_factory=dict)
+    stage_s: float | None = None  # duration_s the stage recorded itself (excludes start-up and imports)
+
+
+def run_child(cmd: Sequence[str], env: dict[str, str], logfile: Path) -> tuple[float, float]:
+    """Run ``cmd`` to completion; return (wall seconds, peak RSS MiB). Raises on a non-zero exit."""
+    logfile.parent.mkdir(parents=True, exist_ok=True)
+    with logfile.open("wb") as fh:
+        fh.write(("$ " + " ".join(cmd) + "\n").encode())
+        fh.flush()
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(list(cmd), env=env, cwd=REPO, stdout=fh, stderr=subprocess.STDOUT)
+        # wait4 rather than proc.wait(): it hands back this child's own rusage, whereas
+        # getrusage(RUSAGE_CHILDREN) would mix in every earlier child of the benchmark.
+        _, status, usage = os.wait4(proc.pid, 0)
+        seconds = time.perf_counter() - t0
+    proc.returncode = os.waitstatus_to_exitcode(status)  # tell Popen the child is already reaped
+    if proc.returncode != 0:
+        tail = logfile.read_text(errors="replace").splitlines()[-20:]
+        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}; log {logfile}:\n" + "\n".join(tail))
+    return seconds, usage.ru_maxrss / 1024  # Linux reports ru_maxrss in KiB
+
+
+# --- databases ----------------------------------------------------------------------------------------------
+
+
+def recreate_db(admin_url: str, name: str) -> None:
+    with psycopg.connect(admin_url, autocommit=True) as conn:
+        conn.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
+        conn.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
+
+
+def drop_db(admin_url: str, name: str) -> None:
+    with psycopg.connect(admin_url, autocommit=True) as conn:
+        conn.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
+
+
+def last_run(url: str, stage: str) -> tuple[dict[str, Any], float | None]:
+    with psycopg.connect(url) as conn:
+        row = conn.execute(
+            "SELECT status, counts, duration_s FROM meta.pipeline_run"
+            " WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
+            (stage,),
+        ).fetchone()
+    if row is None or row[0] != "ok":
+        raise RuntimeError(f"{stage}: no successful meta.pipeline_run row (got {row!r})")
+    return dict(row[1] or {}), (float(row[2]) if row[2] is not None else None)
+
+
+def osm2pgsql_cmd(url: str, path: Path) -> tuple[list[str], dict[str, str]]:
+    """The osm2pgsql command line for ``url`` (-H/-P/-U/-d), plus PGPASSWORD when the URL carries one."""
+    info = conninfo_to_dict(url)
+    cmd = ["osm2pgsql"]
+    for flag, key in (("-H", "host"), ("-P", "port"), ("-U", "user")):
+        if info.get(key):
+            cmd += [flag, str(info[key])]
+    cmd += ["-d", str(info["dbname"]), "-O", "flex", "-S", str(STYLE), "--create", str(path)]
+    env = dict(os.environ)
+    if info.get("password"):
+        env["PGPASSWORD"] = str(info["password"])
+    return cmd, env
+
+
+# --- one extract --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ExtractResult:
+    path: Path
+    stages: dict[str, list[Sample]] = field(default_factory=lambda: {s: [] for s in STAGES})
+    o2p: list[Sample] = field(default_factory=list)
+    o2p_rows: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return extract_name(self.path)
+
+    def counts(self, stage: str) -> dict[str, Any]:
+        return self.stages[stage][-1].counts  # the same on every repeat unless the code changed: see drift()
+
+    def buildings(self, stage: str) -> int:
+        return int(self.counts(stage).get(BUILDINGS_KEY[stage], 0))
+
+    def median_s(self, stage: str) -> float:
+        return statistics.median(s.seconds for s in self.stages[stage])
+
+    def median_stage_s(self, stage: str) -> float | None:
+        vals = [s.stage_s for s in self.stages[stage] if s.stage_s is not None]
+        return statistics.median(vals) if vals else None
+
+    def peak_rss(self, stage: str) -> float:
+        return max(s.rss_mib for s in self.stages[stage])
+
+    def end_to_end(self) -> float:
+        # Median over whole-chain runs, so the figure is one real run rather than a sum of per-stage medians.
+        runs = len(self.stages["ingest"])
+        per_repeat = [sum(self.stages[st][i].seconds for st in STAGES) for i in range(runs)]
+        return statistics.median(per_repeat)
+
+    def drift(self) -> list[str]:
+        """Stages whose counts changed between repeats: the pipeline code (or its input) changed while the
+        benchmark ran, so the runs did not measure the same work."""
+        def key(c: dict[str, Any]) -> str:
+            return json.dumps({k: v for k, v in c.items() if k not in VOLATILE_COUNTS}, sort_keys=True)
+
+        return [st for st in STAGES if len({key(s.counts) for s in self.stages[st]}) > 1]
+
+    def o2p_median(self) -> float:
+        return statistics.median(s.seconds for s in self.o2p)
+
+
+def extract_name(path: Path) -> str:
+    name = path.name
+    for suffix in (".osm.pbf", ".pbf", ".osm"):
+        if name.endswith(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+def bench_extract(path: Path, repeat: int, admin_url: str) -> ExtractResult:
+    res = ExtractResult(path=path)
+    url = cluster.database_url(BENCH_DB)
+    o2p_url = cluster.database_url(O2P_DB)
+    env = {**os.environ, "DATABASE_URL": url}
+    logs = LOG_DIR / res.name
+
+    log(f"{res.name}: fresh databases {BENCH_DB} + {O2P_DB}, migrate")
+    recreate_db(admin_url, BENCH_DB)
+    run_child([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
+    recreate_db(admin_url, O2P_DB)
+    with psycopg.connect(o2p_url, autocommit=True) as conn:
+        conn.execute("CREATE EXTENSION IF NOT EXISTS postgis")
+
+    o2p_cmd, o2p_env = osm2pgsql_cmd(o2p_url, path)
+    for r in range(1, repeat + 1):
+        # Every repeat reruns the whole chain: ingest truncates the derived tables, so each repeat measures
+        # the same work as a first run on a migrated database.
+        for stage in STAGES:
+            extra = {"ingest": ["--osm", str(path)], "export": ["--out", str(OUT_ROOT / res.name)]}
+            args = extra.get(stage, [])
+            cmd = [sys.executable, "-m", "etl", stage, *args]
+            seconds, rss = run_child(cmd, env, logs / f"{stage}-{r}.log")
+            counts, stage_s = last_run(url, stage)
+            res.stages[stage].append(Sample(seconds, rss, counts, stage_s))
+            log(f"{res.name} #{r} {stage:<6} {seconds:7.2f} s  {rss:6.0f} MiB  "
+                f"{int(counts.get(BUILDINGS_KEY[stage], 0)):,} buildings")
+        # osm2pgsql interleaved with citylod, so a noisy neighbour on the shared machine hits both alike.
+        seconds, rss = run_child(o2p_cmd, o2p_env, logs / f"osm2pgsql-{r}.log")
+        res.o2p.append(Sample(seconds, rss))
+        log(f"{res.name} #{r} osm2pgsql {seconds:7.2f} s  {rss:6.0f} MiB")
+
+    with psycopg.connect(o2p_url) as conn:
+        rows = conn.execute("SELECT kind, count(*) FROM buildings GROUP BY kind").fetchall()
+    res.o2p_rows = {k: int(n) for k, n in rows}
+    if drift := res.drift():
+        log(f"WARNING {res.name}: counts of {', '.join(drift)} changed between repeats (code edited?)")
+    return res
+
+
+# --- machine block ------------------------------------------------------------------------------------------
+
+
+def _first(cmd: Sequence[str]) -> str | None:
+    try:
+        r = subprocess.run(list(cmd), capture_output=True, text=True, check=True, cwd=REPO)
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    out = (r.stdout or r.stderr).strip().splitlines()
+    return out[0].strip() if out else None
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _ram_gib() -> str:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal:"):
+                return f"{int(line.split()[1]) / 1024**2:.1f} GiB"
+    except OSError:
+        pass
+    return "unknown"
+
+
+def _os_name() -> str:
+    try:
+        for line in Path("/etc/os-release").read_text().splitlines():
+            if line.startswith("PRETTY_NAME="):
+                return line.split("=", 1)[1].strip().strip('"')
+    except OSError:
+        pass
+    return platform.platform()
+
+
+def _osm2pgsql_version() -> str:
+    # It logs the version to stderr behind a timestamp ("2026-… osm2pgsql version 1.8.0").
+    try:
+        r = subprocess.run(["osm2pgsql", "--version"], capture_output=True, text=True)
+    except OSError:
+        return "not installed"
+    m = re.search(r"osm2pgsql version (\S+)", r.stdout + r.stderr)
+    return m.group(1) if m else "unknown"
+
+
+def _git() -> str:
+    sha = _first(["git", "rev-parse", "--short", "HEAD"])
+    if sha is None:
+        return "no commit yet"
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, cwd=REPO
+    ).stdout.strip()
+    return sha + ("-dirty" if dirty else "")
+
+
+def _postgis_short(full: str) -> str:
+    """``POSTGIS="3.3.2 ..." GEOS="3.11.1-CAPI-1.17.1" SFCGAL="SFCGAL 1.4.1, ..."`` -> short form."""
+    parts = []
+    for key in ("POSTGIS", "GEOS", "PROJ", "SFCGAL"):
+        m = re.search(rf'{key}="(?:SFCGAL )?([0-9][^ ",]*)', full)
+        if m:
+            parts.append(f"{'PostGIS' if key == 'POSTGIS' else key} {m.group(1).split('-')[0]}")
+    return ", ".join(parts) or full
+
+
+def machine(url: str) -> dict[str, str]:
+    with psycopg.connect(url) as conn:
+        server = conn.execute("SHOW server_version").fetchone()
+        full = conn.execute("SELECT postgis_full_version()").fetchone()
+    return {
+        "CPU": _cpu_model(),
+        "cores": str(os.cpu_count()),
+        "RAM": _ram_gib(),
+        "OS": _os_name(),
+        "Python": platform.python_version(),
+        "PostgreSQL": str(server[0]) if server else "?",
+        "PostGIS": _postgis_short(str(full[0])) if full else "?",
+        "osm2pgsql": _osm2pgsql_version(),
+        "git": _git(),
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
+# --- report -------------------------------------------------------------------------------------------------
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[object]], align: str) -> list[str]:
+    """Markdown table; ``align`` has one l/r per column."""
+    rule = "|" + "|".join("---:" if a == "r" else "---" for a in align) + "|"
+    out = ["| " + " | ".join(header) + " |", rule]
+    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return out
+
+
+def _rate(n: float, s: float) -> str:
+    return f"{n / s:,.0f}" if s > 0 else "–"
+
+
+STAGES_NOTE = (
+    "Wall seconds of the `python -m etl <stage>` process (median of {n}), start-up included. "
+    "*in-stage s* is the `duration_s` the stage recorded itself in meta.pipeline_run (median); the "
+    "difference is interpreter start-up and imports. Peak RSS is the client process only (max of the "
+    "runs); the PostgreSQL backend's memory is not included."
+)
+O2P_NOTE = (
+    "The same file loaded by osm2pgsql 1.8 with benchmarks/osm2pgsql/buildings.lua (buildings and "
+    "building:parts from closed ways and multipolygon relations, tags as jsonb, multipolygon 4326). "
+    "*ratio* = citylod ingest seconds / osm2pgsql seconds (medians of whole processes). citylod also "
+    "parses and validates the Simple 3D Buildings tags, repairs geometries, rejects broken ones and links "
+    "building relations, so the row counts differ a little."
+)
+OUTPUT_NOTE = (
+    "From the export stage's counts. *features* are the meshes written (buildings and parts; an outline "
+    "drawn by its parts is not a feature). MB = 10⁶ bytes: the glb files plus tileset.json."
+)
+HOW_TO_READ = [
+    "* Timings are medians of {n} on a shared {cores}-core machine where other work may be running; "
+    "treat differences under ~20 % as noise. Tests never assert timings.",
+    "* buildings/s = buildings the stage handled (ingest: OSM candidates read; lod: buildings and parts "
+    "in; tiles, export: features) / median wall seconds of the stage's process.",
+    "* Each stage is a fresh Python process, so its seconds include interpreter start-up and imports "
+    "(compare *in-stage s*); on the small extracts that overhead is a large share.",
+    "* The extracts are real OSM data, © OpenStreetMap contributors, ODbL 1.0 "
+    "(../shared/data/PROVENANCE.md). No synthetic scaling was applied.",
+]
+
+
+def _headline(r: ExtractResult) -> str:
+    rates = ", ".join(f"{st} {_rate(r.buildings(st), r.median_s(st))}/s" for st in STAGES)
+    ec = r.counts("export")
+    return (
+        f"**Headline ({r.name}):** {r.buildings('ingest'):,} buildings end to end in {r.end_to_end():.1f} s; "
+        f"buildings/s per stage: {rates}. Peak RSS {max(r.peak_rss(st) for st in STAGES):.0f} MiB. "
+        f"Tileset {ec.get('bytes', 0) / 1e6:.2f} MB, {ec.get('bytes_per_feature', 0):,.0f} bytes/building. "
+        f"citylod ingest takes {r.median_s('ingest') / r.o2p_median():.1f}× as long as osm2pgsql."
+    )
+
+
+def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, command: str) -> str:
+    n = f"{repeat} run" + ("s" if repeat != 1 else "")
+    lines = [
+        "# citylod benchmarks", "",
+        "Generated by `make bench`, i.e.", "", "```bash", command, "```", "",
+        "Regenerated in full on every run; do not edit by hand. benchmarks/README.md explains the figures.",
+        "",
+    ]
+    head = next((r for r in results if r.name == HEADLINE), results[0] if results else None)
+    if head is not None:
+        lines += [_headline(head), ""]
+    lines += ["## Machine", ""]
+    lines += _table(["", ""], [[k, v] for k, v in mach.items()], "ll")
+
+    lines += ["", "## Stages", "", STAGES_NOTE.format(n=n), ""]
+    for stage in STAGES:
+        rows = []
+        for r in results:
+            inner = r.median_stage_s(stage)
+            rows.append([
+                r.name, f"{r.buildings(stage):,}", f"{r.median_s(stage):.2f}",
+                f"{inner:.2f}" if inner is not None else "–",
+                _rate(r.buildings(stage), r.median_s(stage)), f"{r.peak_rss(stage):.0f}",
+            ])
+        header = ["extract", "buildings", f"seconds (median of {repeat})", "in-stage s", "buildings/s",
+                  "peak RSS MiB"]
+        lines += [f"### {stage}", "", *_table(header, rows, "lrrrrr"), ""]
+
+    rows = []
+    for r in results:
+        slowest = max(STAGES, key=r.median_s)
+        rows.append([r.name, f"{r.buildings('ingest'):,}", f"{r.end_to_end():.2f}",
+                     _rate(r.buildings("ingest"), r.end_to_end()),
+                     f"{slowest} ({r.median_s(slowest) / r.end_to_end():.0%})"])
+    header = ["extract", "buildings (ingest in)", f"seconds (median of {repeat})", "buildings/s",
+              "slowest stage (share)"]
+    lines += ["### end to end (ingest + lod + tiles + export)", "", *_table(header, rows, "lrrrl")]
+
+    rows = []
+    for r in results:
+        ic = r.counts("ingest")
+        rows.append([
+            r.name, f"{r.o2p_median():.2f}", f"{r.median_s('ingest'):.2f}",
+            f"{r.median_s('ingest') / r.o2p_median():.1f}×",
+            f"{sum(r.o2p_rows.values()):,} "
+            f"({r.o2p_rows.get('building', 0):,} + {r.o2p_rows.get('part', 0):,})",
+            f"{int(ic.get('loaded', 0)):,} ({int(ic.get('buildings', 0)):,} + {int(ic.get('parts', 0)):,}), "
+            f"{int(ic.get('rejected', 0)):,} rejected",
+        ])
+    header = ["extract", "osm2pgsql s", "citylod ingest s", "ratio", "osm2pgsql rows (buildings + parts)",
+              "citylod rows (buildings + parts)"]
+    lines += ["", "## osm2pgsql side by side", "", O2P_NOTE, "", *_table(header, rows, "lrrrrr")]
+
+    rows = []
+    for r in results:
+        ec = r.counts("export")
+        feats, tris, size = int(ec.get("features", 0)), int(ec.get("triangles", 0)), int(ec.get("bytes", 0))
+        rows.append([
+            r.name, f"{feats:,}", f"{int(r.counts('tiles').get('tiles', 0)):,}", f"{int(ec.get('glb', 0)):,}",
+            f"{tris:,}", f"{tris / max(feats, 1):.1f}", f"{size / 1e6:.2f}", f"{size / max(feats, 1):,.0f}",
+        ])
+    header = ["extract", "features", "tiles", "glb", "triangles", "triangles/building", "tileset MB",
+              "bytes/building"]
+    lines += ["", "## Output", "", OUTPUT_NOTE, "", *_table(header, rows, "lrrrrrrr")]
+
+    drifted = [f"{r.name} ({', '.join(d)})" for r in results if (d := r.drift())]
+    if drifted:
+        lines += ["", "## Warning", "",
+                  "Stage counts changed between repeats for " + "; ".join(drifted) + ". The pipeline code "
+                  "changed while the benchmark ran, so those runs did not all do the same work; the tables "
+                  "use the last run's counts. Rerun `make bench` on a quiet tree."]
+    lines += ["", "## How to read this", ""]
+    lines += [line.format(n=n, cores=mach.get("cores", "?")) for line in HOW_TO_READ]
+    return "\n".join(lines) + "\n"
+
+
+# --- main ---------------------------------------------------------------------------------------------------
+
+
+def default_files() -> list[Path]:
+    files = [SHARED_OSM / f for f in DEFAULT_EXTRACTS]
+    if DEMO_OSM.exists():
+        files.append(DEMO_OSM)
+    return files
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("--write", metavar="PATH", help="write the markdown report here (e.g. BENCHMARKS.md)")
+    p.add_argument("--repeat", type=int, default=3, help="runs per stage; the median is reported (default 3)")
+    p.add_argument("--files", nargs="+", type=Path, help="OSM extracts (default: ../shared/data/osm + demo)")
+    p.add_argument("--keep", action="store_true", help=f"keep {BENCH_DB} and {O2P_DB} afterwards")
+    args = p.parse_args(argv)
+    if args.repeat < 1:
+        p.error("--repeat must be at least 1")
+
+    files = [f.resolve() for f in args.files] if args.files else default_files()
+    missing = [str(f) for f in files if not f.exists()]
+    if missing:
+        p.error("missing input: " + ", ".join(missing))
+
+    cluster.ensure()  # starts the local cluster when DATABASE_URL is unset
+    admin_url = cluster.database_url("postgres")
+    command = "python -m benchmarks.bench" + (f" --write {args.write}" if args.write else "")
+    if args.repeat != 3:
+        command += f" --repeat {args.repeat}"
+    if args.files:
+        command += " --files " + " ".join(str(f) for f in args.files)
+
+    results: list[ExtractResult] = []
+    t0 = time.perf_counter()
+    try:
+        for f in files:
+            results.append(bench_extract(f, args.repeat, admin_url))
+        mach = machine(cluster.database_url(BENCH_DB))
+    finally:
+        if not args.keep:
+            for db in (BENCH_DB, O2P_DB):
+                drop_db(admin_url, db)
+            log(f"dropped {BENCH_DB}, {O2P_DB} (use --keep to keep them)")
+
+    report = render(results, mach, args.repeat, command)
+    if args.write:
+        Path(args.write).write_text(report)
+        log(f"wrote {args.write}")
+    else:
+        print(report)
+    log(f"done in {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

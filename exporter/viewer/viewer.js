@@ -1,0 +1,238 @@
+// citylod viewer: one 3D Tiles 1.1 tileset in CesiumJS, fully offline (no ion token, no imagery, no terrain).
+// Click a building to see the properties stored in its EXT_structural_metadata property table.
+// window.citylod is the hook the e2e test (tests/e2e/viewer_e2e.mjs) drives; keep its fields stable.
+(function () {
+  'use strict';
+
+  const log = (...args) => console.log('[citylod]', ...args);
+  const HIGHLIGHT = Cesium.Color.fromCssColorString('#ff6a00');
+  const statusEl = document.getElementById('status');
+  const titleEl = document.getElementById('props-title');
+  const hintEl = document.getElementById('props-hint');
+  const propsEl = document.getElementById('props');
+
+  const citylod = (window.citylod = {
+    viewer: null,
+    tileset: null,
+    ready: false, // the tileset is added to the scene and the camera is on it
+    allTilesLoaded: false, // true after tileset.allTilesLoaded, false again while tiles are requested
+    tileLoads: 0, // tileLoad events (tiles with content that finished loading)
+    tileFailures: 0,
+    picks: 0, // clicks handled, so a test can tell "picked nothing" from "not clicked yet"
+    lastPicked: null, // properties of the selected feature, or null
+    error: null,
+    lookAt,
+    stats,
+  });
+
+  // No ion: an empty token stops CesiumJS from asking ion for anything.
+  Cesium.Ion.defaultAccessToken = '';
+
+  const viewer = new Cesium.Viewer('cesium', {
+    baseLayer: false, // no imagery: a plain globe coloured below
+    baseLayerPicker: false,
+    geocoder: false,
+    homeButton: false,
+    sceneModePicker: false,
+    navigationHelpButton: false,
+    animation: false,
+    timeline: false,
+    fullscreenButton: false,
+    infoBox: false, // our own panel shows the properties
+    selectionIndicator: false,
+    skyBox: false,
+    skyAtmosphere: false,
+    // Lets screenshots (and canvas.toDataURL) read the last frame.
+    contextOptions: { webgl: { preserveDrawingBuffer: true } },
+  });
+  citylod.viewer = viewer;
+
+  const scene = viewer.scene;
+  scene.globe.baseColor = Cesium.Color.fromCssColorString('#5b6670');
+  scene.globe.showGroundAtmosphere = false; // keep the ground a flat, predictable colour
+  scene.backgroundColor = Cesium.Color.fromCssColorString('#1d2329');
+  // The sun follows the clock; pin it to a summer forenoon so walls are lit the same way on every load.
+  viewer.clock.currentTime = Cesium.JulianDate.fromIso8601('2024-06-21T09:00:00Z');
+  viewer.clock.shouldAnimate = false;
+
+  scene.renderError.addEventListener((_scene, err) => {
+    citylod.error = String(err);
+    console.error('[citylod] render error:', err);
+  });
+
+  // --- loading ---------------------------------------------------------------------------------------------
+  const params = new URLSearchParams(window.location.search);
+  const tilesetUrl = params.get('tileset') || '/tiles/tileset.json';
+
+  async function load() {
+    statusEl.textContent = `loading ${tilesetUrl} …`;
+    const tileset = await Cesium.Cesium3DTileset.fromUrl(tilesetUrl);
+    citylod.tileset = tileset;
+    log('tileset', tilesetUrl, 'version', tileset.asset.version, tileset.asset.tilesetVersion || '');
+
+    tileset.tileLoad.addEventListener((tile) => {
+      citylod.tileLoads += 1;
+      log('tile loaded', tile.content ? tile.content.url : '(no content)');
+    });
+    tileset.tileFailed.addEventListener((e) => {
+      citylod.tileFailures += 1;
+      console.error('[citylod] tile failed', e.url, e.message);
+    });
+    // loadProgress fires whenever the request/processing counts change: anything pending means "not loaded".
+    tileset.loadProgress.addEventListener((pending, processing) => {
+      if (pending > 0 || processing > 0) citylod.allTilesLoaded = false;
+    });
+    tileset.allTilesLoaded.addEventListener(() => {
+      citylod.allTilesLoaded = true;
+      const s = stats();
+      log(`all tiles loaded: ${s.tilesWithContent} tiles with content, ${s.triangles} triangles,`,
+        `${s.features} features`);
+    });
+
+    scene.primitives.add(tileset);
+    // Oblique overview of the whole tileset; range 0 lets CesiumJS fit the bounding sphere.
+    await viewer.zoomTo(tileset, new Cesium.HeadingPitchRange(0, Cesium.Math.toRadians(-40), 0));
+    citylod.ready = true;
+    log('ready');
+  }
+
+  load().catch((err) => {
+    citylod.error = String(err && err.message ? err.message : err);
+    statusEl.textContent = `could not load ${tilesetUrl}: ${citylod.error}`;
+    console.error('[citylod] tileset load failed:', citylod.error);
+  });
+
+  // --- status line -----------------------------------------------------------------------------------------
+  // Statistics are not public API in CesiumJS, hence the defensive reads.
+  function stats() {
+    const ts = citylod.tileset;
+    const st = (ts && ts.statistics) || {};
+    return {
+      tilesLoaded: citylod.tileLoads,
+      tilesWithContent: st.numberOfTilesWithContentReady || 0,
+      triangles: st.numberOfTrianglesSelected || 0,
+      features: st.numberOfFeaturesSelected || 0,
+      pending: (st.numberOfPendingRequests || 0) + (st.numberOfTilesProcessing || 0),
+      allTilesLoaded: citylod.allTilesLoaded,
+      tileFailures: citylod.tileFailures,
+    };
+  }
+
+  let lastStatus = 0;
+  scene.postRender.addEventListener(() => {
+    const now = performance.now();
+    if (!citylod.tileset || now - lastStatus < 500) return; // the DOM need not change every frame
+    lastStatus = now;
+    const s = stats();
+    const fmt = (n) => n.toLocaleString('en');
+    statusEl.textContent = `${fmt(s.tilesWithContent)} tiles loaded · ${fmt(s.triangles)} triangles · ` +
+      `${fmt(s.features)} buildings shown` + (s.pending ? ` · loading ${s.pending}…` : '') +
+      (s.tileFailures ? ` · ${s.tileFailures} failed` : '');
+  });
+
+  // --- picking ---------------------------------------------------------------------------------------------
+  let selected = null;
+  let selectedColor = null;
+
+  // JSON-safe values: INT64 properties (osm ids) arrive as BigInt, which JSON and postMessage cannot carry.
+  function featureProperties(feature) {
+    const props = {};
+    for (const id of feature.getPropertyIds()) {
+      const v = feature.getProperty(id);
+      props[id] = typeof v === 'bigint' ? v.toString() : v === undefined ? null : v;
+    }
+    return props;
+  }
+
+  function formatValue(v) {
+    if (v === null || v === '') return null;
+    if (typeof v === 'number' && !Number.isInteger(v)) return String(Math.round(v * 100) / 100);
+    return String(v);
+  }
+
+  function showProperties(props) {
+    propsEl.replaceChildren();
+    titleEl.replaceChildren();
+    hintEl.hidden = props !== null;
+    if (props === null) {
+      titleEl.textContent = 'No building selected';
+      return;
+    }
+    // Title: the name, else "way 123"; it links to the object on openstreetmap.org.
+    const link = document.createElement('a');
+    link.href = `https://www.openstreetmap.org/${props.osm_type}/${props.osm_id}`;
+    link.target = '_blank';
+    link.rel = 'noopener';
+    link.textContent = props.name || `${props.osm_type} ${props.osm_id}`;
+    titleEl.append(link);
+    for (const [id, v] of Object.entries(props)) {
+      const row = propsEl.insertRow();
+      const th = document.createElement('th');
+      th.textContent = id;
+      const td = document.createElement('td');
+      const text = formatValue(v);
+      if (text === null) {
+        td.textContent = '—';
+        td.className = 'empty';
+      } else {
+        if (/_colour$/.test(id) && /^#[0-9a-f]{6}$/i.test(text)) {
+          const sw = document.createElement('span');
+          sw.className = 'swatch';
+          sw.style.background = text;
+          td.append(sw);
+        }
+        td.append(text);
+      }
+      row.append(th, td);
+    }
+  }
+
+  function select(feature) {
+    if (selected) {
+      // The tile may have been unloaded since; its feature is then gone and needs no reset.
+      try {
+        selected.color = selectedColor;
+      } catch (e) {
+        /* ignore */
+      }
+    }
+    selected = feature;
+    selectedColor = feature ? Cesium.Color.clone(feature.color) : null;
+    if (feature) feature.color = HIGHLIGHT;
+    citylod.lastPicked = feature ? featureProperties(feature) : null;
+    showProperties(citylod.lastPicked);
+    if (feature) log('picked', citylod.lastPicked.osm_type, citylod.lastPicked.osm_id);
+  }
+
+  const handler = new Cesium.ScreenSpaceEventHandler(scene.canvas);
+  handler.setInputAction((click) => {
+    const picked = scene.pick(click.position);
+    select(picked instanceof Cesium.Cesium3DTileFeature ? picked : null);
+    citylod.picks += 1;
+  }, Cesium.ScreenSpaceEventType.LEFT_CLICK);
+
+  // --- test/automation helper ------------------------------------------------------------------------------
+  // Look straight down (pitch -90°) at lon/lat/height (degrees, metres above the ellipsoid) from `range`
+  // metres, then resolve once the tileset has loaded everything the new view needs (or after timeoutMs).
+  // allTilesLoaded only fires when loading actually happened, so this polls tileset.tilesLoaded instead,
+  // after a few frames so the first traversal from the new position has issued its requests.
+  function lookAt(lon, lat, height = 0, range = 300, timeoutMs = 60000) {
+    viewer.camera.setView({
+      destination: Cesium.Cartesian3.fromDegrees(lon, lat, height + range),
+      orientation: { heading: 0, pitch: -Cesium.Math.PI_OVER_TWO, roll: 0 },
+    });
+    citylod.allTilesLoaded = false;
+    const t0 = performance.now();
+    return new Promise((resolve) => {
+      let frames = 0;
+      const remove = scene.postRender.addEventListener(() => {
+        frames += 1;
+        const loaded = frames >= 3 && citylod.tileset && citylod.tileset.tilesLoaded;
+        if (!loaded && performance.now() - t0 < timeoutMs) return;
+        remove();
+        citylod.allTilesLoaded = Boolean(loaded);
+        resolve({ loaded: Boolean(loaded), ms: Math.round(performance.now() - t0), frames });
+      });
+    });
+  }
+})();

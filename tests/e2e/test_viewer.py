@@ -1,0 +1,178 @@
+"""The viewer end to end: `python -m exporter serve` on the real Munich tileset, CesiumJS in headless Chromium
+(tests/e2e/viewer_e2e.mjs) loads it offline, clicks a known building and must read back its OSM id.
+
+Also the server alone (no browser): media types, CORS, 404s and refused path traversal.
+A missing Chromium or Node.js fails these tests; it never skips them.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import queue
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+DRIVER = REPO / "tests" / "e2e" / "viewer_e2e.mjs"
+SCREENSHOT = REPO / "build" / "screenshots" / "viewer_munich.png"
+CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
+
+# The largest tall-ish, roughly convex, standalone building, with no other building within 3 m of the point
+# we click: looking straight down at that point must hit this roof and nothing else.
+PICK_TARGET = """
+SELECT b.osm_type, b.osm_id, ST_X(p.geom), ST_Y(p.geom), m.height
+FROM osm.building b
+JOIN lod.building_mesh m ON m.building_id = b.id AND m.lod = 1
+CROSS JOIN LATERAL ST_PointOnSurface(b.geom) AS p(geom)
+WHERE b.kind = 'building' AND b.n_parts = 0 AND m.height >= 10
+  AND ST_Area(b.geom_local) >= 0.8 * ST_Area(ST_ConvexHull(b.geom_local))
+  AND NOT EXISTS (
+      SELECT 1 FROM osm.building o
+      WHERE o.id <> b.id AND ST_DWithin(o.geom::geography, p.geom::geography, 3))
+ORDER BY b.area_m2 DESC
+LIMIT 1
+"""
+
+
+@contextmanager
+def served(tiles: Path, timeout: float = 30.0) -> Iterator[tuple[str, subprocess.Popen]]:
+    """Run ``python -m exporter serve --port 0`` and yield (base URL, process); always terminated after."""
+    with tempfile.TemporaryFile(mode="w+") as stderr:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "exporter", "serve", "--dir", str(tiles), "--port", "0"],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=stderr, text=True,
+        )
+        try:
+            # The one stdout line tells the port; read it on a thread so a hung server cannot hang the test.
+            lines: queue.Queue[str] = queue.Queue()
+            out = proc.stdout
+            assert out is not None
+            threading.Thread(target=lambda: lines.put(out.readline()), daemon=True).start()
+            try:
+                line = lines.get(timeout=timeout)
+            except queue.Empty:
+                line = ""
+            prefix = "citylod viewer: "
+            if not line.startswith(prefix):
+                stderr.seek(0)
+                raise AssertionError(f"server did not announce its URL (got {line!r}):\n{stderr.read()}")
+            yield line[len(prefix):].strip(), proc
+        finally:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+            if proc.stdout:
+                proc.stdout.close()
+
+
+def raw_get(base: str, path: str, method: str = "GET") -> tuple[int, dict[str, str], bytes]:
+    """One request with ``path`` sent verbatim (no client-side normalisation of '..' or %2e)."""
+    u = urlsplit(base)
+    conn = http.client.HTTPConnection(u.hostname, u.port, timeout=30)
+    try:
+        conn.request(method, path)
+        r = conn.getresponse()
+        return r.status, {k.lower(): v for k, v in r.getheaders()}, r.read()
+    finally:
+        conn.close()
+
+
+@pytest.mark.db
+def test_server_routes(city: Callable, tmp_path: Path) -> None:
+    tiles = city("munich").tiles
+    glb = next(tiles.rglob("*.glb")).relative_to(tiles).as_posix()
+    with served(tiles) as (base, proc):
+        status, headers, body = raw_get(base, f"/tiles/{glb}")
+        assert status == 200
+        assert headers["content-type"] == "model/gltf-binary"
+        assert headers["access-control-allow-origin"] == "*"
+        assert body[:4] == b"glTF" and len(body) == int(headers["content-length"])
+
+        status, headers, body = raw_get(base, "/tiles/tileset.json")
+        assert status == 200 and headers["content-type"] == "application/json"
+        assert json.loads(body)["asset"]["version"] == "1.1"
+
+        for path, media in (("/", "text/html"), ("/index.html", "text/html"),
+                            ("/viewer/viewer.js", "text/javascript"), ("/viewer/viewer.css", "text/css"),
+                            ("/cesium/Cesium.js", "text/javascript")):
+            status, headers, _ = raw_get(base, path)
+            assert (status, headers["content-type"].split(";")[0]) == (200, media), path
+            assert headers["access-control-allow-origin"] == "*", path
+
+        status, headers, _ = raw_get(base, "/tiles/content/99/0/0.glb")
+        assert status == 404
+        assert headers["access-control-allow-origin"] == "*"  # errors too, so other origins can read them
+        assert raw_get(base, "/tiles/content/")[0] == 404  # no directory listing
+        for path in ("/tiles/../../etc/passwd", "/tiles/%2e%2e/%2e%2e/etc/passwd",
+                     "/cesium/..%2f..%2f..%2fpackage.json", "/viewer/%00", "/../pyproject.toml"):
+            status, _, body = raw_get(base, path)
+            assert status in (400, 404), (path, status)
+            assert b"root:" not in body and b"[project]" not in body, path
+        assert raw_get(base, "/tiles/tileset.json", "OPTIONS")[0] == 204  # CORS preflight
+
+        # SIGTERM stops it cleanly.
+        proc.terminate()
+        assert proc.wait(timeout=10) == 0
+
+    # Nothing to serve: a clear message that says how to make a tileset.
+    r = subprocess.run([sys.executable, "-m", "exporter", "serve", "--dir", str(tmp_path), "--port", "0"],
+                       cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert r.returncode != 0 and "make export" in r.stderr and r.stdout == ""
+
+
+@pytest.mark.e2e
+def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) -> None:
+    node = shutil.which("node")
+    assert node, "Node.js is not installed: it is needed to drive Chromium (tests/e2e/viewer_e2e.mjs)"
+    assert CHROMIUM.exists(), f"Chromium not found at {CHROMIUM}: run scripts/install-system.sh test"
+    for pkg in ("playwright-core", "cesium"):
+        assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
+
+    from etl.settings import Settings
+
+    munich = city("munich")
+    row = conn_of(munich.url).execute(PICK_TARGET).fetchone()
+    assert row, "no building in Munich fits the pick-target query"
+    osm_type, osm_id, lon, lat, height = row
+    top = Settings.from_env().base_height_m + float(height)  # the roof, metres above the ellipsoid
+
+    SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+    SCREENSHOT.unlink(missing_ok=True)
+    with served(munich.tiles) as (base, _proc):
+        r = subprocess.run(
+            [node, str(DRIVER), "--url", base, "--lon", repr(lon), "--lat", repr(lat), "--height", repr(top),
+             "--screenshot", str(SCREENSHOT), "--expect-osm-id", str(osm_id)],
+            cwd=REPO, capture_output=True, text=True, timeout=600,
+        )
+    out = r.stdout.strip().splitlines()
+    context = f"driver exit {r.returncode}\nstdout:\n{r.stdout}\nstderr:\n{r.stderr}"
+    assert out, context
+    res = json.loads(out[-1])
+    assert r.returncode == 0, context
+
+    assert res["tilesWithContent"] > 0, context
+    assert res["triangles"] > 0, context
+    picked = res["picked"]
+    assert picked, f"nothing picked at {osm_type} {osm_id}\n{context}"
+    assert int(picked["osm_id"]) == osm_id, context
+    assert picked["osm_type"] == {"W": "way", "R": "relation"}[osm_type], context
+    assert res["panelRows"] == len(picked) > 1, context  # the panel shows every property
+    host = urlsplit(base).netloc
+    assert res["hosts"] == [host], f"requests left the local server: {res['hosts']}"
+    assert "OpenStreetMap contributors" in (res["attribution"] or "")
+    assert SCREENSHOT.exists() and SCREENSHOT.stat().st_size > 10_000, SCREENSHOT
