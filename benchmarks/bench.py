@@ -35,7 +35,7 @@ from psycopg.conninfo import conninfo_to_dict
 from etl import cluster
 from etl.settings import REPO
 
-SHARED_OSM = REPO.parent / "shared" / "data" / "osm"
+SHARED_OSM = Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm"
 # Liechtenstein first: it is the benchmark extract the headline figures quote.
 DEFAULT_EXTRACTS = (
     "liechtenstein_2022-07-24.osm.pbf",

@@ -33,7 +33,8 @@ from etl import cluster  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
 
 FIXTURES = REPO / "tests" / "fixtures" / "osm"
-SHARED = (REPO.parent / "shared" / "data" / "osm").resolve()
+#: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
+SHARED = (Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm").resolve()
 BUILD = REPO / "build" / "test"
 KEEP = os.environ.get("KEEP_TEST_DB") == "1"
 #: Databases of one test session share this prefix (pid included, so concurrent sessions never collide).
