@@ -6,7 +6,10 @@
 set -euo pipefail
 profile="${1:-base}"
 pkgs=(postgresql-15 postgresql-15-postgis-3 postgresql-15-postgis-3-scripts)
-python3 -c 'import ensurepip, venv' 2>/dev/null || pkgs+=(python3-venv)
+# Debian's python3 imports ensurepip fine but cannot create a venv without python3-venv: try for real.
+probe=$(mktemp -d)
+python3 -m venv "$probe/v" >/dev/null 2>&1 || pkgs+=(python3-venv)
+rm -rf "$probe"
 case "$profile" in
   base) ;;
   test) pkgs+=(chromium fonts-liberation) ;;

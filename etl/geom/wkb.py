@@ -29,19 +29,7 @@ def encode_triangles(triangles: np.ndarray, srid: int | None = None) -> bytes:
     t = np.asarray(triangles, dtype=np.float64)
     if t.ndim != 3 or t.shape[1:] != (3, 3):
         raise ValueError(f"expected (m, 3, 3) triangles, got {t.shape}")
-    rec = np.empty(len(t), dtype=_TRIANGLE)
-    rec["order"] = 1
-    rec["type"] = WKB_POLYGON | EWKB_Z
-    rec["nrings"] = 1
-    rec["npoints"] = 4
-    rec["xyz"][:, :3] = t
-    rec["xyz"][:, 3] = t[:, 0]
-    gtype = WKB_POLYHEDRALSURFACE | EWKB_Z | (EWKB_SRID if srid is not None else 0)
-    header = b"\x01" + np.uint32(gtype).tobytes()
-    if srid is not None:
-        header += np.uint32(srid).tobytes()
-    header += np.uint32(len(t)).tobytes()
-    return header + rec.tobytes()
+    return encode_triangles_batch(t, np.array([0, len(t)]), srid)[0]
 
 
 def encode_triangles_batch(triangles: np.ndarray, offsets: np.ndarray, srid: int | None = None) -> list[bytes]:
