@@ -130,12 +130,24 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
 
     exp = sub.add_parser("export", help="tiles -> 3D Tiles 1.1 (tileset.json + glb)")
-    exp.add_argument("--out", default=str(REPO / "build" / "tiles"), help="output directory")
+    exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
+                     help="output directory (replaced only if empty or a citylod tileset)")
     exp.set_defaults(fn=cmd_export)
 
     args = p.parse_args(argv)
     settings = Settings.from_env()
-    return int(args.fn(args, settings))
+    try:
+        return int(args.fn(args, settings))
+    except KeyboardInterrupt:
+        print(f"{args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - one clear line for users; CITYLOD_DEBUG=1 shows the traceback
+        if os.environ.get("CITYLOD_DEBUG") == "1":
+            raise
+        print(f"{args.command}: error: {e}", file=sys.stderr)
+        if args.command in ("ingest", "lod", "tiles", "export"):
+            print("  (recorded as failed in meta.pipeline_run; CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -215,7 +215,10 @@ def parse_building_tags(
     kind = building_kind(tags)
     if kind is None:
         return None
-    out = BuildingTags(kind=kind, building=_text(tags.get("building")), part=_text(tags.get("building:part")))
+    part = _text(tags.get("building:part"))
+    # building:part=no on an outline says "not a part": keep the column NULL so the outline rule ignores it
+    out = BuildingTags(kind=kind, building=_text(tags.get("building")),
+                       part=None if part and part.lower() == "no" else part)
     out.name = _text(tags.get("name"))
 
     def take(key: str, fn, *args):  # type: ignore[no-untyped-def]

@@ -109,12 +109,41 @@ def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: f
     return n_features, n_triangles, n_bytes
 
 
+PARTIAL_MARKER = ".citylod-partial"  # marks an export in progress (or one that crashed): ours to delete
+
+
+class OutputDirectoryError(RuntimeError):
+    pass
+
+
+def replaceable(path: Path) -> bool:
+    """True when ``path`` may be deleted and rewritten: missing, an empty directory, or a tileset citylod
+    wrote (its tileset.json names citylod as the generator). Anything else is the user's and is kept."""
+    if not path.exists():
+        return True
+    if not path.is_dir():
+        return False
+    if not any(path.iterdir()) or (path / PARTIAL_MARKER).exists():
+        return True
+    try:
+        asset = json.loads((path / "tileset.json").read_text()).get("asset", {})
+    except (OSError, ValueError):
+        return False
+    return isinstance(asset, dict) and str(asset.get("generator", "")).startswith("citylod")
+
+
 def export_tileset(url: str, out: Path, settings: Settings, workers: int | None = None) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
+    for p in (out, partial):
+        if not replaceable(p):
+            raise OutputDirectoryError(
+                f"refusing to overwrite {p}: it is not empty and holds no tileset written by citylod; "
+                "choose a new or empty directory")
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
+    (partial / PARTIAL_MARKER).touch()
     with connect(url) as conn:
         records = [
             TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
@@ -127,14 +156,23 @@ def export_tileset(url: str, out: Path, settings: Settings, workers: int | None 
         if not records:
             raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
         dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
+        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 1").fetchone()
     leaves = [r for r in records if r.is_leaf]
+    in_tiles = sum(r.n_features for r in leaves)
+    if meshes is None or in_tiles != meshes[0]:
+        raise RuntimeError(
+            f"the tiles are stale: they hold {in_tiles} features but lod.building_mesh has "
+            f"{meshes[0] if meshes else 0} LOD1 meshes; run the tiles stage again (make tiles)")
     progress = Progress("export", "buildings", total=sum(r.n_features for r in leaves))
     n_features, n_triangles, n_bytes = _export_leaves(
         url, leaves, partial, settings.base_height_m, workers or min(4, os.cpu_count() or 1), progress)
+    if n_features != in_tiles:
+        raise RuntimeError(f"export lost features: {in_tiles} in the tiles, {n_features} written")
     tileset = build_tileset(records, tileset_version=(dataset[0][:16] if dataset and dataset[0] else ""))
     js = json.dumps(tileset, indent=1).encode()
     (partial / "tileset.json").write_bytes(js)
     n_bytes += len(js)
+    (partial / PARTIAL_MARKER).unlink()
     if out.exists():
         shutil.rmtree(out)
     partial.rename(out)

@@ -140,7 +140,12 @@ def read_buildings(
                 yield _reject(counts, "W", obj.id, parsed, tags, "missing_nodes",
                               f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
                 continue
-            yield _row("W", obj.id, parsed, tags, "L", wkb.create_linestring(obj))
+            try:
+                line = wkb.create_linestring(obj)
+            except RuntimeError as e:  # e.g. every node at one spot: no linestring, let alone a ring
+                yield _reject(counts, "W", obj.id, parsed, tags, "degenerate_ring", str(e))
+                continue
+            yield _row("W", obj.id, parsed, tags, "L", line)
         elif obj.is_node():
             counts.nodes_skipped += 1  # building=* on a node has no footprint; not a candidate
         elif obj.is_relation():
@@ -199,10 +204,12 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
             "TRUNCATE osm.building_import, osm.building, osm.building_relation, osm.building_relation_member,"
             " lod.building_mesh, tiles.building_tile, tiles.tile, tiles.grid CASCADE"
         )
-        cur.execute("DELETE FROM osm.reject")
-        cur.execute("DELETE FROM meta.diagnostic")
+        cur.execute("TRUNCATE osm.reject, meta.diagnostic RESTART IDENTITY")
 
-        rels = list(read_building_relations(path))  # few; needed before parts are linked
+        try:
+            rels = list(read_building_relations(path))  # few; needed before parts are linked
+        except RuntimeError as e:
+            raise RuntimeError(f"cannot read {path}: {e}") from e
         counts.building_relations = len(rels)
         if rels:
             with cur.copy("COPY osm.building_relation (relation_id, name, tags) FROM STDIN") as copy:
@@ -216,7 +223,10 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
                         copy.write_row((rid, seq, mtype, ref, role))
 
         progress = Progress("ingest", "buildings")
-        _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
+        try:
+            _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
+        except RuntimeError as e:  # libosmium: truncated or corrupt PBF, malformed XML, unknown format
+            raise RuntimeError(f"cannot read {path}: {e}") from e
         print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
               file=sys.stderr, flush=True)
         staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()

@@ -143,3 +143,34 @@ def test_triangle_counts_and_run_record(city, conn_of) -> None:
     assert counts["features"] == conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0]
     ts = json.loads((c.tiles / "tileset.json").read_text())
     assert ts["asset"]["version"] == "1.1" and ts["extras"]["copyright"].startswith("©")
+
+
+def test_export_never_deletes_a_foreign_directory(city, new_db, tmp_path) -> None:
+    url = new_db("export_foreign")  # its own database: the shared city databases are read-only
+    for stage in (("ingest", "--osm", str(city("fixtures").osm)), ("lod",), ("tiles",)):
+        run_etl(url, *stage)
+    victim = tmp_path / "notes"
+    victim.mkdir()
+    (victim / "thesis.tex").write_text("precious")
+    proc = run_etl(url, "export", "--out", str(victim), check=False)
+    assert proc.returncode != 0 and "refusing to overwrite" in proc.stderr
+    assert (victim / "thesis.tex").read_text() == "precious"
+    # a tileset citylod wrote, and a crashed export's leftovers, are replaced
+    out = tmp_path / "ts"
+    run_etl(url, "export", "--out", str(out))
+    (tmp_path / "ts.partial").mkdir()
+    (tmp_path / "ts.partial" / ".citylod-partial").touch()
+    run_etl(url, "export", "--out", str(out))
+    assert (out / "tileset.json").exists() and not (tmp_path / "ts.partial").exists()
+
+
+def test_stale_tiles_are_refused(city, new_db, tmp_path) -> None:
+    url = new_db("export_stale")
+    run_etl(url, "ingest", "--osm", str(city("fixtures").osm))
+    run_etl(url, "lod")
+    run_etl(url, "tiles")
+    run_etl(url, "lod", env={"CITYLOD_OUTLINE_PART_COVERAGE": "1.01"})  # more meshes; tiles emptied
+    proc = run_etl(url, "export", "--out", str(tmp_path / "ts"), check=False)
+    assert proc.returncode != 0 and "run the tiles stage" in proc.stderr
+    run_etl(url, "tiles")
+    run_etl(url, "export", "--out", str(tmp_path / "ts"))

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from tests.conftest import FIXTURES, merge_osm, run_etl
+from tests.conftest import FIXTURES, SHARED, merge_osm, run_etl
 
 
 @pytest.fixture(scope="module")
@@ -24,9 +24,9 @@ def test_counts_in_equals_loaded_plus_rejected(fx, conn_of) -> None:
     counts = one(conn, "SELECT counts FROM meta.pipeline_run WHERE stage = 'ingest' AND status = 'ok'")[0]
     loaded = one(conn, "SELECT count(*) FROM osm.building")[0]
     rejected = one(conn, "SELECT count(*) FROM osm.reject WHERE stage = 'ingest'")[0]
-    # 100: 1, 110: 1, 120: 1, 130: 3, 140: 4, 150: 9, 900: 9 ways + 2 relations = 30 candidates
-    assert counts["in"] == 30
-    assert (counts["loaded"], counts["rejected"]) == (loaded, rejected) == (24, 6)
+    # 100: 1, 110: 1, 120: 1, 130: 3, 140: 4, 150: 9, 160: 2, 900: 10 ways + 2 relations = 33 candidates
+    assert counts["in"] == 33
+    assert (counts["loaded"], counts["rejected"]) == (loaded, rejected) == (26, 7)
     assert counts["in"] == loaded + rejected
 
 
@@ -108,6 +108,7 @@ def test_broken_input_is_rejected_with_reasons(fx, conn_of) -> None:
         ("W", 90001): "unclosed_way",
         ("W", 90003): "missing_nodes",
         ("W", 90007): "degenerate_ring",
+        ("W", 90013): "degenerate_ring",
         ("W", 90008): "too_small",
         ("R", 9001): "multipolygon_assembly_failed",
         ("R", 9002): "unsupported_relation",
@@ -148,8 +149,8 @@ def _snapshot(conn) -> str:
     h = hashlib.sha256()
     for q in ("SELECT id, kind, tags::text, ST_AsEWKB(geom), ST_AsEWKB(geom_local), height, parent_id, part_coverage"
               " FROM osm.building ORDER BY id",
-              "SELECT osm_type, osm_id, stage, reason, detail FROM osm.reject ORDER BY osm_type, osm_id",
-              "SELECT stage, osm_type, osm_id, code, detail FROM meta.diagnostic ORDER BY 2, 3, 4",
+              "SELECT reject_id, osm_type, osm_id, stage, reason, detail FROM osm.reject ORDER BY reject_id",
+              "SELECT diagnostic_id, stage, osm_type, osm_id, code, detail FROM meta.diagnostic ORDER BY 1",
               "SELECT srid, source_sha256 FROM meta.dataset"):
         for row in conn.execute(q):
             h.update(repr(row).encode())
@@ -162,7 +163,7 @@ def test_rerun_gives_the_same_database(new_db, conn_of, tmp_path) -> None:
     run_etl(url, "ingest", "--osm", str(src))
     first = _snapshot(conn_of(url))
     proc = run_etl(url, "ingest", "--osm", str(src))
-    assert "in 30 = loaded 24" in proc.stdout  # the one-line summary
+    assert "in 33 = loaded 26" in proc.stdout  # the one-line summary
     assert _snapshot(conn_of(url)) == first
 
 
@@ -190,3 +191,19 @@ def test_real_extracts(city, conn_of, name, buildings) -> None:
     assert reasons <= {"unsupported_relation", "multipolygon_assembly_failed", "missing_nodes"}
     assert one(conn, "SELECT count(*) FROM osm.building WHERE NOT ST_IsValid(geom_local)")[0] == 0
     assert json.dumps(counts)  # recorded as JSON
+
+
+def test_unreadable_files_fail_with_one_clear_line(new_db, conn_of, tmp_path) -> None:
+    url = new_db("ingest_unreadable")
+    truncated = tmp_path / "truncated.osm.pbf"
+    truncated.write_bytes((SHARED / "munich_altstadt.osm.pbf").read_bytes()[:100_000])
+    garbage = tmp_path / "garbage.osm"
+    garbage.write_text("not osm at all")
+    for f in (truncated, garbage):
+        proc = run_etl(url, "ingest", "--osm", str(f), check=False)
+        assert proc.returncode == 1
+        assert proc.stderr.startswith(f"ingest: error: cannot read {f}")
+        assert "Traceback" not in proc.stderr
+    runs = conn_of(url).execute(
+        "SELECT status, error FROM meta.pipeline_run WHERE stage = 'ingest' ORDER BY run_id").fetchall()
+    assert [r[0] for r in runs] == ["failed", "failed"] and "PBF error" in runs[0][1]

@@ -95,3 +95,7 @@ def test_parse_building_tags_collects_issues_and_fallbacks() -> None:
     assert t.building_material == "brick"
     assert {(i.key, i.code) for i in t.issues} == {("height", "not_a_length"), ("roof:colour", "not_a_colour")}
     assert parse_building_tags({"amenity": "cafe"}) is None
+    outline = parse_building_tags({"building": "yes", "building:part": "no"})
+    assert outline is not None and outline.part is None
+    both = parse_building_tags({"building": "yes", "building:part": "yes"})
+    assert both is not None and (both.kind, both.part) == ("building", "yes")
