@@ -23,11 +23,11 @@ help: ## list the targets
 	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) (DATABASE_URL to use another PostGIS)"
 
 # --- installation (each step only when something is missing) -----------------------------------------------
-$(SETUP_PY): pyproject.toml
+$(SETUP_PY): pyproject.toml constraints.txt
 	scripts/install-system.sh base
 	test -x $(PY) || python3 -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q pip==26.3
+	$(PY) -m pip install -q -c constraints.txt -e '.[dev]'
 	touch $@
 
 $(SETUP_NODE): package.json package-lock.json
@@ -80,7 +80,8 @@ demo: ## everything on Helsinki: install, database, ingest, lod, tiles, export, 
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------
-test: setup-test ## run every test (unit, real PostGIS, validators, CesiumJS in headless Chromium)
+test: setup-test ## run every test (ruff, unit, real PostGIS, validators, CesiumJS in headless Chromium)
+	$(PY) -m ruff check etl exporter tests benchmarks
 	$(PY) -m pytest tests
 
 test-unit: $(SETUP_PY) ## only the pure tests (no database)

@@ -68,7 +68,7 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
     url = _url(settings)
     sha = sha256_file(path)
     params = {**settings.as_dict(), "osm": str(path)}
-    with pipeline_run(url, "ingest", params, path) as run, connect(url) as conn:
+    with pipeline_run(url, "ingest", params, path, input_sha256=sha) as run, connect(url) as conn:
         run.counts = ingest.run(conn, path, settings, sha)
     return 0
 

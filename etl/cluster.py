@@ -1,9 +1,10 @@
 """The embedded PostgreSQL cluster under ``var/pg`` (or whatever ``DATABASE_URL`` points at).
 
 PostgreSQL refuses to run as root, so when we are root the cluster belongs to the ``postgres`` system user
-(created by the Debian package) and every server command runs through ``runuser``. It listens on a unix
-socket in ``var/pg/sock`` and on 127.0.0.1 at its own port, so it never clashes with a system cluster.
-Authentication is ``trust`` for local connections only: this is a developer/CI database, not a server.
+(created by the Debian package) and every server command runs through ``runuser``. It listens only on a unix
+socket in ``var/pg/sock`` (no TCP), so two checkouts never clash over a port and no other machine, nor another
+local user (the directory is 0700), can reach it; authentication is ``trust`` on that socket. Tools that
+want a TCP address (none of ours do) can use DATABASE_URL to point at a server of their own.
 """
 
 from __future__ import annotations
@@ -121,6 +122,7 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
     owner = _owner()
     if not (cluster.data / "PG_VERSION").exists():
         cluster.sock.mkdir(parents=True, exist_ok=True)
+        cluster.sock.chmod(0o700)
         if owner:
             shutil.chown(cluster.root, owner, owner)
             shutil.chown(cluster.sock, owner, owner)
@@ -134,7 +136,7 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
         )
         conf = cluster.data / "postgresql.auto.conf"
         extra = (
-            f"listen_addresses = '127.0.0.1'\nport = {cluster.port}\n"
+            f"listen_addresses = ''\nport = {cluster.port}\n"
             f"unix_socket_directories = '{cluster.sock}'\n"
             # A throwaway development cluster: durability is traded for load speed (osm2pgsql's advice too).
             "fsync = off\nsynchronous_commit = off\nfull_page_writes = off\n"
@@ -150,13 +152,19 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
             with conf.open("a") as fh:
                 fh.write(extra)
     if not is_running(cluster):
-        subprocess.run(
+        r = subprocess.run(
             _as_owner([
                 str(PGBIN / "pg_ctl"), "-D", str(cluster.data), "-l", str(cluster.log), "-w", "-t", "60", "start",
             ]),
-            check=True,
             stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
         )
+        if r.returncode != 0:
+            tail = cluster.log.read_text(errors="replace").splitlines()[-5:] if cluster.log.exists() else []
+            raise ClusterError(
+                f"PostgreSQL did not start (pg_ctl: {r.stderr.strip()}); last lines of {cluster.log}:\n  "
+                + "\n  ".join(tail))
     _ensure_database(cluster, settings.pg_database)
     if not quiet:
         print(f"PostgreSQL {PG_VERSION} running: {cluster.url(settings.pg_database)}", file=sys.stderr)

@@ -51,7 +51,8 @@ class Run:
 
 @contextmanager
 def pipeline_run(
-    url: str, stage: str, params: dict[str, object], input_file: Path | None = None
+    url: str, stage: str, params: dict[str, object], input_file: Path | None = None,
+    input_sha256: str | None = None,
 ) -> Iterator[Run]:
     """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row."""
     with psycopg.connect(url, autocommit=True) as conn:
@@ -62,7 +63,7 @@ def pipeline_run(
                 stage,
                 Jsonb(json.loads(json.dumps(params, default=str))),
                 str(input_file) if input_file else None,
-                sha256_file(input_file) if input_file else None,
+                input_sha256 or (sha256_file(input_file) if input_file else None),
                 git_commit(),
                 socket.gethostname(),
             ),

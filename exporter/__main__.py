@@ -7,14 +7,14 @@ import json
 import sys
 from pathlib import Path
 
-from etl.settings import REPO, Settings
+from etl.settings import REPO
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m exporter", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
 
-    ex = sub.add_parser("export", help="write the tileset (same as python -m etl export, without a pipeline_run row)")
+    ex = sub.add_parser("export", help="write the tileset (the same as python -m etl export)")
     ex.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"))
 
     ck = sub.add_parser("check", help="check a tileset.json against the 3D Tiles 1.1 rules citylod enforces")
@@ -27,12 +27,9 @@ def main(argv: list[str] | None = None) -> int:
 
     args = p.parse_args(argv)
     if args.command == "export":
-        from etl import cluster
+        from etl.__main__ import main as etl_main
 
-        from .export import export_tileset
-
-        export_tileset(cluster.ensure(), Path(args.out).resolve(), Settings.from_env())
-        return 0
+        return etl_main(["export", "--out", args.out])
     if args.command == "check":
         from .checks import check_tileset
 

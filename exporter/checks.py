@@ -11,7 +11,9 @@ requires of tileset.json and tiles, plus the rules a client silently depends on:
   * child bounding volumes inside their parent's (regions compared directly; boxes and spheres compared by
     their ECEF corners after the accumulated transforms), with a small tolerance;
   * the top-level geometricError is sized to the tileset's extent (at least half the root volume's
-    diagonal): CesiumJS skips the whole tileset, without an error, when it is too small.
+    diagonal): CesiumJS skips the whole tileset, without an error, when it is too small;
+  * in every glb content, EXT_mesh_features and EXT_structural_metadata (``check_glb``), which the Khronos
+    glTF-Validator does not check ("unsupported extension").
 Pure Python + numpy; no database.
 """
 
@@ -111,16 +113,132 @@ def _check_bv(bv: object, where: str, problems: list[str]) -> bool:
 
 
 def _check_glb(path: Path, where: str, problems: list[str]) -> None:
-    with path.open("rb") as fh:
-        head = fh.read(12)
-    if len(head) < 12:
-        problems.append(f"{where}: {path.name} is too short to be a GLB")
-        return
-    magic, version, length = struct.unpack("<4sII", head)
+    problems.extend(f"{where}: {path.name}: {p}" for p in check_glb(path.read_bytes()))
+
+
+_COMPONENT_BYTES = {"INT8": 1, "UINT8": 1, "INT16": 2, "UINT16": 2, "INT32": 4, "UINT32": 4, "INT64": 8,
+                    "UINT64": 8, "FLOAT32": 4, "FLOAT64": 8}
+_OFFSET_DTYPES = {"UINT8": "<u1", "UINT16": "<u2", "UINT32": "<u4", "UINT64": "<u8"}
+_ACCESSOR_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+
+
+def check_glb(data: bytes) -> list[str]:
+    """Problems in a GLB's container and in its EXT_mesh_features / EXT_structural_metadata (feature ids in
+    range and all used, property tables consistent with their class, buffer views inside the buffer and
+    8-byte aligned, string offsets increasing and inside their buffer). Empty list = passes."""
+    problems: list[str] = []
+    if len(data) < 20:
+        return ["too short to be a GLB"]
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
     if magic != b"glTF" or version != 2:
-        problems.append(f"{where}: {path.name} is not a GLB 2.0 file")
-    elif length != path.stat().st_size:
-        problems.append(f"{where}: {path.name} header length {length} != file size {path.stat().st_size}")
+        return ["not a GLB 2.0 file"]
+    if length != len(data):
+        return [f"header length {length} != file size {len(data)}"]
+    jlen, jtype = struct.unpack_from("<I4s", data, 12)
+    if jtype != b"JSON":
+        return ["first chunk is not JSON"]
+    try:
+        gltf = json.loads(data[20 : 20 + jlen])
+    except ValueError as e:
+        return [f"JSON chunk does not parse: {e}"]
+    binary = b""
+    if 20 + jlen + 8 <= len(data):
+        blen, btype = struct.unpack_from("<I4s", data, 20 + jlen)
+        if btype == b"BIN\0":
+            binary = data[28 + jlen : 28 + jlen + blen]
+    views = gltf.get("bufferViews", [])
+    buffers = gltf.get("buffers", [])
+    for i, v in enumerate(views):
+        buf = buffers[v.get("buffer", 0)] if v.get("buffer", 0) < len(buffers) else None
+        if buf is None or v.get("byteOffset", 0) + v.get("byteLength", 0) > buf.get("byteLength", 0):
+            problems.append(f"bufferView {i} lies outside its buffer")
+
+    def view_bytes(i: int) -> bytes:
+        v = views[i]
+        return binary[v.get("byteOffset", 0) : v.get("byteOffset", 0) + v["byteLength"]]
+
+    used = set(gltf.get("extensionsUsed", []))
+    meta = gltf.get("extensions", {}).get("EXT_structural_metadata")
+    tables = meta.get("propertyTables", []) if meta else []
+    classes = meta.get("schema", {}).get("classes", {}) if meta else {}
+    if meta and "EXT_structural_metadata" not in used:
+        problems.append("EXT_structural_metadata is used but not in extensionsUsed")
+    for t_index, table in enumerate(tables):
+        cls = classes.get(table.get("class"))
+        if cls is None:
+            problems.append(f"propertyTables[{t_index}]: class {table.get('class')!r} not in the schema")
+            continue
+        count = table.get("count", 0)
+        props = cls.get("properties", {})
+        for name, spec in props.items():
+            if spec.get("required") and name not in table.get("properties", {}):
+                problems.append(f"propertyTables[{t_index}]: required property {name} missing")
+            if spec.get("required") and "noData" in spec:
+                problems.append(f"class property {name}: required properties cannot have noData")
+        for name, col in table.get("properties", {}).items():
+            spec = props.get(name)
+            where = f"propertyTables[{t_index}].{name}"
+            if spec is None:
+                problems.append(f"{where}: not a property of class {table.get('class')}")
+                continue
+            for key in ("values", "stringOffsets", "arrayOffsets"):
+                if key in col and (not isinstance(col[key], int) or not 0 <= col[key] < len(views)):
+                    problems.append(f"{where}: {key} is not a bufferView")
+                    break
+            else:
+                if views[col["values"]].get("byteOffset", 0) % 8:
+                    problems.append(f"{where}: values bufferView is not 8-byte aligned")
+                if spec.get("type") == "STRING":
+                    if "stringOffsets" not in col:
+                        problems.append(f"{where}: STRING property without stringOffsets")
+                        continue
+                    dtype = _OFFSET_DTYPES[col.get("stringOffsetType", "UINT32")]
+                    offs = np.frombuffer(view_bytes(col["stringOffsets"]), dtype=dtype)
+                    if len(offs) < count + 1:
+                        problems.append(f"{where}: {len(offs)} string offsets for {count} values")
+                    elif offs[0] != 0 or np.any(np.diff(offs[: count + 1].astype(np.int64)) < 0) \
+                            or offs[count] > views[col["values"]]["byteLength"]:
+                        problems.append(f"{where}: string offsets must start at 0, increase and stay in the buffer")
+                elif spec.get("type") == "SCALAR":
+                    need = count * _COMPONENT_BYTES.get(spec.get("componentType", ""), 0)
+                    if views[col["values"]]["byteLength"] < need:
+                        problems.append(f"{where}: values need {need} bytes, bufferView has fewer")
+    for m_index, mesh in enumerate(gltf.get("meshes", [])):
+        for p_index, prim in enumerate(mesh.get("primitives", [])):
+            feats = prim.get("extensions", {}).get("EXT_mesh_features")
+            if not feats:
+                continue
+            where = f"meshes[{m_index}].primitives[{p_index}]"
+            if "EXT_mesh_features" not in used:
+                problems.append(f"{where}: EXT_mesh_features is used but not in extensionsUsed")
+            for f in feats.get("featureIds", []):
+                n = f.get("featureCount", 0)
+                if not isinstance(n, int) or n < 1:
+                    problems.append(f"{where}: featureCount must be a positive integer")
+                    continue
+                if "propertyTable" in f:
+                    if not 0 <= f["propertyTable"] < len(tables):
+                        problems.append(f"{where}: propertyTable {f['propertyTable']} does not exist")
+                    elif tables[f["propertyTable"]].get("count") != n:
+                        problems.append(f"{where}: featureCount {n} != property table count "
+                                        f"{tables[f['propertyTable']].get('count')}")
+                if "attribute" in f:
+                    acc_i = prim.get("attributes", {}).get(f"_FEATURE_ID_{f['attribute']}")
+                    if acc_i is None:
+                        problems.append(f"{where}: no _FEATURE_ID_{f['attribute']} attribute")
+                        continue
+                    acc = gltf["accessors"][acc_i]
+                    if acc.get("type") != "SCALAR" or acc.get("normalized"):
+                        problems.append(f"{where}: feature ids must be a SCALAR, non-normalized accessor")
+                        continue
+                    v = views[acc["bufferView"]]
+                    ids = np.frombuffer(binary, dtype=_ACCESSOR_DTYPES[acc["componentType"]], count=acc["count"],
+                                        offset=v.get("byteOffset", 0) + acc.get("byteOffset", 0))
+                    if np.any(ids != np.round(ids)) or np.any(ids < 0) or np.any(ids >= n):
+                        problems.append(f"{where}: feature ids must be integers in [0, {n})")
+                    elif len(np.unique(ids)) != n:
+                        problems.append(f"{where}: {n - len(np.unique(ids))} of {n} features have no vertex")
+    return problems
 
 
 def check_tileset(path: Path) -> list[str]:

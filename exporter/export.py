@@ -20,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from psycopg.rows import dict_row
 
 from etl.db import connect
 from etl.geom.wkb import decode_triangles
@@ -31,44 +32,51 @@ from .gltf import Primitive, Property, write_glb
 from .tileset import TileRecord, build_tileset, region_centre
 
 _FEATURES = """
-SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_id, f.name, f.building, f.height, f.min_height, f.levels,
-       f.roof_shape, f.building_colour, f.roof_colour, f.building_material, f.roof_material, f.lod,
-       ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978))
+SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name, f.building, f.height,
+       f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour, f.building_material,
+       f.roof_material, f.lod, ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
 FROM api.buildings_for_tile(%s, %s, %s) f
 """
 
 OSM_TYPE = {"W": "way", "R": "relation"}
 
+#: The property table: (column of _FEATURES, component type or None for STRING, description, required, noData)
+PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
+    ("osm_id", "INT64", "OSM id of the way or relation", True, None),
+    ("osm_type", None, "way or relation", True, None),
+    ("kind", None, "building (outline) or part (building:part)", True, None),
+    ("building_osm_id", "INT64", "OSM id of the building outline this belongs to", True, None),
+    ("building_osm_type", None, "way or relation (of building_osm_id)", True, None),
+    ("name", None, "name=* (the building's when a part has none)", False, None),
+    ("building", None, "building=* value", False, None),
+    ("height", "FLOAT32", "top above ground (m)", True, None),
+    ("min_height", "FLOAT32", "bottom above ground (m)", True, None),
+    ("levels", "FLOAT32", "building:levels", False, -1.0),
+    ("roof_shape", None, "roof:shape", False, None),
+    ("building_colour", None, "building:colour (#rrggbb)", False, None),
+    ("roof_colour", None, "roof:colour (#rrggbb)", False, None),
+    ("building_material", None, "building:material", False, None),
+    ("roof_material", None, "roof:material", False, None),
+    ("lod", "UINT8", "level of detail of the mesh", True, None),
+]
 
-def build_tile_glb(rows: list[tuple], region: tuple[float, ...]) -> tuple[bytes, int]:
-    """glb bytes and triangle count for the feature rows of one tile (see _FEATURES for the columns)."""
-    tris = [decode_triangles(r[15]) for r in rows]
+
+def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, int]:
+    """glb bytes and triangle count for the feature rows (dicts with the columns of _FEATURES) of one tile."""
+    tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
     counts = np.array([len(t) for t in tris])
     triangles = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
     feature = np.repeat(np.arange(len(rows)), counts)
-    wall = np.array([hex_rgba(r[10], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
-    roof = np.array([hex_rgba(r[11], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
+    wall = np.array([hex_rgba(r["building_colour"], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
+    roof = np.array([hex_rgba(r["roof_colour"], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
     lon, lat = region_centre(region)
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat)
-    cols = list(zip(*rows, strict=True))
-    props = [
-        Property("osm_id", cols[1], "INT64", "OSM id of the way or relation", required=True),
-        Property("osm_type", [OSM_TYPE[t] for t in cols[0]], None, "way or relation", required=True),
-        Property("kind", cols[2], None, "building (outline) or part (building:part)", required=True),
-        Property("building_osm_id", cols[3], "INT64", "OSM id of the building outline this belongs to",
-                 required=True),
-        Property("name", cols[4], None, "name=*"),
-        Property("building", cols[5], None, "building=* value"),
-        Property("height", cols[6], "FLOAT32", "top above ground (m)", required=True),
-        Property("min_height", cols[7], "FLOAT32", "bottom above ground (m)", required=True),
-        Property("levels", cols[8], "FLOAT32", "building:levels", no_data=-1.0),
-        Property("roof_shape", cols[9], None, "roof:shape"),
-        Property("building_colour", cols[10], None, "building:colour"),
-        Property("roof_colour", cols[11], None, "roof:colour"),
-        Property("building_material", cols[12], None, "building:material"),
-        Property("roof_material", cols[13], None, "roof:material"),
-        Property("lod", cols[14], "UINT8", "level of detail of the mesh", required=True),
-    ]
+    props = []
+    for name, ctype, doc, required, no_data in PROPERTIES:
+        values = [r[name] for r in rows]
+        if name in ("osm_type", "building_osm_type"):
+            values = [OSM_TYPE[v] for v in values]
+        props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
     prim = Primitive(
         positions=arr.positions, normals=arr.normals, colors=arr.colors, feature_ids=arr.feature_ids,
         indices=arr.indices, properties=props, feature_count=len(rows),
@@ -89,7 +97,8 @@ def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: f
             local.conn = connect(url)
             with lock:
                 conns.append(local.conn)
-        rows = local.conn.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y)).fetchall()
+        with local.conn.cursor(row_factory=dict_row) as cur:
+            rows = cur.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y)).fetchall()
         glb, tri = build_tile_glb(rows, rec.region)
         assert rec.content_uri is not None
         path = out / rec.content_uri

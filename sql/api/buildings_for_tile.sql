@@ -11,6 +11,7 @@ RETURNS TABLE (
     osm_type          text,
     osm_id            bigint,
     kind              text,
+    building_osm_type text,
     building_osm_id   bigint,
     name              text,
     building          text,
@@ -29,6 +30,7 @@ RETURNS TABLE (
 LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     SELECT b.id, b.osm_type::text, b.osm_id, b.kind,
+           coalesce(p.osm_type, b.osm_type)::text AS building_osm_type,
            coalesce(p.osm_id, b.osm_id) AS building_osm_id,
            coalesce(b.name, p.name), coalesce(b.building, p.building),
            m.height, m.min_height, b.levels, b.roof_shape,

@@ -121,7 +121,8 @@ def test_feature_metadata(city, conn_of) -> None:
     assert (sq["name"], sq["osm_type"], sq["kind"], sq["height"], sq["min_height"], sq["lod"]) == (
         "Square 100", "way", "building", 12.0, 0.0, 1)
     _, part = feature_vertices(c.tiles, tile_of(conn, 13003), 13003)
-    assert (part["kind"], part["building_osm_id"], part["min_height"], part["height"]) == ("part", 13001, 5.0, 20.0)
+    assert (part["kind"], part["building_osm_id"], part["building_osm_type"], part["min_height"], part["height"]) == (
+        "part", 13001, "way", 5.0, 20.0)
     assert part["name"] == "Parts 130"  # a part without a name shows its building's
     _, court = feature_vertices(c.tiles, tile_of(conn, -1201), 1201)
     assert (court["osm_type"], court["building"]) == ("relation", "apartments")
@@ -174,3 +175,28 @@ def test_stale_tiles_are_refused(city, new_db, tmp_path) -> None:
     assert proc.returncode != 0 and "run the tiles stage" in proc.stderr
     run_etl(url, "tiles")
     run_etl(url, "export", "--out", str(tmp_path / "ts"))
+
+
+def test_placement_against_the_osm_file_itself(city, conn_of) -> None:
+    """Independent of PostGIS/PROJ: exported vertices, through the tile transform and our own ECEF->geodetic,
+    must land on the fixture's node coordinates (as written in the .osm file) at the tagged heights."""
+    import math
+    import xml.etree.ElementTree as ET
+
+    from exporter.geodesy import ecef_to_geodetic
+    from tests.conftest import FIXTURES
+
+    root = ET.parse(FIXTURES / "100_square.osm").getroot()
+    nodes = np.array([(float(n.get("lon")), float(n.get("lat"))) for n in root.iter("node")])
+    c = city("fixtures")
+    uri = tile_of(conn_of(c.url), 10001)
+    verts, _ = feature_vertices(c.tiles, uri, 10001)
+    m = np.array(tile_json(c.tiles, uri)["transform"]).reshape(4, 4).T
+    ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
+    lon, lat, h = ecef_to_geodetic(ecef).T
+    lonlat = np.degrees(np.c_[lon, lat])
+    # 1e-8 degrees is about a millimetre here
+    d = np.abs(lonlat[:, None, :] - nodes[None, :, :]).max(axis=2)
+    assert d.min(axis=1).max() < 1e-8
+    assert np.all(np.minimum(np.abs(h), np.abs(h - 12.0)) < 1e-3)
+    assert math.isclose(h.max(), 12.0, abs_tol=1e-3) and math.isclose(h.min(), 0.0, abs_tol=1e-3)

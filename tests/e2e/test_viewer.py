@@ -175,4 +175,7 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
     host = urlsplit(base).netloc
     assert res["hosts"] == [host], f"requests left the local server: {res['hosts']}"
     assert "OpenStreetMap contributors" in (res["attribution"] or "")
+    # a tile CesiumJS could not load, or any page error, shows up here (the viewer logs tileFailed as an error)
+    assert res["consoleErrors"] == [], context
+    assert res["failedRequests"] == [], context
     assert SCREENSHOT.exists() and SCREENSHOT.stat().st_size > 10_000, SCREENSHOT

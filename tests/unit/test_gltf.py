@@ -103,3 +103,56 @@ def test_khronos_validator_accepts(tmp_path) -> None:
     assert report["files"] == 1
     assert report["errors"] == 0 and report["warnings"] == 0, report
     assert proc.returncode == 0
+
+
+def _mutated(mutate) -> bytes:
+    from exporter.gltf import _pack
+
+    gltf, binary = read_glb(write_glb(cube_primitive()))
+    binary = bytearray(binary)
+    mutate(gltf, binary)
+    return _pack(gltf, bytes(binary))
+
+
+def _ext(g):
+    return g["meshes"][0]["primitives"][0]["extensions"]["EXT_mesh_features"]["featureIds"][0]
+
+
+def _table(g):
+    return g["extensions"]["EXT_structural_metadata"]["propertyTables"][0]
+
+
+def _string_offsets_view(g):
+    return g["bufferViews"][_table(g)["properties"]["name"]["stringOffsets"]]
+
+
+@pytest.mark.parametrize(
+    ("mutate", "needle"),
+    [
+        (lambda g, b: _ext(g).update(featureCount=1), "!= property table count"),
+        (lambda g, b: _table(g).update(count=3) or _ext(g).update(featureCount=3), "have no vertex"),
+        (lambda g, b: _table(g)["properties"].pop("osm_id"), "required property osm_id missing"),
+        (lambda g, b: _table(g).update({"class": "nope"}), "not in the schema"),
+        (lambda g, b: _table(g)["properties"].update(bogus={"values": 0}), "not a property of class"),
+        (lambda g, b: _ext(g).update(propertyTable=4), "does not exist"),
+        (lambda g, b: g["extensionsUsed"].remove("EXT_mesh_features"), "not in extensionsUsed"),
+        (lambda g, b: g["bufferViews"][0].update(byteLength=10**7), "outside its buffer"),
+        (lambda g, b: b.__setitem__(slice(_string_offsets_view(g)["byteOffset"] + 4,
+                                          _string_offsets_view(g)["byteOffset"] + 8), (999).to_bytes(4, "little")),
+         "string offsets"),
+    ],
+)
+def test_metadata_checks_catch_each_rule(mutate, needle) -> None:
+    from exporter.checks import check_glb
+
+    assert check_glb(write_glb(cube_primitive())) == []
+    problems = check_glb(_mutated(mutate))
+    assert any(needle in p for p in problems), problems
+
+
+def test_metadata_checks_catch_out_of_range_feature_ids() -> None:
+    from exporter.checks import check_glb
+
+    p = cube_primitive()
+    p.feature_ids = np.array([0, 0, 0, 0, 1, 1, 1, 7])
+    assert any("integers in [0, 2)" in x for x in check_glb(write_glb(p)))

@@ -9,7 +9,9 @@ import pytest
 
 from exporter.checks import check_tileset
 from exporter.geodesy import column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
+from exporter.gltf import write_glb
 from exporter.tileset import TileRecord, build_tileset, region_diagonal
+from tests.unit.test_gltf import cube_primitive
 
 D = math.radians
 
@@ -28,7 +30,7 @@ def records() -> list[TileRecord]:
 def write(tmp_path, ts) -> object:
     (tmp_path / "content/1/0").mkdir(parents=True, exist_ok=True)
     (tmp_path / "content/1/1").mkdir(parents=True, exist_ok=True)
-    glb = b"glTF" + (2).to_bytes(4, "little") + (12).to_bytes(4, "little")
+    glb = write_glb(cube_primitive())
     (tmp_path / "content/1/0/0.glb").write_bytes(glb)
     (tmp_path / "content/1/1/0.glb").write_bytes(glb)
     p = tmp_path / "tileset.json"
@@ -87,4 +89,8 @@ def test_checks_catch_each_rule(tmp_path, mutate, needle) -> None:
 def test_checks_non_glb_content(tmp_path) -> None:
     p = write(tmp_path, build_tileset(records()))
     (tmp_path / "content/1/0/0.glb").write_bytes(b"not a glb at all")
-    assert any("not a GLB" in x for x in check_tileset(p))
+    assert any("GLB" in x for x in check_tileset(p))
+    broken = bytearray(write_glb(cube_primitive()))
+    broken[8:12] = (len(broken) + 4).to_bytes(4, "little")  # header length disagrees with the file
+    (tmp_path / "content/1/0/0.glb").write_bytes(bytes(broken))
+    assert any("header length" in x for x in check_tileset(p))
