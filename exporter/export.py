@@ -149,10 +149,6 @@ def export_tileset(url: str, out: Path, settings: Settings, workers: int | None 
             raise OutputDirectoryError(
                 f"refusing to overwrite {p}: it is not empty and holds no tileset written by citylod; "
                 "choose a new or empty directory")
-    if partial.exists():
-        shutil.rmtree(partial)
-    partial.mkdir(parents=True)
-    (partial / PARTIAL_MARKER).touch()
     with connect(url) as conn:
         records = [
             TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
@@ -172,7 +168,11 @@ def export_tileset(url: str, out: Path, settings: Settings, workers: int | None 
         raise RuntimeError(
             f"the tiles are stale: they hold {in_tiles} features but lod.building_mesh has "
             f"{meshes[0] if meshes else 0} LOD1 meshes; run the tiles stage again (make tiles)")
-    progress = Progress("export", "buildings", total=sum(r.n_features for r in leaves))
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True)
+    (partial / PARTIAL_MARKER).touch()
+    progress = Progress("export", "buildings", total=in_tiles)
     n_features, n_triangles, n_bytes = _export_leaves(
         url, leaves, partial, settings.base_height_m, workers or min(4, os.cpu_count() or 1), progress)
     if n_features != in_tiles:

@@ -16,7 +16,7 @@ import json
 import sys
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import osmium
@@ -43,10 +43,8 @@ class IngestCounts:
     candidates: int = 0
     ways: int = 0
     relations: int = 0
-    python_rejects: int = 0
     building_relations: int = 0
     nodes_skipped: int = 0
-    by_reason: dict[str, int] = field(default_factory=dict)
 
 
 def _row(
@@ -116,7 +114,7 @@ def read_buildings(
                 geom_hex = wkb.create_multipolygon(obj)
             except Exception as e:  # noqa: BLE001 - libosmium raises several types; all mean "no geometry"
                 assembled.add(rid)
-                yield _reject(counts, "R", rid, parsed, tags, "multipolygon_assembly_failed", str(e))
+                yield _reject("R", rid, parsed, tags, "multipolygon_assembly_failed", str(e))
                 continue
             assembled.add(rid)
             yield _row("R", rid, parsed, tags, "M", geom_hex)
@@ -131,19 +129,19 @@ def read_buildings(
             if len(nodes) < 2 or not obj.is_closed():
                 first = nodes[0].ref if len(nodes) else None
                 last = nodes[-1].ref if len(nodes) else None
-                yield _reject(counts, "W", obj.id, parsed, tags, "unclosed_way",
+                yield _reject("W", obj.id, parsed, tags, "unclosed_way",
                               f"{len(nodes)} nodes, first node {first} != last node {last}")
                 continue
             missing = [n.ref for n in nodes if not n.location.valid()]
             if missing:
                 shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
-                yield _reject(counts, "W", obj.id, parsed, tags, "missing_nodes",
+                yield _reject("W", obj.id, parsed, tags, "missing_nodes",
                               f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
                 continue
             try:
                 line = wkb.create_linestring(obj)
             except RuntimeError as e:  # e.g. every node at one spot: no linestring, let alone a ring
-                yield _reject(counts, "W", obj.id, parsed, tags, "degenerate_ring", str(e))
+                yield _reject("W", obj.id, parsed, tags, "degenerate_ring", str(e))
                 continue
             yield _row("W", obj.id, parsed, tags, "L", line)
         elif obj.is_node():
@@ -162,12 +160,12 @@ def read_buildings(
             if rtype in ("multipolygon", "boundary"):  # the two types libosmium assembles
                 mp_candidates[obj.id] = (parsed, tags)
             else:
-                yield _reject(counts, "R", obj.id, parsed, tags, "unsupported_relation",
+                yield _reject("R", obj.id, parsed, tags, "unsupported_relation",
                               f"type={rtype!r}: only multipolygon relations have a building geometry")
     # Multipolygon relations libosmium could not assemble (missing members, rings that do not close, ...).
     for rid in sorted(set(mp_candidates) - assembled):
         parsed, tags = mp_candidates[rid]
-        yield _reject(counts, "R", rid, parsed, tags, "multipolygon_assembly_failed",
+        yield _reject("R", rid, parsed, tags, "multipolygon_assembly_failed",
                       "libosmium could not assemble the rings (member ways missing from the file, "
                       "or rings that do not close)")
     # Areas seen for relations that were not candidates cannot happen (same key filter); keep counts honest.
@@ -177,11 +175,8 @@ def read_buildings(
 
 
 def _reject(
-    counts: IngestCounts, osm_type: str, osm_id: int, parsed: BuildingTags, tags: dict[str, str],
-    reason: str, detail: str,
+    osm_type: str, osm_id: int, parsed: BuildingTags, tags: dict[str, str], reason: str, detail: str,
 ) -> tuple[object, ...]:
-    counts.python_rejects += 1
-    counts.by_reason[reason] = counts.by_reason.get(reason, 0) + 1
     return _row(osm_type, osm_id, parsed, tags, None, None, (reason, detail))
 
 
