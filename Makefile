@@ -72,7 +72,7 @@ export: migrate ## OUT=dir: write 3D Tiles 1.1 (tileset.json + glb)
 	$(PY) -m etl export --out $(OUT)
 
 serve: $(SETUP_PY) $(SETUP_NODE) ## serve OUT and the CesiumJS viewer on http://HOST:PORT/
-	$(PY) -m exporter serve --dir $(OUT) --host $(HOST) --port $(PORT)
+	$(PY) -m etl serve --dir $(OUT) --host $(HOST) --port $(PORT)
 
 demo: ## everything on Helsinki: install, database, ingest, lod, tiles, export, serve
 	$(MAKE) setup

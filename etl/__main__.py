@@ -108,6 +108,13 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
+    from exporter.serve import serve
+
+    serve(Path(args.dir).resolve(), args.host, args.port)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m etl", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -133,6 +140,12 @@ def main(argv: list[str] | None = None) -> int:
     exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
                      help="output directory (replaced only if empty or a citylod tileset)")
     exp.set_defaults(fn=cmd_export)
+
+    srv = sub.add_parser("serve", help="serve a tileset directory and the CesiumJS viewer (Ctrl-C stops)")
+    srv.add_argument("--dir", default=str(REPO / "build" / "tiles" / "demo"), help="tileset directory")
+    srv.add_argument("--host", default="127.0.0.1")
+    srv.add_argument("--port", type=int, default=8765, help="0 picks a free port")
+    srv.set_defaults(fn=cmd_serve)
 
     args = p.parse_args(argv)
     settings = Settings.from_env()
