@@ -31,8 +31,8 @@ def closed_outward(blob: bytes) -> tuple[bool, bool, float]:
         return True, m.is_winding_consistent, float(m.volume)
     edges = m.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     fwd, n_fwd = np.unique(edges, axis=0, return_counts=True)
-    rev = dict(zip(map(tuple, np.unique(edges[:, ::-1], axis=0, return_counts=True)[0]),
-                   np.unique(edges[:, ::-1], axis=0, return_counts=True)[1], strict=True))
+    rev_edges, n_rev = np.unique(edges[:, ::-1], axis=0, return_counts=True)
+    rev = dict(zip(map(tuple, rev_edges), n_rev, strict=True))
     balanced = all(rev.get(tuple(e), 0) == n for e, n in zip(fwd, n_fwd, strict=True))
     return balanced, balanced, float(m.volume)
 
