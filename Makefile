@@ -9,6 +9,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 OSM    ?= data/Helsinki.osm.pbf
 OUT    ?= build/tiles/demo
+LOD    ?= 2
 PORT   ?= 8765
 HOST   ?= 127.0.0.1
 
@@ -62,14 +63,14 @@ data/Helsinki.osm.pbf: | $(SETUP_PY)
 ingest: migrate $(OSM) ## OSM=path: load buildings and parts into osm.building
 	$(PY) -m etl ingest --osm $(OSM)
 
-lod: migrate ## build LOD1 solids into lod.building_mesh
+lod: migrate ## build LOD1 blocks, LOD2 roofs, LOD3 facades into lod.building_mesh
 	$(PY) -m etl lod
 
 tiles: migrate ## build the tile quadtree into tiles.tile
 	$(PY) -m etl tiles
 
-export: migrate ## OUT=dir: write 3D Tiles 1.1 (tileset.json + glb)
-	$(PY) -m etl export --out $(OUT)
+export: migrate ## OUT=dir LOD=1|2|3: write 3D Tiles 1.1 (tileset.json + glb)
+	$(PY) -m etl export --out $(OUT) --lod $(LOD)
 
 serve: $(SETUP_PY) $(SETUP_NODE) ## serve OUT and the CesiumJS viewer on http://HOST:PORT/
 	$(PY) -m etl serve --dir $(OUT) --host $(HOST) --port $(PORT)

@@ -102,9 +102,9 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
 
     url = _url(settings)
     out = Path(args.out).resolve()
-    params = {**settings.as_dict(), "out": str(out)}
+    params = {**settings.as_dict(), "out": str(out), "lod": args.lod}
     with pipeline_run(url, "export", params) as run:
-        run.counts = export_tileset(url, out, settings)
+        run.counts = export_tileset(url, out, settings, lod=args.lod)
     return 0
 
 
@@ -133,12 +133,14 @@ def main(argv: list[str] | None = None) -> int:
     ing.add_argument("--osm", default=str(DEMO_OSM), help="input .osm.pbf/.osm (default: the demo extract)")
     ing.set_defaults(fn=cmd_ingest)
 
-    sub.add_parser("lod", help="osm.building -> lod.building_mesh (LOD1 solids)").set_defaults(fn=cmd_lod)
+    sub.add_parser("lod", help="osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)").set_defaults(fn=cmd_lod)
     sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
 
     exp = sub.add_parser("export", help="tiles -> 3D Tiles 1.1 (tileset.json + glb)")
     exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
                      help="output directory (replaced only if empty or a citylod tileset)")
+    exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=2,
+                     help="level of detail for every building: 1 block, 2 roofs (default), 3 windows and doors")
     exp.set_defaults(fn=cmd_export)
 
     srv = sub.add_parser("serve", help="serve a tileset directory and the CesiumJS viewer (Ctrl-C stops)")

@@ -53,6 +53,9 @@ class Settings:
     #: drawn (its parts are). 0 = strict S3DB (any part hides the outline); the default follows OSM2World's
     #: 90 % rule so a building with one small part on its roof is still drawn.
     outline_part_coverage: float = 0.9
+    #: LOD3 windows and doors: "box" = a closed 12-triangle frame box per opening standing out of the wall;
+    #: "panel" = only its 2-triangle front face. Boxes make LOD3 about 6× larger (measured in BENCHMARKS.md).
+    lod3_openings: str = "panel"
 
     # --- tiles ----------------------------------------------------------------------------------------------
     #: Quadtree budget: a cell is split while it holds more features (buildings + parts) than this ...

@@ -25,6 +25,7 @@ _UNIT_FACTOR = {
     "ft": FOOT, "feet": FOOT, "foot": FOOT, "'": FOOT, "cm": 0.01, "km": 1000.0,
 }
 _NUMBER = re.compile(rf"^({_NUM})$")
+_PLAIN_METRES = re.compile(r"^[+-]?(?:\d+(?:\.\d*)?|\.\d+)\s*(?:m)?$")  # 12, 12.5, 12 m: no note
 _ANGLE = re.compile(rf"^({_NUM})\s*(°|deg|degrees?)?$", re.IGNORECASE)
 
 #: 16-point compass rose (roof:direction may be given as letters).
@@ -62,7 +63,7 @@ class TagIssue:
 
     key: str
     value: str
-    code: str  # not_a_length | negative | out_of_range | not_a_number | not_a_direction | ...
+    code: str  # not_a_length | negative | ... (value refused) | unit_converted (value kept, converted)
     detail: str
 
     def as_dict(self) -> dict[str, str]:
@@ -231,12 +232,19 @@ def parse_building_tags(
             out.issues.append(TagIssue(key, raw, e.code, e.detail))
             return None
 
-    out.height = take("height", parse_length, max_height)
-    out.min_height = take("min_height", parse_length, max_height)
+    def length(key: str) -> float | None:
+        v = take(key, parse_length, max_height)
+        raw = tags.get(key, "").strip()
+        if v is not None and not _PLAIN_METRES.match(raw):  # kept, but analysts want to see odd units
+            out.issues.append(TagIssue(key, raw, "unit_converted", f"{raw!r} read as {v:g} m"))
+        return v
+
+    out.height = length("height")
+    out.min_height = length("min_height")
     out.levels = take("building:levels", parse_count, max_levels)
     out.min_level = take("building:min_level", parse_count, max_levels)
     out.roof_levels = take("roof:levels", parse_count, max_levels)
-    out.roof_height = take("roof:height", parse_length, max_height)
+    out.roof_height = length("roof:height")
     out.roof_angle = take("roof:angle", parse_angle)
     out.roof_direction = take("roof:direction", parse_direction)
     out.roof_orientation = take("roof:orientation", parse_orientation)

@@ -16,6 +16,7 @@ def main(argv: list[str] | None = None) -> int:
 
     ex = sub.add_parser("export", help="write the tileset (the same as python -m etl export)")
     ex.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"))
+    ex.add_argument("--lod", type=int, choices=(1, 2, 3), default=2)
 
     ck = sub.add_parser("check", help="check a tileset.json against the 3D Tiles 1.1 rules citylod enforces")
     ck.add_argument("tileset", help="path to tileset.json")
@@ -29,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "export":
         from etl.__main__ import main as etl_main
 
-        return etl_main(["export", "--out", args.out])
+        return etl_main(["export", "--out", args.out, "--lod", str(args.lod)])
     if args.command == "check":
         from .checks import check_tileset
 

@@ -45,6 +45,11 @@ class ContentArrays:
     dropped_degenerate: int
 
 
+SEM_ROOF, SEM_WINDOW, SEM_DOOR = 2, 3, 4  # lod.surface_type codes
+WINDOW_RGBA = np.array([58, 74, 92, 255], dtype=np.uint8)  # dark blue-grey glass
+DOOR_RGBA = np.array([101, 67, 33, 255], dtype=np.uint8)  # brown wood
+
+
 def tile_arrays(
     triangles_ecef: np.ndarray,
     feature_of_triangle: np.ndarray,
@@ -52,9 +57,12 @@ def tile_arrays(
     roof_rgba: np.ndarray,
     origin_lon: float,
     origin_lat: float,
+    semantics: np.ndarray | None = None,
 ) -> ContentArrays:
     """triangles_ecef (m, 3, 3); feature_of_triangle (m,); wall/roof_rgba (features, 4) sRGB uint8.
-    The local frame's origin is on the ellipsoid at (origin_lon, origin_lat): the tile transform's."""
+    The local frame's origin is on the ellipsoid at (origin_lon, origin_lat): the tile transform's.
+    ``semantics`` (m,) lod.surface_type codes colour roofs, windows and doors; without it up-facing
+    triangles take the roof colour."""
     origin = geodetic_to_ecef(origin_lon, origin_lat, 0.0)
     rot = enu_rotation(origin_lon, origin_lat)  # columns: E, N, U in ECEF
     enu = (np.asarray(triangles_ecef, dtype=np.float64) - origin) @ rot
@@ -68,8 +76,15 @@ def tile_arrays(
     gl, nrm, length = gl[keep], nrm[keep], length[keep]
     feat = np.asarray(feature_of_triangle)[keep]
     nrm = nrm / length[:, None]
-    up = nrm[:, 2] > UP_FACING
+    if semantics is None:
+        up = nrm[:, 2] > UP_FACING
+    else:
+        sem = np.asarray(semantics)[keep]
+        up = sem == SEM_ROOF
     colour = np.where(up[:, None], srgb_to_linear16(roof_rgba)[feat], srgb_to_linear16(wall_rgba)[feat])
+    if semantics is not None:
+        colour = np.where((sem == SEM_WINDOW)[:, None], srgb_to_linear16(WINDOW_RGBA[None])[0], colour)
+        colour = np.where((sem == SEM_DOOR)[:, None], srgb_to_linear16(DOOR_RGBA[None])[0], colour)
     nrm_gl = nrm @ Z_UP_TO_Y_UP.T
 
     m = len(gl)

@@ -34,8 +34,8 @@ from .tileset import TileRecord, build_tileset, region_centre
 _FEATURES = """
 SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name, f.building, f.height,
        f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour, f.building_material,
-       f.roof_material, f.lod, ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
-FROM api.buildings_for_tile(%s, %s, %s) f
+       f.roof_material, f.lod, f.semantics, ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
+FROM api.buildings_for_tile(%s, %s, %s, %s) f
 """
 
 OSM_TYPE = {"W": "way", "R": "relation"}
@@ -52,7 +52,7 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("height", "FLOAT32", "top above ground (m)", True, None),
     ("min_height", "FLOAT32", "bottom above ground (m)", True, None),
     ("levels", "FLOAT32", "building:levels", False, -1.0),
-    ("roof_shape", None, "roof:shape", False, None),
+    ("roof_shape", None, "roof shape drawn (roof:shape; flat when untagged or unknown)", False, None),
     ("building_colour", None, "building:colour (#rrggbb)", False, None),
     ("roof_colour", None, "roof:colour (#rrggbb)", False, None),
     ("building_material", None, "building:material", False, None),
@@ -70,7 +70,12 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
     wall = np.array([hex_rgba(r["building_colour"], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
     roof = np.array([hex_rgba(r["roof_colour"], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
     lon, lat = region_centre(region)
-    arr = tile_arrays(triangles, feature, wall, roof, lon, lat)
+    sem = None
+    if all(r["semantics"] is not None for r in rows) and rows:
+        sem = np.concatenate([np.frombuffer(bytes(r["semantics"]), dtype=np.uint8) for r in rows])
+        if len(sem) != len(triangles):
+            raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
+    arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem)
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
         values = [r[name] for r in rows]
@@ -85,7 +90,7 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
 
 
 def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: float, workers: int,
-                   progress: Progress) -> tuple[int, int, int]:
+                   progress: Progress, lod: int = 1) -> tuple[int, int, int]:
     """Write every leaf's glb; tiles are independent, so ``workers`` threads each with their own connection
     share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
     local = threading.local()
@@ -98,7 +103,7 @@ def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: f
             with lock:
                 conns.append(local.conn)
         with local.conn.cursor(row_factory=dict_row) as cur:
-            rows = cur.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y)).fetchall()
+            rows = cur.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y, lod)).fetchall()
         glb, tri = build_tile_glb(rows, rec.region)
         assert rec.content_uri is not None
         path = out / rec.content_uri
@@ -141,7 +146,11 @@ def replaceable(path: Path) -> bool:
     return isinstance(asset, dict) and str(asset.get("generator", "")).startswith("citylod")
 
 
-def export_tileset(url: str, out: Path, settings: Settings, workers: int | None = None) -> dict[str, object]:
+def export_tileset(url: str, out: Path, settings: Settings, workers: int | None = None, lod: int = 1
+                   ) -> dict[str, object]:
+    """Write the tileset with every building at level of detail ``lod`` (1 block, 2 roofs, 3 facades)."""
+    if lod not in (1, 2, 3):
+        raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     for p in (out, partial):
@@ -161,20 +170,20 @@ def export_tileset(url: str, out: Path, settings: Settings, workers: int | None 
         if not records:
             raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
         dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
-        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 1").fetchone()
+        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = %s", (lod,)).fetchone()
     leaves = [r for r in records if r.is_leaf]
     in_tiles = sum(r.n_features for r in leaves)
     if meshes is None or in_tiles != meshes[0]:
         raise RuntimeError(
             f"the tiles are stale: they hold {in_tiles} features but lod.building_mesh has "
-            f"{meshes[0] if meshes else 0} LOD1 meshes; run the tiles stage again (make tiles)")
+            f"{meshes[0] if meshes else 0} LOD{lod} meshes; run the lod and tiles stages again (make lod tiles)")
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "buildings", total=in_tiles)
     n_features, n_triangles, n_bytes = _export_leaves(
-        url, leaves, partial, settings.base_height_m, workers or min(4, os.cpu_count() or 1), progress)
+        url, leaves, partial, settings.base_height_m, workers or min(4, os.cpu_count() or 1), progress, lod)
     if n_features != in_tiles:
         raise RuntimeError(f"export lost features: {in_tiles} in the tiles, {n_features} written")
     tileset = build_tileset(records, tileset_version=(dataset[0][:16] if dataset and dataset[0] else ""))
@@ -194,6 +203,6 @@ def export_tileset(url: str, out: Path, settings: Settings, workers: int | None 
         n_features,
     )
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
-    return {"features": n_features, "tiles": len(records), "glb": len(leaves), "triangles": n_triangles,
+    return {"lod": lod, "features": n_features, "tiles": len(records), "glb": len(leaves), "triangles": n_triangles,
             "bytes": n_bytes, "bytes_per_feature": round(n_bytes / max(n_features, 1), 1),
             "seconds": round(seconds, 3), "out": str(out)}

@@ -141,7 +141,8 @@ class City:
 
 @pytest.fixture(scope="session")
 def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
-    """city('fixtures' | 'munich' | 'london' | 'liechtenstein' | 'malta' | 'helsinki') -> a built City."""
+    """city('fixtures' | 'roofs' | 'munich' | 'london' | 'liechtenstein' | 'malta' | 'helsinki') -> a built City.
+    'fixtures' merges the spine fixtures (1xx, 9xx); 'roofs' is 200_roofs.osm, the roof gallery."""
     cache: dict[str, City] = {}
     sources = {
         "munich": SHARED / "munich_altstadt.osm.pbf",
@@ -149,13 +150,14 @@ def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
         "liechtenstein": SHARED / "liechtenstein_2022-07-24.osm.pbf",
         "malta": SHARED / "malta_2018-08-27.osm.pbf",
         "helsinki": REPO / "data" / "Helsinki.osm.pbf",
+        "roofs": FIXTURES / "200_roofs.osm",
     }
 
     def build(name: str) -> City:
         if name in cache:
             return cache[name]
         if name == "fixtures":
-            osm = merge_osm(sorted(FIXTURES.glob("*.osm")), BUILD / f"fixtures-{os.getpid()}.osm")
+            osm = merge_osm(sorted(FIXTURES.glob("[19]*.osm")), BUILD / f"fixtures-{os.getpid()}.osm")
         else:
             osm = sources[name]
             if name == "helsinki" and not osm.exists():

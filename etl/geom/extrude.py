@@ -26,6 +26,7 @@ class Extrusion:
     offsets: np.ndarray  # (n + 1,) int64
     ok: np.ndarray  # (n,) bool: False = cap triangulation did not cover the footprint (no triangles then)
     volume: np.ndarray  # (n,) float64 enclosed volume
+    semantics: np.ndarray  # (m,) uint8 per triangle: 0 ground (bottom cap), 1 wall, 2 roof (top cap)
 
     def of(self, k: int) -> np.ndarray:
         return self.triangles[self.offsets[k] : self.offsets[k + 1]]
@@ -94,17 +95,19 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
 
     triangles = np.concatenate([bottom_caps, top_caps, walls])
     owner = np.concatenate([tri_owner, tri_owner, walls_owner])
+    sem = np.concatenate([np.zeros(len(tri_owner), np.uint8), np.full(len(tri_owner), 2, np.uint8),
+                          np.ones(len(walls_owner), np.uint8)])
     keep = ok[owner]
-    triangles, owner = triangles[keep], owner[keep]
+    triangles, owner, sem = triangles[keep], owner[keep], sem[keep]
     order = np.argsort(owner, kind="stable")
-    triangles, owner = triangles[order], owner[order]
+    triangles, owner, sem = triangles[order], owner[order], sem[order]
     counts = np.bincount(owner, minlength=n)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
     rel = triangles - np.concatenate([first[owner], np.zeros((len(owner), 1))], axis=1)[:, None, :]
     det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
     vol = np.bincount(owner, weights=det, minlength=n) / 6.0
-    return Extrusion(triangles=triangles, offsets=offsets, ok=ok, volume=vol)
+    return Extrusion(triangles=triangles, offsets=offsets, ok=ok, volume=vol, semantics=sem)
 
 
 def _area(tri2d: np.ndarray) -> np.ndarray:

@@ -1,16 +1,26 @@
-"""Stage lod (LOD1): every building and part extruded into a closed solid in lod.building_mesh.
+"""Stage lod: every building and part as LOD1 (block), LOD2 (roof:shape roof) and LOD3 (LOD2 + windows and
+doors) solids in lod.building_mesh, one row per building and LOD.
 
 Streams osm.building through a server-side cursor in batches; heights are resolved for a whole batch with
-numpy (etl/heights.py), the batch is extruded at once (etl/geom/extrude.py) and COPYed as POLYHEDRALSURFACE Z
-EWKB (etl/geom/wkb.py). Outlines whose parts cover them (settings.outline_part_coverage, the S3DB outline rule) are not
-extruded: their parts are, and the outline gets an ``outline_hidden_by_parts`` diagnostic. When parts cover
-less, only what they leave uncovered is extruded (lod.outline_remainder), so outline and parts never overlap.
-An outline that is itself tagged building:part=* is a part too (S3DB) and is always drawn whole.
-in = meshes + outlines hidden by parts + rejects (osm.reject, stage lod), checked at the end.
+numpy (etl/heights.py). LOD1 and the flat LOD2 roofs (most buildings) are extruded for the whole batch at
+once (etl/geom/extrude.py); pitched roofs are built per footprint from the straight skeleton SFCGAL computes
+in the same query (lod.straight_skeleton, etl/geom/roofs.py); LOD3 adds facade boxes for the whole batch
+(etl/geom/facade.py). Every LOD2 solid is measured (closed, consistently wound, volume > 0,
+etl/geom/check.py) and failures are recorded. Meshes are COPYed as POLYHEDRALSURFACE Z EWKB with one
+surface-semantic byte per triangle.
+
+Outlines whose parts cover them (settings.outline_part_coverage, the S3DB outline rule) are not drawn: their
+parts are, and the outline gets an ``outline_hidden_by_parts`` diagnostic. When parts cover less, only what
+they leave uncovered is drawn (lod.outline_remainder, diagnostic ``outline_reduced_by_parts``), so outline
+and parts never overlap. An outline that is itself tagged building:part=* is a part too (S3DB) and is
+always drawn whole. building:part=roof / building=roof is a roof without walls: a slab of ROOF_SLAB_M under
+the roof. in = buildings drawn + outlines hidden by parts + rejects (osm.reject, stage lod), checked at the end.
 """
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -20,12 +30,18 @@ import shapely
 
 from .. import heights as heights_mod
 from ..db import connect
+from ..geom import roofs
+from ..geom.check import closure
 from ..geom.extrude import extrude
+from ..geom.facade import FacadeParams, facades
 from ..geom.wkb import encode_triangles_batch
 from ..progress import Progress, summary
 from ..settings import Settings
 
 BATCH = 2000
+ROOF_SLAB_M = 0.3  # thickness of a roof drawn without walls (building:part=roof)
+LODS = (1, 2, 3)
+_SKELETON_VALUES = sorted(roofs.NEEDS_SKELETON | {k for k, v in roofs.ALIASES.items() if v in roofs.NEEDS_SKELETON})
 
 # Outlines with parts (and not parts themselves): hidden when the parts cover enough of them, otherwise
 # drawn as what the parts leave uncovered (lod.outline_remainder), which is NULL when that is only slivers.
@@ -34,10 +50,11 @@ WITH src AS (
     SELECT b.*, (b.kind = 'building' AND b.part IS NULL AND b.n_parts > 0) AS has_parts FROM osm.building b
 )
 SELECT b.id, b.osm_type, b.osm_id, b.building, b.height, b.min_height, b.levels, b.min_level,
-       b.roof_levels, b.roof_height,
-       ST_AsBinary(CASE WHEN b.has_parts THEN lod.outline_remainder(b.id) ELSE b.geom_local END),
-       b.has_parts, b.part_coverage
+       b.roof_levels, b.roof_height, ST_AsBinary(g.geom), b.has_parts, b.part_coverage,
+       b.part, b.roof_shape, b.roof_angle, b.roof_direction, b.roof_orientation,
+       CASE WHEN b.roof_shape = ANY(%(skeleton)s) THEN ST_AsBinary(lod.straight_skeleton(g.geom)) END
 FROM src b
+CROSS JOIN LATERAL (SELECT CASE WHEN b.has_parts THEN lod.outline_remainder(b.id) ELSE b.geom_local END AS geom) g
 WHERE NOT (b.has_parts AND coalesce(b.part_coverage, 0) >= %(coverage)s)
 ORDER BY b.id
 """
@@ -49,18 +66,106 @@ SELECT 'lod', osm_type, osm_id, 'outline_hidden_by_parts',
 FROM osm.building
 WHERE kind = 'building' AND part IS NULL AND n_parts > 0 AND coalesce(part_coverage, 0) >= %(c)s
 """
+COLUMNS = (
+    "building_id", "lod", "geom", "n_triangles", "min_height", "height", "height_source", "volume_m3",
+    "semantics", "roof_shape", "roof_height", "roof_engine", "ground_area_m2", "wall_area_m2", "roof_area_m2",
+    "opening_area_m2", "n_windows", "n_doors", "watertight", "winding_consistent",
+)
+# binary COPY: no hex encoding and half the bytes; EWKB goes to geometry_recv as it is
+COPY_TYPES = (
+    "int8", "int2", "bytea", "int4", "float4", "float4", "text", "float8", "bytea", "text", "float4", "text",
+    "float8", "float8", "float8", "float8", "int4", "int4", "bool", "bool",
+)
 
 
 @dataclass
 class Batch:
-    meshes: list[tuple] = field(default_factory=list)
+    meshes: list[tuple] = field(default_factory=list)  # rows in COLUMNS order
     rejects: list[tuple] = field(default_factory=list)  # (osm_type, osm_id, reason, detail)
     diagnostics: list[tuple] = field(default_factory=list)  # (osm_type, osm_id, code, detail)
     hidden: int = 0
+    drawn: int = 0
+    pitched: int = 0
+    triangles: dict[int, int] = field(default_factory=lambda: {1: 0, 2: 0, 3: 0})
+    not_closed: int = 0
+    seconds: dict[str, float] = field(default_factory=lambda: {"lod1": 0.0, "lod2": 0.0, "lod3": 0.0, "encode": 0.0})
 
 
-def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
-    """Meshes, rejects and diagnostics for a batch of rows of _SELECT. Pure apart from its inputs."""
+@dataclass
+class Meshes:
+    """Triangles of a set of buildings, grouped: building k owns triangles[offsets[k]:offsets[k+1]]."""
+
+    triangles: np.ndarray
+    semantics: np.ndarray
+    offsets: np.ndarray
+
+    @staticmethod
+    def concat(parts: list[tuple[np.ndarray, np.ndarray]]) -> Meshes:
+        counts = [len(t) for t, _ in parts]
+        tri = np.concatenate([t for t, _ in parts]) if parts else np.zeros((0, 3, 3))
+        sem = np.concatenate([s for _, s in parts]) if parts else np.zeros(0, np.uint8)
+        return Meshes(tri, sem, np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
+
+    def of(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.triangles[self.offsets[k]:self.offsets[k + 1]], self.semantics[self.offsets[k]:self.offsets[k + 1]]
+
+
+def _areas(m: Meshes, n: int) -> np.ndarray:
+    """(n, 5) area per building and surface type."""
+    t = m.triangles
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    owner = np.repeat(np.arange(n), np.diff(m.offsets))
+    out = np.zeros((n, 5))
+    np.add.at(out, (owner, m.semantics.astype(np.int64)), area)
+    return out
+
+
+def _volume(m: Meshes, n: int) -> np.ndarray:
+    """Signed enclosed volume per building (every shell closed and outward-facing)."""
+    owner = np.repeat(np.arange(n), np.diff(m.offsets))
+    if not len(owner):
+        return np.zeros(n)
+    first = m.triangles[np.minimum(m.offsets[:-1], len(m.triangles) - 1), 0]
+    rel = m.triangles - first[owner][:, None, :]
+    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    return np.bincount(owner, weights=det, minlength=n) / 6.0
+
+
+def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, bottom: float, top: float,
+                   roof_tagged: float | None, included: bool, angle: float | None, direction: float | None,
+                   orientation: str | None, roof_only: bool
+                   ) -> tuple[np.ndarray, np.ndarray, float, float, str, str | None]:
+    """LOD2 solid of one footprint: (triangles, semantics, roof height, top, engine, fallback note)."""
+    polys = list(shapely.get_parts(geom))
+    arcs_all = None
+    if arcs_wkb is not None:
+        lines = shapely.get_parts(shapely.from_wkb(arcs_wkb))
+        arcs_all = shapely.get_coordinates(lines).reshape(-1, 2, 2)
+    parts, h_used, engine, note = [], 0.0, "flat", None
+    for poly in polys:
+        origin = np.asarray(poly.exterior.coords[0])
+        local = shapely.transform(poly, lambda c, o=origin: c - o)
+        arcs = None
+        if arcs_all is not None and len(polys) > 1:
+            mid = arcs_all.mean(axis=1)
+            arcs = arcs_all[shapely.intersects_xy(poly, mid[:, 0], mid[:, 1])] - origin
+        elif arcs_all is not None:
+            arcs = arcs_all - origin
+        max_h = (top - bottom) if included else 3.0 * (top - bottom)
+        surf, h = roofs.roof_surface(local, shape, arcs, roof_tagged, angle, direction, orientation, max_h)
+        eave = top - h if included else top
+        z_bottom = max(bottom, eave - ROOF_SLAB_M) if roof_only else bottom
+        tri, sem = roofs.solid(surf, eave, min(z_bottom, eave), roofs.SEM_ROOF if roof_only else roofs.SEM_WALL)
+        tri = tri + np.array([origin[0], origin[1], 0.0])
+        parts.append((tri, sem))
+        h_used, engine, note = max(h_used, h), surf.engine, surf.fallback or note
+    top2 = top if included else top + h_used
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), h_used, top2, engine,
+            note)
+
+
+def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[int, ...] = LODS) -> Batch:
+    """Mesh rows, rejects and diagnostics for a batch of rows of _SELECT. Pure apart from its inputs."""
     out = Batch()
     drawn = []
     for r in rows:
@@ -75,6 +180,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
         drawn.append(r)
     if not drawn:
         return out
+    t0 = time.perf_counter()
     cols = list(zip(*drawn, strict=True))
     osm_types, osm_ids = cols[1], cols[2]
     ids = np.asarray(cols[0], dtype=np.int64)
@@ -96,14 +202,142 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
          "the cap triangulation does not cover the footprint")
         for j in np.flatnonzero(~ex.ok)
     ]
-    wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
-    n_tri = ex.counts
-    out.meshes = [
-        (int(ids[k]), 1, wkbs[j].hex(), int(n_tri[j]), float(hs.bottom[k]), float(hs.top[k]), str(hs.source[k]),
-         float(ex.volume[j]))
-        for j, k in enumerate(sel.tolist())
-        if ex.ok[j]
-    ]
+    good = np.flatnonzero(ex.ok)
+    k_of = sel[good]  # row index of each drawn building
+    n = len(good)
+    out.drawn = n
+    # ex.offsets of failed footprints are empty ranges, so the ok ones' ranges are contiguous
+    lod1 = Meshes(ex.triangles, ex.semantics, np.concatenate([ex.offsets[good], [ex.offsets[-1]]]))
+    out.seconds["lod1"] += time.perf_counter() - t0
+
+    # --- LOD2 ----------------------------------------------------------------------------------------------
+    t0 = time.perf_counter()
+    lh = settings.level_height_m
+    bottom, top = hs.bottom[k_of], hs.top[k_of]
+    top2 = top.copy()
+    roof_h = np.zeros(n)
+    shape_used = np.array(["flat"] * n, dtype=object)
+    engine = np.array(["flat"] * n, dtype=object)
+    parts: list[tuple[np.ndarray, np.ndarray]] = []
+    for j, k in enumerate(k_of.tolist()):
+        raw = cols[14][k]
+        shape, known = roofs.canonical_shape(raw)
+        roof_only = (cols[13][k] or "").lower() == "roof" or (cols[3][k] or "").lower() == "roof"
+        ot, oi = osm_types[k], osm_ids[k]
+        if not known:
+            out.diagnostics.append((ot, oi, "unknown_roof_shape",
+                                    f"roof:shape={raw} is not in the catalogue; drawn flat"))
+        if shape == "flat" and not roof_only:
+            parts.append(lod1.of(j))
+            continue
+        rh, rl = cols[9][k], cols[8][k]
+        roof_tagged = float(rh) if rh is not None else (float(rl) * lh if rl is not None and rl > 0 else None)
+        if shape != "flat" and rh is None and rl is not None and rl == 0:
+            out.diagnostics.append((ot, oi, "pitched_roof_zero_levels",
+                                    f"roof:levels=0 on a {shape} roof; the default pitch is used"))
+        included = hs.source[k] == "height" or roof_tagged is not None
+        if roof_tagged is not None and roof_tagged > top[j] - bottom[j]:
+            out.diagnostics.append((ot, oi, "roof_height_clamped",
+                                    f"roof height {roof_tagged:g} m exceeds the building's {top[j] - bottom[j]:g} m"))
+        try:
+            if shape == "flat":  # a flat roof without walls: the slab alone
+                zb = max(bottom[j], top[j] - ROOF_SLAB_M)
+                e1 = extrude(geoms[k:k + 1], np.array([zb]), np.array([top[j]]))
+                parts.append((e1.triangles, np.where(e1.semantics == 1, roofs.SEM_ROOF, e1.semantics).astype(np.uint8)))
+                continue
+            angle = cols[15][k]
+            direction = cols[16][k]
+            tri, sem, h, t2, eng, note = _pitched_solid(
+                geoms[k], cols[18][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
+                None if angle is None else float(angle), None if direction is None else float(direction),
+                cols[17][k], roof_only)
+            parts.append((tri, sem))
+            roof_h[j], top2[j], shape_used[j], engine[j] = h, t2, shape, eng
+            out.pitched += 1
+            if note:
+                out.diagnostics.append((ot, oi, "roof_fallback", f"{shape}: {note}"))
+        except (roofs.RoofError, ValueError, KeyError, shapely.errors.GEOSException) as e:
+            code = e.code if isinstance(e, roofs.RoofError) else type(e).__name__
+            out.diagnostics.append((ot, oi, "roof_fallback", f"{shape} roof failed ({code}: {e}); drawn flat"))
+            parts.append(lod1.of(j))
+    lod2 = Meshes.concat(parts)
+    cl = closure(lod2.triangles, lod2.offsets)
+    bad = np.flatnonzero(~cl.ok)
+    out.not_closed += len(bad)
+    for j in bad.tolist():
+        k = int(k_of[j])
+        reasons = []
+        if cl.open_edges[j]:
+            reasons.append(f"{cl.open_edges[j]} open edges")
+        if cl.nonmanifold_edges[j]:
+            reasons.append(f"{cl.nonmanifold_edges[j]} edges shared by 3+ triangles")
+        if not cl.winding_consistent[j]:
+            reasons.append("inconsistent winding")
+        if cl.volume[j] <= 0:
+            reasons.append(f"volume {cl.volume[j]:.3g} m³")
+        out.diagnostics.append((osm_types[k], osm_ids[k], "not_watertight",
+                                f"LOD2 {shape_used[j]} ({engine[j]}): " + ", ".join(reasons)))
+    out.seconds["lod2"] += time.perf_counter() - t0
+
+    # --- LOD3: LOD2 plus windows and doors ----------------------------------------------------------------
+    t0 = time.perf_counter()
+    polys, poly_owner = shapely.get_parts(geoms[k_of], return_index=True)
+    oriented = shapely.orient_polygons(polys, exterior_cw=False)
+    rings, ring_poly = shapely.get_rings(oriented, return_index=True)
+    ring_ext = np.zeros(len(rings), dtype=bool)
+    _, first = np.unique(ring_poly, return_index=True)
+    ring_ext[first] = True
+    coords, coord_ring = shapely.get_coordinates(rings, return_index=True)
+    same = coord_ring[:-1] == coord_ring[1:]
+    wa, wb = coords[:-1][same], coords[1:][same]
+    w_ring = coord_ring[:-1][same]
+    w_owner = poly_owner[ring_poly[w_ring]]
+    eave = top2 - roof_h
+    roof_only_arr = np.array([(cols[13][k] or "").lower() == "roof" or (cols[3][k] or "").lower() == "roof"
+                              for k in k_of.tolist()], dtype=bool)
+    lv = np.array([np.nan if cols[6][k] is None else float(cols[6][k]) - float(cols[7][k] or 0) for k in k_of.tolist()])
+    keep = ~roof_only_arr[w_owner]
+    fac = facades(wa[keep], wb[keep], w_owner[keep], bottom[w_owner[keep]], eave[w_owner[keep]],
+                  lv[w_owner[keep]], (bottom < 0.5)[w_owner[keep]], ring_ext[w_ring[keep]], n,
+                  FacadeParams(level_height=lh, style=settings.lod3_openings))
+    f_counts = np.bincount(fac.owner, minlength=n)
+    f_off = np.concatenate([[0], np.cumsum(f_counts)])
+    # interleave LOD2 and facade triangles per building
+    counts2 = np.diff(lod2.offsets)
+    owner_all = np.concatenate([np.repeat(np.arange(n), counts2), fac.owner])
+    order = np.argsort(owner_all, kind="stable")
+    lod3 = Meshes(np.concatenate([lod2.triangles, fac.triangles])[order],
+                  np.concatenate([lod2.semantics, fac.semantics])[order],
+                  lod2.offsets + f_off)
+    out.seconds["lod3"] += time.perf_counter() - t0
+
+    # --- rows ------------------------------------------------------------------------------------------------
+    t0 = time.perf_counter()
+    vol1 = ex.volume[good]
+    vol3 = _volume(lod3, n)
+    for lod, m, vol, tops, rh_, shp, eng in (
+        (1, lod1, vol1, top, np.zeros(n), np.array(["flat"] * n, dtype=object), np.array(["flat"] * n, dtype=object)),
+        (2, lod2, cl.volume, top2, roof_h, shape_used, engine),
+        (3, lod3, vol3, top2, roof_h, shape_used, engine),
+    ):
+        if lod not in lods:
+            continue
+        wkbs = encode_triangles_batch(m.triangles, m.offsets, srid)
+        ar = _areas(m, n)
+        counts = np.diff(m.offsets)
+        nwin = fac.n_windows if lod == 3 else np.zeros(n, int)
+        ndoor = fac.n_doors if lod == 3 else np.zeros(n, int)
+        wt = np.ones(n, bool) if lod == 1 else cl.watertight
+        wc = np.ones(n, bool) if lod == 1 else cl.winding_consistent
+        out.triangles[lod] += int(counts.sum())
+        for j, k in enumerate(k_of.tolist()):
+            out.meshes.append((
+                int(ids[k]), lod, wkbs[j], int(counts[j]), float(bottom[j]), float(tops[j]), str(hs.source[k]),
+                float(vol[j]), m.semantics[m.offsets[j]:m.offsets[j + 1]].tobytes(), str(shp[j]), float(rh_[j]),
+                str(eng[j]), float(ar[j, 0]), float(ar[j, 1]), float(ar[j, 2]), float(ar[j, 3] + ar[j, 4]),
+                int(nwin[j]), int(ndoor[j]), bool(wt[j]), bool(wc[j]),
+            ))
+    out.seconds["encode"] += time.perf_counter() - t0
     return out
 
 
@@ -114,11 +348,13 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         raise RuntimeError("no dataset loaded: run the ingest stage first (make ingest)")
     srid = int(srid_row[0])
     coverage = settings.outline_part_coverage
-    counts = {"meshes": 0, "rejected": 0, "triangles": 0}
+    counts = {"buildings": 0, "meshes": 0, "rejected": 0, "pitched_roofs": 0, "lod2_not_closed": 0,
+              "triangles_lod1": 0, "triangles_lod2": 0, "triangles_lod3": 0}
+    seconds = {"lod1": 0.0, "lod2": 0.0, "lod3": 0.0, "encode": 0.0, "copy": 0.0}
     progress = Progress("lod", "buildings")
     # One connection streams the input, this one writes: all output lands in a single transaction.
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
-        cur.execute("DELETE FROM lod.building_mesh WHERE lod = 1")
+        cur.execute("DELETE FROM lod.building_mesh WHERE lod = ANY(%s)", (list(LODS),))
         # the tile tree was built from the old meshes; keeping it would let export drop or miss buildings
         cur.execute("TRUNCATE tiles.building_tile, tiles.tile, tiles.grid")
         cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
@@ -129,30 +365,59 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         progress.total = total - hidden
         with reader.cursor(name="lod_input") as src:
             src.itersize = BATCH
-            src.execute(_SELECT, {"coverage": coverage})
+            src.execute(_SELECT, {"coverage": coverage, "skeleton": _SKELETON_VALUES})
             cur.execute("CREATE TEMP TABLE _lod_reject (osm_type char(1), osm_id bigint, reason text, detail text)"
                         " ON COMMIT DROP")
-            while rows := src.fetchmany(BATCH):
-                b = build_batch(rows, settings, srid)
-                with cur.copy(
-                    "COPY lod.building_mesh (building_id, lod, geom, n_triangles, min_height, height,"
-                    " height_source, volume_m3) FROM STDIN"
-                ) as copy:
-                    for m in b.meshes:
-                        copy.write_row(m)
-                if b.rejects:
-                    with cur.copy("COPY _lod_reject (osm_type, osm_id, reason, detail) FROM STDIN") as copy:
-                        for r in b.rejects:
-                            copy.write_row(r)
-                if b.diagnostics:
-                    with cur.copy("COPY meta.diagnostic (stage, osm_type, osm_id, code, detail) FROM STDIN") as copy:
-                        for d in b.diagnostics:
-                            copy.write_row(("lod", *d))
-                counts["meshes"] += len(b.meshes)
-                counts["rejected"] += len(b.rejects)
-                counts["triangles"] += sum(m[3] for m in b.meshes)
-                hidden += b.hidden
-                progress.update(len(rows))
+            # The database parses and indexes a batch (COPY) while Python builds the next: two cores busy.
+            pending: queue.Queue[Batch | None] = queue.Queue(maxsize=2)
+            failure: list[BaseException] = []
+
+            def write() -> None:
+                try:
+                    while (b := pending.get()) is not None:
+                        tc = time.perf_counter()
+                        with cur.copy(f"COPY lod.building_mesh ({', '.join(COLUMNS)}) FROM STDIN (FORMAT BINARY)"
+                                      ) as copy:
+                            copy.set_types(list(COPY_TYPES))
+                            for m in b.meshes:
+                                copy.write_row(m)
+                        if b.rejects:
+                            with cur.copy("COPY _lod_reject (osm_type, osm_id, reason, detail) FROM STDIN") as copy:
+                                for r in b.rejects:
+                                    copy.write_row(r)
+                        if b.diagnostics:
+                            with cur.copy("COPY meta.diagnostic (stage, osm_type, osm_id, code, detail) FROM STDIN"
+                                          ) as copy:
+                                for d in b.diagnostics:
+                                    copy.write_row(("lod", *d))
+                        seconds["copy"] += time.perf_counter() - tc
+                except BaseException as e:  # noqa: BLE001 - handed to the main thread
+                    failure.append(e)
+                    while pending.get() is not None:  # drain so the producer never blocks
+                        pass
+
+            writer = threading.Thread(target=write, name="lod-copy")
+            writer.start()
+            try:
+                while not failure and (rows := src.fetchmany(BATCH)):
+                    b = build_batch(rows, settings, srid)
+                    for key, v in b.seconds.items():
+                        seconds[key] += v
+                    counts["buildings"] += b.drawn
+                    counts["meshes"] += len(b.meshes)
+                    counts["rejected"] += len(b.rejects)
+                    counts["pitched_roofs"] += b.pitched
+                    counts["lod2_not_closed"] += b.not_closed
+                    for lod in LODS:
+                        counts[f"triangles_lod{lod}"] += b.triangles[lod]
+                    hidden += b.hidden
+                    pending.put(b)
+                    progress.update(len(rows))
+            finally:
+                pending.put(None)
+                writer.join()
+            if failure:
+                raise failure[0]
             # rejects keep the building's tags and footprint, so nothing is lost
             cur.execute(
                 """INSERT INTO osm.reject (osm_type, osm_id, stage, reason, detail, tags, geom)
@@ -160,21 +425,26 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                    FROM _lod_reject r JOIN osm.building b ON b.osm_type = r.osm_type AND b.osm_id = r.osm_id"""
             )
         cur.execute("ANALYZE lod.building_mesh")
-    if counts["meshes"] + counts["rejected"] + hidden != total:
+    if counts["buildings"] + counts["rejected"] + hidden != total:
         raise RuntimeError(
-            f"lod lost buildings: {total} in, {counts['meshes']} meshes + {hidden} hidden"
+            f"lod lost buildings: {total} in, {counts['buildings']} drawn + {hidden} hidden"
             f" + {counts['rejected']} rejected"
         )
-    seconds = time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    nb = max(counts["buildings"], 1)
     result: dict[str, object] = {
-        "in": total, **counts, "hidden_by_parts": hidden, "seconds": round(seconds, 3),
-        "triangles_per_building": round(counts["triangles"] / max(counts["meshes"], 1), 1),
+        "in": total, **counts, "hidden_by_parts": hidden, "seconds": round(wall, 3),
+        "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
+        **{f"triangles_per_building_lod{lod}": round(counts[f"triangles_lod{lod}"] / nb, 1) for lod in LODS},
+        "lod2_closed_pct": round(100.0 * (1 - counts["lod2_not_closed"] / nb), 3),
     }
     summary(
         "lod",
-        f"in {total:,} = {counts['meshes']:,} LOD1 solids + {hidden:,} outlines drawn by their parts "
-        f"+ rejected {counts['rejected']:,} | {counts['triangles']:,} triangles",
-        seconds,
+        f"in {total:,} = {counts['buildings']:,} drawn ({counts['pitched_roofs']:,} pitched roofs) + {hidden:,} "
+        f"outlines drawn by their parts + rejected {counts['rejected']:,} | LOD2 closed "
+        f"{result['lod2_closed_pct']}% | triangles LOD1 {counts['triangles_lod1']:,}, "
+        f"LOD2 {counts['triangles_lod2']:,}, LOD3 {counts['triangles_lod3']:,}",
+        wall,
         total,
     )
     return result

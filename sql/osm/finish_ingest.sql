@@ -100,7 +100,8 @@ BEGIN
     WHERE f.fixed_local IS NOT NULL AND NOT ST_IsEmpty(f.fixed_local) AND ST_Area(f.fixed_local) < min_area_m2;
 
     INSERT INTO meta.diagnostic (stage, osm_type, osm_id, code, detail)
-    SELECT 'ingest', i.osm_type, i.osm_id, 'invalid_tag',
+    SELECT 'ingest', i.osm_type, i.osm_id,
+           CASE WHEN e ->> 'code' = 'unit_converted' THEN 'unit_converted' ELSE 'invalid_tag' END,
            format('%s=%s: %s', e ->> 'key', e ->> 'value', e ->> 'detail')
     FROM osm.building_import i CROSS JOIN LATERAL jsonb_array_elements(i.tag_issues) e
     WHERE i.tag_issues IS NOT NULL

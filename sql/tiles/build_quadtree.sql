@@ -5,8 +5,8 @@
 --   * the level-0 cell is the square around all of them in the working CRS; a cell becomes a leaf when it
 --     holds at most max_features meshes and max_triangles triangles, holds a single building, or is at
 --     max_level; otherwise its groups move on to the four cells of the next level;
---   * tiles.tile gets every cell (leaves with a content URI), its 3D Tiles bounding region (exact extent of
---     the footprints below it, heights above the ellipsoid from base_height) and geometric error
+--   * tiles.tile gets every cell (leaves with a content URI), its 3D Tiles bounding region (extent of the
+--     meshes of every LOD below it, heights above the ellipsoid from base_height) and geometric error
 --     (0 for leaves, cell edge × ge_factor above); tiles.building_tile gets each mesh's leaf.
 -- Example: CALL tiles.build_quadtree(1, 500, 100000, 16, 0.5, 0);
 CREATE OR REPLACE PROCEDURE tiles.build_quadtree(
@@ -92,10 +92,12 @@ BEGIN
            format('content/%s/%s/%s.glb', c.level, c.x, c.y)
     FROM _cell c
     JOIN (
-        SELECT g.lvl, g.tx, g.ty, ST_Extent(b.geom)::box2d AS ext, min(m.min_height) AS zmin, max(m.height) AS zmax
+        -- bounds of every LOD's mesh: roofs add height, onion domes and LOD3 openings stand out of the walls
+        SELECT g.lvl, g.tx, g.ty, ST_Extent(ST_Transform(ST_Envelope(m.geom), 4326))::box2d AS ext,
+               min(m.min_height) AS zmin, max(m.height) AS zmax
         FROM _grp g
         JOIN osm.building b ON coalesce(b.parent_id, b.id) = g.group_id
-        JOIN lod.building_mesh m ON m.building_id = b.id AND m.lod = build_quadtree.lod
+        JOIN lod.building_mesh m ON m.building_id = b.id
         GROUP BY g.lvl, g.tx, g.ty
     ) e ON e.lvl = c.level AND e.tx = c.x AND e.ty = c.y
     WHERE c.is_leaf;

@@ -119,7 +119,7 @@ def test_feature_metadata(city, conn_of) -> None:
     conn = conn_of(c.url)
     _, sq = feature_vertices(c.tiles, tile_of(conn, 10001), 10001)
     assert (sq["name"], sq["osm_type"], sq["kind"], sq["height"], sq["min_height"], sq["lod"]) == (
-        "Square 100", "way", "building", 12.0, 0.0, 1)
+        "Square 100", "way", "building", 12.0, 0.0, 2)  # export defaults to LOD2
     _, part = feature_vertices(c.tiles, tile_of(conn, 13003), 13003)
     assert (part["kind"], part["building_osm_id"], part["building_osm_type"], part["min_height"], part["height"]) == (
         "part", 13001, "way", 5.0, 20.0)
@@ -137,11 +137,11 @@ def test_triangle_counts_and_run_record(city, conn_of) -> None:
         prim = gltf["meshes"][0]["primitives"][0]
         total += gltf["accessors"][prim["indices"]]["count"] // 3
         assert gltf["asset"]["copyright"].startswith("© OpenStreetMap contributors")
-    stored = conn.execute("SELECT sum(n_triangles) FROM lod.building_mesh").fetchone()[0]
+    stored = conn.execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = 2").fetchone()[0]
     assert 0.99 * stored <= total <= stored  # only zero-area triangles are dropped
     counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' AND status = 'ok'").fetchone()[0]
     assert counts["triangles"] == total
-    assert counts["features"] == conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0]
+    assert counts["features"] == conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 2").fetchone()[0]
     ts = json.loads((c.tiles / "tileset.json").read_text())
     assert ts["asset"]["version"] == "1.1" and ts["extras"]["copyright"].startswith("©")
 

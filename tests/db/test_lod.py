@@ -13,7 +13,7 @@ def fx(city):
     return city("fixtures")
 
 
-def meshes(conn, where: str = "true"):
+def meshes(conn, where: str = "m.lod IN (1, 2)"):  # LOD3 openings are panels, not shells
     q = f"SELECT m.building_id, ST_AsBinary(m.geom), m.volume_m3, m.n_triangles FROM lod.building_mesh m WHERE {where}"
     return conn.execute(q).fetchall()  # noqa: S608 - constant test predicates
 
@@ -41,9 +41,10 @@ def test_counts_balance(fx, conn_of) -> None:
     conn = conn_of(fx.url)
     c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod'").fetchone()[0]
     assert c["in"] == 26
-    assert c["in"] == c["meshes"] + c["hidden_by_parts"] + c["rejected"]
-    assert (c["meshes"], c["hidden_by_parts"], c["rejected"]) == (23, 2, 1)
-    assert conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0] == 23
+    assert c["in"] == c["buildings"] + c["hidden_by_parts"] + c["rejected"]
+    assert (c["buildings"], c["hidden_by_parts"], c["rejected"]) == (23, 2, 1)
+    per_lod = dict(conn.execute("SELECT lod, count(*) FROM lod.building_mesh GROUP BY lod").fetchall())
+    assert per_lod == {1: 23, 2: 23, 3: 23} and c["meshes"] == 69
 
 
 def test_every_fixture_solid_is_closed_and_outward(fx, conn_of) -> None:
@@ -60,9 +61,9 @@ def test_sfcgal_agrees_on_volume(fx, conn_of) -> None:
     conn = conn_of(fx.url)
     rows = conn.execute(
         """SELECT building_id, ST_Volume(ST_MakeSolid(geom)), volume_m3 FROM lod.building_mesh
-           WHERE building_id IN (10001, 11001, 15012, -1201)"""
+           WHERE building_id IN (10001, 11001, 15012, -1201) AND lod IN (1, 2)"""
     ).fetchall()
-    assert len(rows) == 4
+    assert len(rows) == 8
     for bid, sfcgal, ours in rows:
         assert sfcgal == pytest.approx(ours, rel=1e-6), bid
 
@@ -70,7 +71,7 @@ def test_sfcgal_agrees_on_volume(fx, conn_of) -> None:
 def test_heights_from_tags_and_defaults(fx, conn_of) -> None:
     conn = conn_of(fx.url)
     rows = {r[0]: r[1:] for r in conn.execute(
-        "SELECT building_id, min_height, height, height_source, volume_m3 FROM lod.building_mesh")}
+        "SELECT building_id, min_height, height, height_source, volume_m3 FROM lod.building_mesh WHERE lod = 1")}
     area = dict(conn.execute("SELECT id, area_m2 FROM osm.building").fetchall())
     assert rows[10001][:3] == (0.0, 12.0, "height")
     assert rows[11001][:3] == (0.0, 12.0, "levels")  # 4 levels x 3 m
@@ -86,10 +87,11 @@ def test_heights_from_tags_and_defaults(fx, conn_of) -> None:
 
 def test_s3db_outline_rule(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    ids = {r[0] for r in conn.execute("SELECT building_id FROM lod.building_mesh")}
+    ids = {r[0] for r in conn.execute("SELECT building_id FROM lod.building_mesh WHERE lod = 1")}
     assert 13001 not in ids and 14001 not in ids  # outlines covered by their parts are not drawn
     assert {13002, 13003, 14002, 14003, 14004} <= ids
-    floating = conn.execute("SELECT min_height, height FROM lod.building_mesh WHERE building_id = 13003").fetchone()
+    floating = conn.execute(
+        "SELECT min_height, height FROM lod.building_mesh WHERE building_id = 13003 AND lod = 1").fetchone()
     assert floating == (5.0, 20.0)
     hidden = {r[0] for r in conn.execute(
         "SELECT osm_id FROM meta.diagnostic WHERE stage = 'lod' AND code = 'outline_hidden_by_parts'")}
@@ -102,7 +104,8 @@ def test_partly_covered_outline_is_drawn_only_where_parts_are_not(fx, conn_of) -
         """SELECT o.area_m2, p.area_m2, mo.volume_m3, mp.volume_m3,
                   (SELECT code FROM meta.diagnostic WHERE osm_id = 16001 AND stage = 'lod')
            FROM osm.building o JOIN osm.building p ON p.parent_id = o.id
-           JOIN lod.building_mesh mo ON mo.building_id = o.id JOIN lod.building_mesh mp ON mp.building_id = p.id
+           JOIN lod.building_mesh mo ON mo.building_id = o.id AND mo.lod = 1
+           JOIN lod.building_mesh mp ON mp.building_id = p.id AND mp.lod = 1
            WHERE o.id = 16001"""
     ).fetchone()
     assert vol_outline == pytest.approx((outline - part) * 9.0, rel=1e-6)  # no volume counted twice
@@ -111,7 +114,8 @@ def test_partly_covered_outline_is_drawn_only_where_parts_are_not(fx, conn_of) -
     # the two solids' footprints do not overlap
     overlap = conn.execute(
         """SELECT ST_Area(ST_Intersection(ST_Force2D(ST_Tesselate(a.geom)), ST_Force2D(ST_Tesselate(b.geom))))
-           FROM lod.building_mesh a, lod.building_mesh b WHERE a.building_id = 16001 AND b.building_id = 16002"""
+           FROM lod.building_mesh a, lod.building_mesh b
+           WHERE a.building_id = 16001 AND b.building_id = 16002 AND a.lod = 1 AND b.lod = 1"""
     ).fetchone()[0]
     assert overlap == pytest.approx(0.0, abs=1e-6)
 
@@ -120,11 +124,11 @@ def test_coverage_threshold_is_configurable(new_db, conn_of, fx) -> None:
     url = new_db("lod_threshold")
     run_etl(url, "ingest", "--osm", str(fx.osm))
     run_etl(url, "lod", env={"CITYLOD_OUTLINE_PART_COVERAGE": "1.01"})  # never hide by coverage
-    ids = {r[0] for r in conn_of(url).execute("SELECT building_id FROM lod.building_mesh")}
+    ids = {r[0] for r in conn_of(url).execute("SELECT building_id FROM lod.building_mesh WHERE lod = 1")}
     # ... but 13001 and 14001 are covered entirely: nothing but slivers is left of them to draw
     assert not {13001, 14001} & ids and 16001 in ids
     run_etl(url, "lod", env={"CITYLOD_OUTLINE_PART_COVERAGE": "0"})  # strict S3DB: any part hides the outline
-    ids = {r[0] for r in conn_of(url).execute("SELECT building_id FROM lod.building_mesh")}
+    ids = {r[0] for r in conn_of(url).execute("SELECT building_id FROM lod.building_mesh WHERE lod = 1")}
     assert 16001 not in ids and 16002 in ids
 
 
@@ -142,4 +146,4 @@ def test_real_extract_solids_are_closed(city, conn_of, name) -> None:
     bad = [bid for bid, blob, _, _ in rows if not all(closed_outward(blob)[:2]) or closed_outward(blob)[2] <= 0]
     assert bad == []
     c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod'").fetchone()[0]
-    assert c["in"] == c["meshes"] + c["hidden_by_parts"] + c["rejected"]
+    assert c["in"] == c["buildings"] + c["hidden_by_parts"] + c["rejected"]

@@ -46,7 +46,7 @@ def test_volume_per_building(munich) -> None:
     osm_id, _, vol, _ = rows[0]
     parts = munich.execute(
         """SELECT m.volume_m3, ST_NumGeometries(b.geom_local), m.geom FROM lod.building_mesh m
-           JOIN osm.building b ON b.id = m.building_id WHERE coalesce(b.parent_id, b.id) =
+           JOIN osm.building b ON b.id = m.building_id WHERE m.lod = 1 AND coalesce(b.parent_id, b.id) =
            (SELECT id FROM osm.building WHERE osm_id = %s AND kind = 'building')""", (osm_id,)).fetchall()
     assert sum(p[0] for p in parts) == pytest.approx(float(vol), abs=0.5)
     for v, shells, geom in parts:
@@ -59,3 +59,31 @@ def test_reject_summaries_run(munich) -> None:
     for q in QUERIES[3].split(";"):
         if q.strip():
             munich.execute(q).fetchall()
+
+
+def test_buildings_per_roof_shape(munich) -> None:
+    rows = munich.execute(QUERIES[4]).fetchall()
+    assert {"flat", "gabled", "hipped", "pyramidal", "dome", "skillion"} <= {r[0] for r in rows}
+    lod2 = munich.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 2").fetchone()[0]
+    assert sum(r[2] for r in rows) == lod2
+
+
+def test_roof_area_by_material(munich) -> None:
+    got = {r[0]: float(r[2]) for r in munich.execute(QUERIES[5]).fetchall()}
+    assert "(untagged)" in got and all(v >= 0 for v in got.values())
+    total = munich.execute("SELECT sum(roof_area_m2) FROM lod.building_mesh WHERE lod = 2").fetchone()[0]
+    assert sum(got.values()) == pytest.approx(total, abs=len(got))
+
+
+def test_volume_by_lod(munich) -> None:
+    got = {r[0]: r for r in munich.execute(QUERIES[6]).fetchall()}
+    assert set(got) == {1, 2, 3}
+    assert got[1][1] == got[2][1] == got[3][1]  # one mesh per building and LOD
+    assert got[2][2] < got[1][2]  # pitched roofs take volume out of the blocks
+    assert got[3][4] > 0 and got[3][5] > 0 and got[2][4] == 0  # windows and doors only at LOD3
+    assert got[2][6] >= 99.5
+
+
+def test_building_diagnostic_view(munich) -> None:
+    got = {(r[0], r[1]): r[2] for r in munich.execute(QUERIES[7]).fetchall()}
+    assert got[("unknown_roof_shape", False)] >= 1  # roof:shape=many
