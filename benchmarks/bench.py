@@ -56,7 +56,7 @@ STAGES = ("ingest", "lod", "tiles", "export")
 # Which pipeline_run count is "the buildings this stage handled".
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "tiles": "features", "export": "features"}
 # Counts that legitimately differ between repeats of the same input.
-VOLATILE_COUNTS = frozenset({"seconds", "out"})
+VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step"})
 
 
 def log(msg: str) -> None:
@@ -401,6 +401,24 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
         header = ["extract", "buildings", f"seconds (median of {repeat})", "in-stage s", "buildings/s",
                   "peak RSS MiB"]
         lines += [f"### {stage}", "", *_table(header, rows, "lrrrrr"), ""]
+
+    rows = []
+    for r in results:
+        lc = r.counts("lod")
+        steps = lc.get("seconds_by_step", {})
+        rows.append([
+            r.name, f"{r.buildings('lod'):,}", f"{int(lc.get('pitched_roofs', 0)):,}",
+            f"{lc.get('lod2_closed_pct', 0)}%",
+            " / ".join(f"{lc.get(f'triangles_per_building_lod{k}', 0)}" for k in (1, 2, 3)),
+            " / ".join(f"{steps.get(k, 0):.2f}" for k in ("lod1", "lod2", "lod3", "encode", "copy")),
+            _rate(r.buildings("lod"), r.median_s("lod")),
+        ])
+    header = ["extract", "buildings", "pitched roofs", "LOD2 closed", "triangles/building LOD1 / 2 / 3",
+              "s in LOD1 / LOD2 / LOD3 / encode / COPY (last run)", "LOD1+2+3 buildings/s"]
+    lines += ["### lod by level of detail", "",
+              "The lod stage builds all three LODs in one pass; the split is its own timing of each step (COPY "
+              "runs in a second thread, overlapping the others). LOD3 openings are panels "
+              "(settings.lod3_openings).", "", *_table(header, rows, "lrrrrrr"), ""]
 
     rows = []
     for r in results:
