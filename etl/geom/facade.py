@@ -115,6 +115,20 @@ def _boxes(
     return np.take(corners, _CUBE, axis=1)  # far faster than corners[:, _CUBE], which comes out strided
 
 
+def _panels(a: np.ndarray, u: np.ndarray, nrm: np.ndarray, wall: np.ndarray, s0: np.ndarray, s1: np.ndarray,
+            z0: np.ndarray, z1: np.ndarray, depth: float) -> np.ndarray:
+    """(k, 2, 3, 3): the front faces of _boxes without building the boxes (same corners, same winding)."""
+    base = a[wall] + depth * nrm[wall]  # (k, 2)
+    p0 = base + s0[:, None] * u[wall]
+    p1 = base + s1[:, None] * u[wall]
+    c = np.empty((len(wall), 4, 3))  # corners 1 (s0, z0), 3 (s1, z0), 7 (s1, z1), 5 (s0, z1) of the cube
+    c[:, 0, :2], c[:, 0, 2] = p0, z0
+    c[:, 1, :2], c[:, 1, 2] = p1, z0
+    c[:, 2, :2], c[:, 2, 2] = p1, z1
+    c[:, 3, :2], c[:, 3, 2] = p0, z1
+    return np.take(c, np.array([[0, 1, 2], [0, 2, 3]]), axis=1)
+
+
 def facades(
     a: np.ndarray,
     b: np.ndarray,
@@ -208,11 +222,12 @@ def facades(
 
     if p.style not in ("box", "panel"):
         raise ValueError(f"unknown opening style {p.style!r} (box or panel)")
-    boxes = _boxes(a, u, nrm, wall, mid - half, mid + half, z0, z1, p.depth)
-    per = 12
-    if p.style == "panel":  # the front face (cube x = 1, triangles 10 and 11) stands `depth` proud of the wall
-        boxes, per = boxes[:, 10:12], 2
-    tris = boxes.reshape(-1, 3, 3)
+    if p.style == "panel":  # the box's front face alone (cube triangles 10 and 11), `depth` proud of the wall
+        tris = _panels(a, u, nrm, wall, mid - half, mid + half, z0, z1, p.depth).reshape(-1, 3, 3)
+        per = 2
+    else:
+        tris = _boxes(a, u, nrm, wall, mid - half, mid + half, z0, z1, p.depth).reshape(-1, 3, 3)
+        per = 12
     return Facades(
         triangles=tris,
         semantics=np.repeat(sem, per),

@@ -99,13 +99,6 @@ class Meshes:
     semantics: np.ndarray
     offsets: np.ndarray
 
-    @staticmethod
-    def concat(parts: list[tuple[np.ndarray, np.ndarray]]) -> Meshes:
-        counts = [len(t) for t, _ in parts]
-        tri = np.concatenate([t for t, _ in parts]) if parts else np.zeros((0, 3, 3))
-        sem = np.concatenate([s for _, s in parts]) if parts else np.zeros(0, np.uint8)
-        return Meshes(tri, sem, np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
-
     def of(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         return self.triangles[self.offsets[k]:self.offsets[k + 1]], self.semantics[self.offsets[k]:self.offsets[k + 1]]
 
@@ -118,6 +111,29 @@ def _areas(m: Meshes, n: int) -> np.ndarray:
     out = np.zeros((n, 5))
     np.add.at(out, (owner, m.semantics.astype(np.int64)), area)
     return out
+
+
+def _replace(base: Meshes, own: dict[int, tuple[np.ndarray, np.ndarray]], n: int) -> Meshes:
+    """``base`` with the meshes of the buildings in ``own`` replaced."""
+    if not own:
+        return base
+    counts = np.diff(base.offsets)
+    new_counts = counts.copy()
+    keys = np.fromiter(own, dtype=np.int64, count=len(own))
+    new_counts[keys] = [len(own[int(j)][0]) for j in keys]
+    offsets = np.concatenate([[0], np.cumsum(new_counts)]).astype(np.int64)
+    tri = np.empty((int(offsets[-1]), 3, 3))
+    sem = np.empty(len(tri), dtype=np.uint8)
+    keep = np.ones(n, dtype=bool)
+    keep[keys] = False
+    owner = np.repeat(np.arange(n), counts)
+    kept = keep[owner]
+    dest = offsets[owner[kept]] + (np.flatnonzero(kept) - base.offsets[owner[kept]])
+    tri[dest], sem[dest] = base.triangles[kept], base.semantics[kept]
+    for j in keys.tolist():
+        t, s_ = own[j]
+        tri[offsets[j]:offsets[j + 1]], sem[offsets[j]:offsets[j + 1]] = t, s_
+    return Meshes(tri, sem, offsets)
 
 
 def _volume(m: Meshes, n: int) -> np.ndarray:
@@ -218,7 +234,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
     roof_h = np.zeros(n)
     shape_used = np.array(["flat"] * n, dtype=object)
     engine = np.array(["flat"] * n, dtype=object)
-    parts: list[tuple[np.ndarray, np.ndarray]] = []
+    own: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # LOD2 differing from LOD1 (pitched, roof-only)
     for j, k in enumerate(k_of.tolist()):
         raw = cols[14][k]
         shape, known = roofs.canonical_shape(raw)
@@ -228,7 +244,6 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
             out.diagnostics.append((ot, oi, "unknown_roof_shape",
                                     f"roof:shape={raw} is not in the catalogue; drawn flat"))
         if shape == "flat" and not roof_only:
-            parts.append(lod1.of(j))
             continue
         rh, rl = cols[9][k], cols[8][k]
         roof_tagged = float(rh) if rh is not None else (float(rl) * lh if rl is not None and rl > 0 else None)
@@ -243,7 +258,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
             if shape == "flat":  # a flat roof without walls: the slab alone
                 zb = max(bottom[j], top[j] - ROOF_SLAB_M)
                 e1 = extrude(geoms[k:k + 1], np.array([zb]), np.array([top[j]]))
-                parts.append((e1.triangles, np.where(e1.semantics == 1, roofs.SEM_ROOF, e1.semantics).astype(np.uint8)))
+                own[j] = (e1.triangles, np.where(e1.semantics == 1, roofs.SEM_ROOF, e1.semantics).astype(np.uint8))
                 continue
             angle = cols[15][k]
             direction = cols[16][k]
@@ -251,7 +266,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
                 geoms[k], cols[18][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
                 None if angle is None else float(angle), None if direction is None else float(direction),
                 cols[17][k], roof_only)
-            parts.append((tri, sem))
+            own[j] = (tri, sem)
             roof_h[j], top2[j], shape_used[j], engine[j] = h, t2, shape, eng
             out.pitched += 1
             if note:
@@ -259,8 +274,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
         except (roofs.RoofError, ValueError, KeyError, shapely.errors.GEOSException) as e:
             code = e.code if isinstance(e, roofs.RoofError) else type(e).__name__
             out.diagnostics.append((ot, oi, "roof_fallback", f"{shape} roof failed ({code}: {e}); drawn flat"))
-            parts.append(lod1.of(j))
-    lod2 = Meshes.concat(parts)
+    lod2 = _replace(lod1, own, n)
     cl = closure(lod2.triangles, lod2.offsets)
     bad = np.flatnonzero(~cl.ok)
     out.not_closed += len(bad)
@@ -302,19 +316,27 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
                   FacadeParams(level_height=lh, style=settings.lod3_openings))
     f_counts = np.bincount(fac.owner, minlength=n)
     f_off = np.concatenate([[0], np.cumsum(f_counts)])
-    # interleave LOD2 and facade triangles per building
+    # each building's LOD2 triangles, then its openings: placed by index arithmetic, no sort
     counts2 = np.diff(lod2.offsets)
-    owner_all = np.concatenate([np.repeat(np.arange(n), counts2), fac.owner])
-    order = np.argsort(owner_all, kind="stable")
-    lod3 = Meshes(np.concatenate([lod2.triangles, fac.triangles])[order],
-                  np.concatenate([lod2.semantics, fac.semantics])[order],
-                  lod2.offsets + f_off)
+    off3 = lod2.offsets + f_off
+    own2 = np.repeat(np.arange(n), counts2)
+    dest2 = off3[own2] + (np.arange(len(own2)) - lod2.offsets[own2])
+    destf = off3[fac.owner] + counts2[fac.owner] + (np.arange(len(fac.owner)) - f_off[fac.owner])
+    tri3 = np.empty((len(dest2) + len(destf), 3, 3))
+    sem3 = np.empty(len(tri3), dtype=np.uint8)
+    tri3[dest2], sem3[dest2] = lod2.triangles, lod2.semantics
+    tri3[destf], sem3[destf] = fac.triangles, fac.semantics
+    lod3 = Meshes(tri3, sem3, off3)
     out.seconds["lod3"] += time.perf_counter() - t0
 
     # --- rows ------------------------------------------------------------------------------------------------
     t0 = time.perf_counter()
     vol1 = ex.volume[good]
-    vol3 = _volume(lod3, n)
+    # LOD3 = LOD2 + openings: their areas add up; boxes add their volume, open panels none
+    fac_m = Meshes(fac.triangles, fac.semantics, f_off)
+    area2 = _areas(lod2, n)
+    area_by_lod = {1: _areas(lod1, n), 2: area2, 3: area2 + _areas(fac_m, n)}
+    vol3 = cl.volume + (_volume(fac_m, n) if settings.lod3_openings == "box" else 0.0)
     for lod, m, vol, tops, rh_, shp, eng in (
         (1, lod1, vol1, top, np.zeros(n), np.array(["flat"] * n, dtype=object), np.array(["flat"] * n, dtype=object)),
         (2, lod2, cl.volume, top2, roof_h, shape_used, engine),
@@ -323,20 +345,23 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
         if lod not in lods:
             continue
         wkbs = encode_triangles_batch(m.triangles, m.offsets, srid)
-        ar = _areas(m, n)
+        ar = area_by_lod[lod]
         counts = np.diff(m.offsets)
         nwin = fac.n_windows if lod == 3 else np.zeros(n, int)
         ndoor = fac.n_doors if lod == 3 else np.zeros(n, int)
         wt = np.ones(n, bool) if lod == 1 else cl.watertight
         wc = np.ones(n, bool) if lod == 1 else cl.winding_consistent
         out.triangles[lod] += int(counts.sum())
-        for j, k in enumerate(k_of.tolist()):
-            out.meshes.append((
-                int(ids[k]), lod, wkbs[j], int(counts[j]), float(bottom[j]), float(tops[j]), str(hs.source[k]),
-                float(vol[j]), m.semantics[m.offsets[j]:m.offsets[j + 1]].tobytes(), str(shp[j]), float(rh_[j]),
-                str(eng[j]), float(ar[j, 0]), float(ar[j, 1]), float(ar[j, 2]), float(ar[j, 3] + ar[j, 4]),
-                int(nwin[j]), int(ndoor[j]), bool(wt[j]), bool(wc[j]),
-            ))
+        sem_bytes = m.semantics.tobytes()
+        offs = m.offsets.tolist()
+        out.meshes += zip(
+            ids[k_of].tolist(), [lod] * n, wkbs, counts.tolist(), bottom.tolist(), tops.tolist(),
+            hs.source[k_of].tolist(), np.asarray(vol, dtype=np.float64).tolist(),
+            [sem_bytes[offs[j]:offs[j + 1]] for j in range(n)], [str(x) for x in shp], rh_.tolist(),
+            [str(x) for x in eng], ar[:, 0].tolist(), ar[:, 1].tolist(), ar[:, 2].tolist(),
+            (ar[:, 3] + ar[:, 4]).tolist(), np.asarray(nwin).tolist(), np.asarray(ndoor).tolist(),
+            np.asarray(wt).tolist(), np.asarray(wc).tolist(), strict=True,
+        )
     out.seconds["encode"] += time.perf_counter() - t0
     return out
 

@@ -6,7 +6,8 @@
 --   SELECT ST_AsText(lod.straight_skeleton('POLYGON((0 0,20 0,20 10,0 10,0 0))'));
 CREATE OR REPLACE FUNCTION lod.straight_skeleton(footprint geometry)
 RETURNS geometry
-LANGUAGE plpgsql IMMUTABLE STRICT PARALLEL SAFE
+-- not PARALLEL SAFE: the EXCEPTION block opens a subtransaction, which parallel workers cannot
+LANGUAGE plpgsql IMMUTABLE STRICT PARALLEL UNSAFE
 AS $$
 BEGIN
     RETURN ST_StraightSkeleton(footprint);
