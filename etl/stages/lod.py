@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import psycopg
 import shapely
+import trimesh
 
 from .. import heights as heights_mod
 from ..db import connect
@@ -289,8 +290,14 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
             reasons.append("inconsistent winding")
         if cl.volume[j] <= 0:
             reasons.append(f"volume {cl.volume[j]:.3g} m³")
+        # confirm with trimesh itself (failures are rare, so its per-mesh cost does not matter here)
+        t, _ = lod2.of(j)
+        tm = trimesh.Trimesh((t - t[0, 0]).reshape(-1, 3), np.arange(3 * len(t)).reshape(-1, 3)) if len(t) else None
+        verdict = ("trimesh: empty" if tm is None else
+                   f"trimesh: is_watertight={tm.is_watertight}, is_winding_consistent={tm.is_winding_consistent}, "
+                   f"volume={tm.volume:.3g}")
         out.diagnostics.append((osm_types[k], osm_ids[k], "not_watertight",
-                                f"LOD2 {shape_used[j]} ({engine[j]}): " + ", ".join(reasons)))
+                                f"LOD2 {shape_used[j]} ({engine[j]}): " + ", ".join(reasons) + f"; {verdict}"))
     out.seconds["lod2"] += time.perf_counter() - t0
 
     # --- LOD3: LOD2 plus windows and doors ----------------------------------------------------------------

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+
 import numpy as np
 import pytest
 import trimesh
 
 from etl.geom import roofs
 from etl.geom.wkb import decode_triangles
+from exporter.checks import check_tileset
+from exporter.content import WINDOW_RGBA, srgb_to_linear16
+from exporter.gltf import accessor_array, property_table, read_glb
+from tests.conftest import REPO, node_bin, run_etl
 
 
 @pytest.fixture()
@@ -90,3 +97,28 @@ def test_real_extract_lod2_watertight(city, conn_of, name) -> None:
     # every one that is not closed is in the diagnostics with its reason
     assert total - closed == conn.execute(
         "SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'not_watertight'").fetchone()[0]
+
+
+@pytest.mark.parametrize("lod", [1, 3])
+def test_export_lod_option(city, conn_of, tmp_path, lod) -> None:
+    c = city("roofs")  # its default export is LOD2; LOD1 and LOD3 are exported here
+    out = tmp_path / f"lod{lod}"
+    run_etl(c.url, "export", "--out", str(out), "--lod", str(lod))
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,
+                          text=True)
+    report = json.loads(proc.stdout)
+    assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
+    assert check_tileset(out / "tileset.json") == []
+    stored = conn_of(c.url).execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = %s",
+                                    (lod,)).fetchone()[0]
+    written = 0
+    colours: set[tuple[int, ...]] = set()
+    for p in out.rglob("*.glb"):
+        gltf, binary = read_glb(p.read_bytes())
+        prim = gltf["meshes"][0]["primitives"][0]
+        written += gltf["accessors"][prim["indices"]]["count"] // 3
+        colours |= {tuple(x) for x in accessor_array(gltf, binary, prim["attributes"]["COLOR_0"]).tolist()}
+        assert set(property_table(gltf, binary)["lod"]) == {lod}
+    assert written == stored  # every triangle of that LOD, none of another
+    window = tuple(srgb_to_linear16(WINDOW_RGBA[None])[0].tolist())
+    assert (window in colours) == (lod == 3)  # window triangles are coloured from their semantic
