@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import psycopg
 import shapely
-import trimesh
 
 from .. import heights as heights_mod
 from ..db import connect
@@ -290,7 +289,10 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
             reasons.append("inconsistent winding")
         if cl.volume[j] <= 0:
             reasons.append(f"volume {cl.volume[j]:.3g} m³")
-        # confirm with trimesh itself (failures are rare, so its per-mesh cost does not matter here)
+        # confirm with trimesh itself (failures are rare, so its per-mesh cost does not matter here; imported
+        # only then, as its import costs ~0.2 s)
+        import trimesh
+
         t, _ = lod2.of(j)
         tm = trimesh.Trimesh((t - t[0, 0]).reshape(-1, 3), np.arange(3 * len(t)).reshape(-1, 3)) if len(t) else None
         verdict = ("trimesh: empty" if tm is None else
