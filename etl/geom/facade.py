@@ -22,7 +22,7 @@ outside) whose back face lies 1 cm inside the wall plane (embedded, so it does n
 and whose front face stands ``depth`` outside it. Boxes rather than recessed openings: each one is a closed
 shell, so every LOD3 component stays watertight without boolean operations on the wall mesh. Style
 ``panel`` keeps only each box's front face (2 triangles instead of 12) for when LOD3 size matters more than
-closed openings; it is the pipeline's default (settings.lod3_openings, sizes in BENCHMARKS.md).
+closed openings; it is the pipeline's default (settings.lod3_openings says what boxes cost).
 """
 
 from __future__ import annotations
