@@ -319,6 +319,8 @@ def _skeleton_roof(poly: shapely.Polygon, arcs: np.ndarray, shape: str, directio
         chosen.append(c)
         gables.add(c[1])
         neighbours.update((c[5], c[6]))
+    if not chosen:
+        mesh.note = "no end of the skeleton is a triangle that can take a gable: drawn hipped"  # type: ignore[attr-defined]
     if treat in ("side", "side_half") and chosen:
         # one end keeps (half-)hip, the others get gables
         first, rest = chosen[0], chosen[1:]
@@ -550,7 +552,10 @@ def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, hei
         return float(min(h, max_height))
 
     field_shape = shape if shape in FIELD_SHAPES else None
-    if shape == "gabled":
+    # a ridge across the long axis only exists as one ridge over the whole footprint: done so on footprints
+    # that are (nearly) their minimum rectangle; L, T, U and courtyards keep the skeleton roof
+    boxy = not len(poly.interiors) and poly.area >= 0.9 * shapely.minimum_rotated_rectangle(poly).area
+    if shape == "gabled" and boxy:
         ridge = np.array([-dir_vec[1], dir_vec[0]]) if dir_vec is not None else None
         if across or (ridge is not None and abs(float(ridge @ axis)) < math.cos(math.radians(45))):
             field_shape = "gabled"  # the mapper put the ridge across the long axis: not a skeleton roof
@@ -583,6 +588,7 @@ def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, hei
     if arcs is None or len(arcs) == 0:
         raise RoofError("skeleton_missing", "the database returned no straight skeleton")
     mesh, faces, vertical = _skeleton_roof(poly, _snap(arcs), shape, direction)
+    fallback = getattr(mesh, "note", None) or fallback
     d = np.asarray(mesh.d)
     dmax = float(d.max()) if len(d) else 0.0
     if dmax <= 0:

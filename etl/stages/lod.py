@@ -52,9 +52,13 @@ WITH src AS (
 SELECT b.id, b.osm_type, b.osm_id, b.building, b.height, b.min_height, b.levels, b.min_level,
        b.roof_levels, b.roof_height, ST_AsBinary(g.geom), b.has_parts, b.part_coverage,
        b.part, b.roof_shape, b.roof_angle, b.roof_direction, b.roof_orientation,
-       CASE WHEN b.roof_shape = ANY(%(skeleton)s) THEN ST_AsBinary(lod.straight_skeleton(g.geom)) END
+       ST_AsBinary(lod.straight_skeleton(r.geom)), ST_AsBinary(r.geom)
 FROM src b
 CROSS JOIN LATERAL (SELECT CASE WHEN b.has_parts THEN lod.outline_remainder(b.id) ELSE b.geom_local END AS geom) g
+-- roofs read the footprint without nodes that lie (within 5 cm) on a straight wall: such a node would split
+-- the end wall of a gabled roof into two skeleton faces, and neither could become the gable
+LEFT JOIN LATERAL (SELECT ST_SimplifyPreserveTopology(g.geom, 0.05) AS geom
+                   WHERE b.roof_shape = ANY(%(skeleton)s)) r ON true
 WHERE NOT (b.has_parts AND coalesce(b.part_coverage, 0) >= %(coverage)s)
 ORDER BY b.id
 """
@@ -167,7 +171,10 @@ def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, b
             arcs = arcs_all[shapely.intersects_xy(poly, mid[:, 0], mid[:, 1])] - origin
         elif arcs_all is not None:
             arcs = arcs_all - origin
+        # a default pitch takes at most half of a tagged height; a tagged roof may take all of it
         max_h = (top - bottom) if included else 3.0 * (top - bottom)
+        if included and roof_tagged is None and angle is None:
+            max_h = 0.5 * (top - bottom)
         surf, h = roofs.roof_surface(local, shape, arcs, roof_tagged, angle, direction, orientation, max_h)
         eave = top - h if included else top
         z_bottom = max(bottom, eave - ROOF_SLAB_M) if roof_only else bottom
@@ -245,12 +252,15 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
                                     f"roof:shape={raw} is not in the catalogue; drawn flat"))
         if shape == "flat" and not roof_only:
             continue
-        rh, rl = cols[9][k], cols[8][k]
-        roof_tagged = float(rh) if rh is not None else (float(rl) * lh if rl is not None and rl > 0 else None)
+        rh, rl, angle = cols[9][k], cols[8][k], cols[15][k]
+        # roof:height, else roof:angle (roof_surface), else roof:levels, else the shape's default pitch
+        from_levels = rh is None and angle is None and rl is not None and rl > 0
+        roof_tagged = float(rh) if rh is not None else (float(rl) * lh if from_levels else None)
         if shape != "flat" and rh is None and rl is not None and rl == 0:
             out.diagnostics.append((ot, oi, "pitched_roof_zero_levels",
                                     f"roof:levels=0 on a {shape} roof; the default pitch is used"))
-        included = hs.source[k] == "height" or roof_tagged is not None
+        # heights.resolve put roof:height / roof:levels into the top already when the top came from levels
+        included = hs.source[k] == "height" or rh is not None or (rl is not None and rl > 0)
         if roof_tagged is not None and roof_tagged > top[j] - bottom[j]:
             out.diagnostics.append((ot, oi, "roof_height_clamped",
                                     f"roof height {roof_tagged:g} m exceeds the building's {top[j] - bottom[j]:g} m"))
@@ -260,10 +270,10 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
                 e1 = extrude(geoms[k:k + 1], np.array([zb]), np.array([top[j]]))
                 own[j] = (e1.triangles, np.where(e1.semantics == 1, roofs.SEM_ROOF, e1.semantics).astype(np.uint8))
                 continue
-            angle = cols[15][k]
             direction = cols[16][k]
+            roof_geom = geoms[k] if cols[19][k] is None else shapely.from_wkb(cols[19][k])
             tri, sem, h, t2, eng, note = _pitched_solid(
-                geoms[k], cols[18][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
+                roof_geom, cols[18][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
                 None if angle is None else float(angle), None if direction is None else float(direction),
                 cols[17][k], roof_only)
             own[j] = (tri, sem)
@@ -346,6 +356,12 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
     area2 = _areas(lod2, n)
     area_by_lod = {1: _areas(lod1, n), 2: area2, 3: area2 + _areas(fac_m, n)}
     vol3 = cl.volume + (_volume(fac_m, n) if settings.lod3_openings == "box" else 0.0)
+    cl1 = closure(lod1.triangles, lod1.offsets)
+    if settings.lod3_openings == "box":  # every opening a closed box: LOD3 is measured like LOD2
+        cl3 = closure(lod3.triangles, lod3.offsets)
+        cl3_wt, cl3_wc = cl3.watertight.tolist(), cl3.winding_consistent.tolist()
+    else:  # open panels: not a closed solid, so not measured (NULL)
+        cl3_wt = cl3_wc = [None] * n
     for lod, m, vol, tops, rh_, shp, eng in (
         (1, lod1, vol1, top, np.zeros(n), np.array(["flat"] * n, dtype=object), np.array(["flat"] * n, dtype=object)),
         (2, lod2, cl.volume, top2, roof_h, shape_used, engine),
@@ -358,8 +374,8 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
         counts = np.diff(m.offsets)
         nwin = fac.n_windows if lod == 3 else np.zeros(n, int)
         ndoor = fac.n_doors if lod == 3 else np.zeros(n, int)
-        wt = np.ones(n, bool) if lod == 1 else cl.watertight
-        wc = np.ones(n, bool) if lod == 1 else cl.winding_consistent
+        wt, wc = {1: (cl1.watertight, cl1.winding_consistent), 2: (cl.watertight, cl.winding_consistent),
+                  3: (cl3_wt, cl3_wc)}[lod]
         out.triangles[lod] += int(counts.sum())
         sem_bytes = m.semantics.tobytes()
         offs = m.offsets.tolist()
@@ -369,7 +385,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
             [sem_bytes[offs[j]:offs[j + 1]] for j in range(n)], [str(x) for x in shp], rh_.tolist(),
             [str(x) for x in eng], ar[:, 0].tolist(), ar[:, 1].tolist(), ar[:, 2].tolist(),
             (ar[:, 3] + ar[:, 4]).tolist(), np.asarray(nwin).tolist(), np.asarray(ndoor).tolist(),
-            np.asarray(wt).tolist(), np.asarray(wc).tolist(), strict=True,
+            list(wt), list(wc), strict=True,
         )
     out.seconds["encode"] += time.perf_counter() - t0
     return out

@@ -15,7 +15,8 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     with conn.transaction():
         conn.execute(
             "CALL tiles.build_quadtree(%s, %s, %s, %s, %s, %s)",
-            (1, settings.tile_max_features, settings.tile_max_triangles, settings.tile_max_level,
+            # budgeted on LOD3, the largest mesh of every building, so any exported LOD fits the triangle budget
+            (3, settings.tile_max_features, settings.tile_max_triangles, settings.tile_max_level,
              settings.tile_ge_factor, settings.base_height_m),
         )
         n_tiles, n_leaves, depth = conn.execute(
@@ -24,7 +25,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         n_features, max_leaf = conn.execute(
             "SELECT count(*), (SELECT max(n_features) FROM tiles.tile WHERE is_leaf) FROM tiles.building_tile"
         ).fetchone()  # type: ignore[misc]
-        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 1").fetchone()[0]  # type: ignore[index]
+        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 3").fetchone()[0]  # type: ignore[index]
     if n_features != meshes:
         raise RuntimeError(f"tiles lost features: {meshes} meshes, {n_features} assigned to tiles")
     seconds = time.perf_counter() - t0

@@ -1,0 +1,5 @@
+-- 0008: comments that say what LOD3 rows hold with either opening style (settings.lod3_openings).
+COMMENT ON COLUMN lod.building_mesh.geom IS 'The solid as a POLYHEDRALSURFACE Z of triangles wound counter-clockwise seen from outside. LOD1/LOD2 are one closed shell (ST_Volume(ST_MakeSolid(geom)) works); LOD3 adds the windows and doors: 2-triangle panels standing out of the wall (default) or closed 12-triangle boxes (settings.lod3_openings=box).';
+COMMENT ON COLUMN lod.building_mesh.watertight IS 'Every edge shared by exactly two triangles (trimesh is_watertight), measured by the lod stage; NULL for LOD3 with open panel openings, which is not meant to be closed.';
+COMMENT ON COLUMN lod.building_mesh.winding_consistent IS 'Shared edges run in opposite directions (trimesh is_winding_consistent), measured by the lod stage; NULL like watertight.';
+COMMENT ON COLUMN lod.building_mesh.volume_m3 IS 'Enclosed volume (m³): of the solid for LOD1/LOD2; LOD3 adds the volume of closed opening boxes (nothing for panels).';
