@@ -142,6 +142,8 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
             "fsync = off\nsynchronous_commit = off\nfull_page_writes = off\n"
             "shared_buffers = '512MB'\nwork_mem = '64MB'\nmaintenance_work_mem = '512MB'\n"
             "max_wal_size = '4GB'\ncheckpoint_timeout = '30min'\n"
+            # no replicas: COPY into a table truncated in the same transaction then skips WAL entirely
+            "wal_level = minimal\nmax_wal_senders = 0\n"
             "max_parallel_workers_per_gather = 2\n"
             # JIT compile time outweighs its gain on the pipeline's short statements.
             "jit = off\n"

@@ -34,7 +34,7 @@ from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams, facades
-from ..geom.wkb import encode_triangles_batch
+from ..geom.wkb import encode_triangles, encode_triangles_batch
 from ..progress import Progress, summary
 from ..settings import Settings
 
@@ -351,12 +351,20 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
     # --- rows ------------------------------------------------------------------------------------------------
     t0 = time.perf_counter()
     vol1 = ex.volume[good]
+    wkb1: list[bytes] | None = None
     # LOD3 = LOD2 + openings: their areas add up; boxes add their volume, open panels none
     fac_m = Meshes(fac.triangles, fac.semantics, f_off)
     area2 = _areas(lod2, n)
     area_by_lod = {1: _areas(lod1, n), 2: area2, 3: area2 + _areas(fac_m, n)}
     vol3 = cl.volume + (_volume(fac_m, n) if settings.lod3_openings == "box" else 0.0)
-    cl1 = closure(lod1.triangles, lod1.offsets)
+    # LOD1 is LOD2 wherever the roof is flat: measured once; only the others' blocks are measured apart
+    cl1_wt, cl1_wc = cl.watertight.copy(), cl.winding_consistent.copy()
+    if own:
+        keys = np.fromiter(own, dtype=np.int64, count=len(own))
+        sub = [lod1.of(int(j)) for j in keys]
+        cnt = np.array([len(t) for t, _ in sub])
+        c1 = closure(np.concatenate([t for t, _ in sub]), np.concatenate([[0], np.cumsum(cnt)]))
+        cl1_wt[keys], cl1_wc[keys] = c1.watertight, c1.winding_consistent
     if settings.lod3_openings == "box":  # every opening a closed box: LOD3 is measured like LOD2
         cl3 = closure(lod3.triangles, lod3.offsets)
         cl3_wt, cl3_wc = cl3.watertight.tolist(), cl3.winding_consistent.tolist()
@@ -369,12 +377,19 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
     ):
         if lod not in lods:
             continue
-        wkbs = encode_triangles_batch(m.triangles, m.offsets, srid)
+        if lod == 2 and wkb1 is not None:  # LOD2 is LOD1 wherever the roof is flat: reuse those bytes
+            wkbs = list(wkb1)
+            for j in own:
+                wkbs[j] = encode_triangles(m.triangles[m.offsets[j]:m.offsets[j + 1]], srid)
+        else:
+            wkbs = encode_triangles_batch(m.triangles, m.offsets, srid)
+        if lod == 1:
+            wkb1 = wkbs
         ar = area_by_lod[lod]
         counts = np.diff(m.offsets)
         nwin = fac.n_windows if lod == 3 else np.zeros(n, int)
         ndoor = fac.n_doors if lod == 3 else np.zeros(n, int)
-        wt, wc = {1: (cl1.watertight, cl1.winding_consistent), 2: (cl.watertight, cl.winding_consistent),
+        wt, wc = {1: (cl1_wt.tolist(), cl1_wc.tolist()), 2: (cl.watertight.tolist(), cl.winding_consistent.tolist()),
                   3: (cl3_wt, cl3_wc)}[lod]
         out.triangles[lod] += int(counts.sum())
         sem_bytes = m.semantics.tobytes()
@@ -404,7 +419,14 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     progress = Progress("lod", "buildings")
     # One connection streams the input, this one writes: all output lands in a single transaction.
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
-        cur.execute("DELETE FROM lod.building_mesh WHERE lod = ANY(%s)", (list(LODS),))
+        # TRUNCATE when the table holds nothing but this stage's LODs: with wal_level=minimal (the local
+        # cluster) PostgreSQL then writes the COPY without WAL, ~300 MB less on a 20k-building city
+        others = cur.execute("SELECT EXISTS (SELECT 1 FROM lod.building_mesh WHERE lod <> ALL(%s))",
+                             (list(LODS),)).fetchone()[0]  # type: ignore[index]
+        if others:
+            cur.execute("DELETE FROM lod.building_mesh WHERE lod = ANY(%s)", (list(LODS),))
+        else:
+            cur.execute("TRUNCATE lod.building_mesh")
         # the tile tree was built from the old meshes; keeping it would let export drop or miss buildings
         cur.execute("TRUNCATE tiles.building_tile, tiles.tile, tiles.grid")
         cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
