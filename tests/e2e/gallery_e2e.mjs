@@ -14,10 +14,9 @@
 // Prints one JSON line {featureCount, shapes, legend, visible, highlight, pick, hosts, consoleErrors, ...}.
 // Exits 0 when the page worked (the caller judges the numbers); 1 with a message on stderr otherwise.
 import fs from 'node:fs';
-import os from 'node:os';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
-import { chromium } from 'playwright-core';
+import { openBrowser } from './browser.mjs';
 
 const { values: opt } = parseArgs({
   options: {
@@ -65,34 +64,11 @@ const frames = (page, n = 2) => page.evaluate((k) => new Promise((resolve) => {
   scene.requestRender();
 }), n);
 
-const udd = fs.mkdtempSync(path.join(os.tmpdir(), 'citylod-chromium-'));
-let ctx;
+let browser;
 try {
-  ctx = await chromium.launchPersistentContext(udd, {
-    executablePath: opt.chromium,
-    headless: true,
-    viewport: { width: 1280, height: 800 },
-    deviceScaleFactor: 1,
-    // Same flags as viewer_e2e.mjs: WebGL 2 through SwiftShader, and no background traffic.
-    args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
-  });
-  ctx.on('request', (req) => {
-    const u = new URL(req.url());
-    if (u.protocol === 'http:' || u.protocol === 'https:' || u.protocol === 'ws:' || u.protocol === 'wss:') {
-      hosts.add(u.host);
-    }
-  });
-  ctx.on('requestfailed', (req) => failedRequests.push(`${req.url()}: ${req.failure()?.errorText}`));
-  const page = ctx.pages()[0] || (await ctx.newPage());
-  page.on('console', (m) => {
-    if (m.type() === 'error') consoleErrors.push(m.text());
-    if (m.type() === 'error' || m.text().startsWith('[gallery]')) note('[page]', m.text());
-  });
-  page.on('pageerror', (e) => {
-    consoleErrors.push(`pageerror: ${e.message}`);
-    note('[pageerror]', e.message);
-  });
+  browser = await openBrowser({ chromiumPath: opt.chromium, hosts, consoleErrors, failedRequests, note,
+    tag: '[gallery]' });
+  const page = browser.page;
 
   await page.goto(pageUrl, { waitUntil: 'load', timeout });
   await page.waitForFunction(
@@ -307,8 +283,7 @@ try {
 } catch (e) {
   problems.push(e.message.split('\n')[0]);
 } finally {
-  if (ctx) await ctx.close().catch(() => {});
-  fs.rmSync(udd, { recursive: true, force: true });
+  if (browser) await browser.close();
 }
 
 result.hosts = [...hosts].sort();

@@ -11,10 +11,7 @@ A missing Chromium or Node.js fails this test; it never skips.
 
 from __future__ import annotations
 
-import json
 import os
-import shutil
-import subprocess
 import xml.etree.ElementTree as ET
 from collections import Counter
 from collections.abc import Callable
@@ -25,7 +22,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import FIXTURES, REPO, run_etl
-from tests.e2e.test_viewer import served
+from tests.e2e.test_viewer import run_driver, served
 
 FIXTURE = FIXTURES / "200_roofs.osm"
 DRIVER = REPO / "tests" / "e2e" / "gallery_e2e.mjs"
@@ -86,8 +83,6 @@ def read_rgb(path: Path) -> np.ndarray:
 
 @pytest.mark.e2e
 def test_roof_gallery_in_chromium(roofs_tiles: Path) -> None:
-    node = shutil.which("node")
-    assert node, "Node.js is not installed: it is needed to drive Chromium (tests/e2e/gallery_e2e.mjs)"
     assert CHROMIUM.exists(), f"Chromium not found at {CHROMIUM}: run scripts/install-system.sh test"
     for pkg in ("playwright-core", "cesium"):
         assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
@@ -101,16 +96,9 @@ def test_roof_gallery_in_chromium(roofs_tiles: Path) -> None:
     for p in (SCREENSHOT, HIGHLIGHT_SCREENSHOT):
         p.unlink(missing_ok=True)
     with served(roofs_tiles) as (base, _proc):
-        r = subprocess.run(
-            [node, str(DRIVER), "--url", base, "--screenshot", str(SCREENSHOT), "--highlight", HIGHLIGHT,
-             "--highlight-screenshot", str(HIGHLIGHT_SCREENSHOT), "--pick-shape", PICK],
-            cwd=REPO, capture_output=True, text=True, timeout=600,
-        )
-    out = r.stdout.strip().splitlines()
-    context = f"driver exit {r.returncode}\nstdout:\n{r.stdout}\nstderr:\n{r.stderr}"
-    assert out, context
-    res = json.loads(out[-1])
-    assert r.returncode == 0, context
+        res, context = run_driver(DRIVER, [
+            "--url", base, "--screenshot", str(SCREENSHOT), "--highlight", HIGHLIGHT,
+            "--highlight-screenshot", str(HIGHLIGHT_SCREENSHOT), "--pick-shape", PICK])
 
     # Counts read from the loaded tile content, and the legend the page shows.
     assert res["featureCount"] == total, context

@@ -45,6 +45,19 @@ LIMIT 1
 """
 
 
+def run_driver(driver: Path, args: list[str]) -> tuple[dict, str]:
+    """Run a Node e2e driver; returns (its last JSON line, a context string for assertion messages)."""
+    node = shutil.which("node")
+    assert node, f"Node.js is not installed: it is needed to drive Chromium ({driver.name})"
+    r = subprocess.run([node, str(driver), *args], cwd=REPO, capture_output=True, text=True, timeout=600)
+    out = r.stdout.strip().splitlines()
+    context = f"driver exit {r.returncode}\nstdout:\n{r.stdout}\nstderr:\n{r.stderr}"
+    assert out, context
+    res = json.loads(out[-1])
+    assert r.returncode == 0, context
+    return res, context
+
+
 @contextmanager
 def served(tiles: Path, timeout: float = 30.0) -> Iterator[tuple[str, subprocess.Popen]]:
     """Run ``python -m exporter serve --port 0`` and yield (base URL, process); always terminated after."""
@@ -137,8 +150,6 @@ def test_server_routes(city: Callable, tmp_path: Path) -> None:
 
 @pytest.mark.e2e
 def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) -> None:
-    node = shutil.which("node")
-    assert node, "Node.js is not installed: it is needed to drive Chromium (tests/e2e/viewer_e2e.mjs)"
     assert CHROMIUM.exists(), f"Chromium not found at {CHROMIUM}: run scripts/install-system.sh test"
     for pkg in ("playwright-core", "cesium"):
         assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
@@ -154,16 +165,9 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
     SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
     SCREENSHOT.unlink(missing_ok=True)
     with served(munich.tiles) as (base, _proc):
-        r = subprocess.run(
-            [node, str(DRIVER), "--url", base, "--lon", repr(lon), "--lat", repr(lat), "--height", repr(top),
-             "--screenshot", str(SCREENSHOT), "--expect-osm-id", str(osm_id)],
-            cwd=REPO, capture_output=True, text=True, timeout=600,
-        )
-    out = r.stdout.strip().splitlines()
-    context = f"driver exit {r.returncode}\nstdout:\n{r.stdout}\nstderr:\n{r.stderr}"
-    assert out, context
-    res = json.loads(out[-1])
-    assert r.returncode == 0, context
+        res, context = run_driver(DRIVER, [
+            "--url", base, "--lon", repr(lon), "--lat", repr(lat), "--height", repr(top),
+            "--screenshot", str(SCREENSHOT), "--expect-osm-id", str(osm_id)])
 
     assert res["tilesWithContent"] > 0, context
     assert res["triangles"] > 0, context

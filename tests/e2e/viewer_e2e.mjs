@@ -9,10 +9,9 @@
 // {tilesLoaded, tilesWithContent, triangles, features, picked, hosts, consoleErrors, webgl, ...}.
 // Exits 0 on success; 1 with a message on stderr otherwise (the JSON line is still printed when possible).
 import fs from 'node:fs';
-import os from 'node:os';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
-import { chromium } from 'playwright-core';
+import { openBrowser } from './browser.mjs';
 
 const { values: opt } = parseArgs({
   options: {
@@ -57,35 +56,11 @@ const failedRequests = [];
 const result = { url: opt.url };
 const problems = [];
 
-// A fresh profile: nothing cached, no state leaking between runs.
-const udd = fs.mkdtempSync(path.join(os.tmpdir(), 'citylod-chromium-'));
-let ctx;
+let browser;
 try {
-  ctx = await chromium.launchPersistentContext(udd, {
-    executablePath: opt.chromium,
-    headless: true,
-    viewport: { width: 1280, height: 800 },
-    // The measured flag set (stack-notes §4): WebGL 2 through SwiftShader, and no background traffic.
-    args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
-  });
-  // Every network request of the page and its workers; data: and blob: URLs never leave the browser.
-  ctx.on('request', (req) => {
-    const u = new URL(req.url());
-    if (u.protocol === 'http:' || u.protocol === 'https:' || u.protocol === 'ws:' || u.protocol === 'wss:') {
-      hosts.add(u.host);
-    }
-  });
-  ctx.on('requestfailed', (req) => failedRequests.push(`${req.url()}: ${req.failure()?.errorText}`));
-  const page = ctx.pages()[0] || (await ctx.newPage());
-  page.on('console', (m) => {
-    if (m.type() === 'error') consoleErrors.push(m.text());
-    if (m.type() === 'error' || m.text().startsWith('[citylod]')) note('[page]', m.text());
-  });
-  page.on('pageerror', (e) => {
-    consoleErrors.push(`pageerror: ${e.message}`);
-    note('[pageerror]', e.message);
-  });
+  browser = await openBrowser({ chromiumPath: opt.chromium, hosts, consoleErrors, failedRequests, note,
+    tag: '[citylod]' });
+  const page = browser.page;
 
   await page.goto(opt.url, { waitUntil: 'load', timeout });
   await page.waitForFunction(() => window.citylod && (window.citylod.ready || window.citylod.error),
@@ -152,8 +127,7 @@ try {
 } catch (e) {
   problems.push(e.message.split('\n')[0]);
 } finally {
-  if (ctx) await ctx.close().catch(() => {});
-  fs.rmSync(udd, { recursive: true, force: true });
+  if (browser) await browser.close();
 }
 
 result.hosts = [...hosts].sort();

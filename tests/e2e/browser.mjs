@@ -1,0 +1,47 @@
+// Headless Chromium for the e2e drivers (viewer_e2e.mjs, gallery_e2e.mjs): a fresh profile (nothing cached,
+// no state leaking between runs), the measured flag set (stack-notes §4: WebGL 2 through SwiftShader, no
+// background traffic), and a record of every request host, failed request and console error of the page.
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { chromium } from 'playwright-core';
+
+export async function openBrowser({ chromiumPath, hosts, consoleErrors, failedRequests, note, tag }) {
+  const udd = fs.mkdtempSync(path.join(os.tmpdir(), 'citylod-chromium-'));
+  let ctx;
+  const close = async () => {
+    if (ctx) await ctx.close().catch(() => {});
+    fs.rmSync(udd, { recursive: true, force: true });
+  };
+  try {
+    ctx = await chromium.launchPersistentContext(udd, {
+      executablePath: chromiumPath,
+      headless: true,
+      viewport: { width: 1280, height: 800 },
+      deviceScaleFactor: 1,
+      args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+        '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+    });
+  } catch (e) {
+    await close();
+    throw e;
+  }
+  // Every network request of the page and its workers; data: and blob: URLs never leave the browser.
+  ctx.on('request', (req) => {
+    const u = new URL(req.url());
+    if (u.protocol === 'http:' || u.protocol === 'https:' || u.protocol === 'ws:' || u.protocol === 'wss:') {
+      hosts.add(u.host);
+    }
+  });
+  ctx.on('requestfailed', (req) => failedRequests.push(`${req.url()}: ${req.failure()?.errorText}`));
+  const page = ctx.pages()[0] || (await ctx.newPage());
+  page.on('console', (m) => {
+    if (m.type() === 'error') consoleErrors.push(m.text());
+    if (m.type() === 'error' || m.text().startsWith(tag)) note('[page]', m.text());
+  });
+  page.on('pageerror', (e) => {
+    consoleErrors.push(`pageerror: ${e.message}`);
+    note('[pageerror]', e.message);
+  });
+  return { ctx, page, close };
+}
