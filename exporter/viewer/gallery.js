@@ -45,45 +45,14 @@
     settle,
   });
 
-  Cesium.Ion.defaultAccessToken = ''; // no ion: CesiumJS asks ion for nothing
-
-  const viewer = new Cesium.Viewer('cesium', {
-    baseLayer: false,
-    baseLayerPicker: false,
-    geocoder: false,
-    homeButton: false,
-    sceneModePicker: false,
-    navigationHelpButton: false,
-    animation: false,
-    timeline: false,
-    fullscreenButton: false,
-    infoBox: false,
-    selectionIndicator: false,
-    skyBox: false,
-    skyAtmosphere: false,
-    shadows: false,
-    // Lets screenshots (and readPixels/toDataURL) read the last frame.
-    contextOptions: { webgl: { preserveDrawingBuffer: true } },
-  });
-  gallery.viewer = viewer;
-
+  const viewer = window.citylodCommon.makeViewer('cesium', gallery, '[gallery]');
   const scene = viewer.scene;
   const camera = scene.camera;
-  scene.globe.baseColor = Cesium.Color.fromCssColorString('#5b6670');
-  scene.globe.showGroundAtmosphere = false;
   scene.globe.enableLighting = false; // the ground stays one flat colour; only the buildings are shaded
-  scene.backgroundColor = Cesium.Color.fromCssColorString('#1d2329');
   scene.fog.enabled = false;
-  viewer.clock.shouldAnimate = false;
-
-  scene.renderError.addEventListener((_scene, err) => {
-    gallery.error = String(err);
-    console.error('[gallery] render error:', err);
-  });
 
   // --- loading ---------------------------------------------------------------------------------------------
-  const params = new URLSearchParams(window.location.search);
-  const tilesetUrl = params.get('tileset') || '/tiles/tileset.json';
+  const tilesetUrl = window.citylodCommon.tilesetUrl();
 
   async function load() {
     statusEl.textContent = `loading ${tilesetUrl} …`;

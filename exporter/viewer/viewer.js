@@ -25,44 +25,13 @@
     stats,
   });
 
-  // No ion: an empty token stops CesiumJS from asking ion for anything.
-  Cesium.Ion.defaultAccessToken = '';
-
-  const viewer = new Cesium.Viewer('cesium', {
-    baseLayer: false, // no imagery: a plain globe coloured below
-    baseLayerPicker: false,
-    geocoder: false,
-    homeButton: false,
-    sceneModePicker: false,
-    navigationHelpButton: false,
-    animation: false,
-    timeline: false,
-    fullscreenButton: false,
-    infoBox: false, // our own panel shows the properties
-    selectionIndicator: false,
-    skyBox: false,
-    skyAtmosphere: false,
-    // Lets screenshots (and canvas.toDataURL) read the last frame.
-    contextOptions: { webgl: { preserveDrawingBuffer: true } },
-  });
-  citylod.viewer = viewer;
-
+  const viewer = window.citylodCommon.makeViewer('cesium', citylod, '[citylod]');
   const scene = viewer.scene;
-  scene.globe.baseColor = Cesium.Color.fromCssColorString('#5b6670');
-  scene.globe.showGroundAtmosphere = false; // keep the ground a flat, predictable colour
-  scene.backgroundColor = Cesium.Color.fromCssColorString('#1d2329');
   // The sun follows the clock; pin it to a summer forenoon so walls are lit the same way on every load.
   viewer.clock.currentTime = Cesium.JulianDate.fromIso8601('2024-06-21T09:00:00Z');
-  viewer.clock.shouldAnimate = false;
-
-  scene.renderError.addEventListener((_scene, err) => {
-    citylod.error = String(err);
-    console.error('[citylod] render error:', err);
-  });
 
   // --- loading ---------------------------------------------------------------------------------------------
-  const params = new URLSearchParams(window.location.search);
-  const tilesetUrl = params.get('tileset') || '/tiles/tileset.json';
+  const tilesetUrl = window.citylodCommon.tilesetUrl();
 
   async function load() {
     statusEl.textContent = `loading ${tilesetUrl} …`;

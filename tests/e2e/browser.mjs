@@ -45,3 +45,13 @@ export async function openBrowser({ chromiumPath, hosts, consoleErrors, failedRe
   });
   return { ctx, page, close };
 }
+
+// What every driver reports about the page's traffic; a request to another host than the server's is a problem.
+export function recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds }) {
+  result.hosts = [...hosts].sort();
+  result.consoleErrors = consoleErrors;
+  result.failedRequests = failedRequests;
+  result.seconds = seconds;
+  const foreign = result.hosts.filter((h) => h !== serverHost);
+  if (foreign.length) problems.push(`requests to hosts other than ${serverHost}: ${foreign.join(', ')}`);
+}

@@ -11,7 +11,7 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
-import { openBrowser } from './browser.mjs';
+import { openBrowser, recordTraffic } from './browser.mjs';
 
 const { values: opt } = parseArgs({
   options: {
@@ -130,13 +130,7 @@ try {
   if (browser) await browser.close();
 }
 
-result.hosts = [...hosts].sort();
-result.consoleErrors = consoleErrors;
-result.failedRequests = failedRequests;
-result.seconds = Number(secs());
-
-const foreign = result.hosts.filter((h) => h !== serverHost);
-if (foreign.length) problems.push(`requests to hosts other than ${serverHost}: ${foreign.join(', ')}`);
+recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds: Number(secs()) });
 if (!(result.tilesWithContent > 0)) problems.push('no tile with content loaded');
 if (!(result.triangles > 0)) problems.push('no triangles rendered');
 const want = opt['expect-osm-id'];

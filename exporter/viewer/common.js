@@ -1,0 +1,47 @@
+// Shared by the viewer (viewer.js) and the roof gallery (gallery.js): an offline CesiumJS viewer on a plain
+// globe (no ion, no imagery), its render errors reported to the page's hooks, and the tileset URL.
+/* global Cesium */
+(() => {
+  'use strict';
+
+  // hooks: the page's window object for tests (gets .viewer and .error); tag: the console prefix.
+  function makeViewer(containerId, hooks, tag) {
+    Cesium.Ion.defaultAccessToken = ''; // no ion: an empty token stops CesiumJS from asking ion for anything
+    const viewer = new Cesium.Viewer(containerId, {
+      baseLayer: false, // no imagery: a plain globe coloured below
+      baseLayerPicker: false,
+      geocoder: false,
+      homeButton: false,
+      sceneModePicker: false,
+      navigationHelpButton: false,
+      animation: false,
+      timeline: false,
+      fullscreenButton: false,
+      infoBox: false, // the pages' own panels show properties
+      selectionIndicator: false,
+      skyBox: false,
+      skyAtmosphere: false,
+      shadows: false,
+      // Lets screenshots (and readPixels/toDataURL) read the last frame.
+      contextOptions: { webgl: { preserveDrawingBuffer: true } },
+    });
+    hooks.viewer = viewer;
+    const scene = viewer.scene;
+    scene.globe.baseColor = Cesium.Color.fromCssColorString('#5b6670');
+    scene.globe.showGroundAtmosphere = false; // keep the ground a flat, predictable colour
+    scene.backgroundColor = Cesium.Color.fromCssColorString('#1d2329');
+    viewer.clock.shouldAnimate = false;
+    scene.renderError.addEventListener((_scene, err) => {
+      hooks.error = String(err);
+      console.error(`${tag} render error:`, err);
+    });
+    return viewer;
+  }
+
+  // ?tileset=URL, else the tileset the server serves.
+  function tilesetUrl() {
+    return new URLSearchParams(window.location.search).get('tileset') || '/tiles/tileset.json';
+  }
+
+  window.citylodCommon = { makeViewer, tilesetUrl };
+})();
