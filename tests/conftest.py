@@ -31,11 +31,14 @@ sys.path.insert(0, str(REPO))
 
 from etl import cluster  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
+from tests.fixtures.osm_fixtures import write_all  # noqa: E402
 
-FIXTURES = REPO / "tests" / "fixtures" / "osm"
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
 SHARED = (Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm").resolve()
 BUILD = REPO / "build" / "test"
+#: The hand-written fixtures (tests/fixtures/osm_fixtures.py), written out as .osm files for this session.
+FIXTURES = BUILD / "fixtures-osm"
+write_all(FIXTURES)
 KEEP = os.environ.get("KEEP_TEST_DB") == "1"
 #: Databases of one test session share this prefix (pid included, so concurrent sessions never collide).
 PREFIX = f"citylod_test{os.getpid()}"

@@ -1,5 +1,6 @@
-"""The roof gallery end to end: tests/fixtures/osm/200_roofs.osm (every OSM roof:shape and tagging variants) through the
-real pipeline into a fresh database, exported at LOD 2, served by ``python -m exporter serve``, and
+"""The roof gallery end to end: fixture 200 of tests/fixtures/osm_fixtures.py (every OSM roof:shape and tagging
+variants) through the real pipeline into a fresh database, exported at LOD 2, served by
+``python -m exporter serve``, and
 exporter/viewer/gallery.html driven in headless Chromium (tests/e2e/gallery_e2e.mjs).
 
 The gallery must find all the buildings in the loaded tiles, list every roof shape with the number of buildings the
