@@ -34,7 +34,7 @@ class Heights:
     invalid: np.ndarray  # bool: explicit height <= bottom
 
 
-def _f(a: object) -> np.ndarray:
+def floats(a: object) -> np.ndarray:
     """None -> NaN float array."""
     return np.array([np.nan if v is None else float(v) for v in a], dtype=np.float64)  # type: ignore[union-attr]
 
@@ -50,7 +50,7 @@ def resolve(
     settings: Settings,
 ) -> Heights:
     """Vectorised over buildings; every argument is a sequence (None = untagged)."""
-    h, mh, lv, ml, rl, rh = (_f(a) for a in (height, min_height, levels, min_level, roof_levels, roof_height))
+    h, mh, lv, ml, rl, rh = (floats(a) for a in (height, min_height, levels, min_level, roof_levels, roof_height))
     lh = settings.level_height_m
     types = list(building_type)  # type: ignore[call-overload]
     type_levels = np.array(

@@ -25,7 +25,6 @@ _UNIT_FACTOR = {
     "ft": FOOT, "feet": FOOT, "foot": FOOT, "'": FOOT, "cm": 0.01, "km": 1000.0,
 }
 _NUMBER = re.compile(rf"^({_NUM})$")
-_PLAIN_METRES = re.compile(r"^[+-]?(?:\d+(?:\.\d*)?|\.\d+)\s*(?:m)?$")  # 12, 12.5, 12 m: no note
 _ANGLE = re.compile(rf"^({_NUM})\s*(°|deg|degrees?)?$", re.IGNORECASE)
 
 #: 16-point compass rose (roof:direction may be given as letters).
@@ -83,8 +82,14 @@ def _to_float(text: str) -> float:
 
 def parse_length(value: str, max_value: float = 1000.0) -> float:
     """Metres from an OSM length. Raises ParseError(code, detail) when the value is unusable."""
+    return parse_length_unit(value, max_value)[0]
+
+
+def parse_length_unit(value: str, max_value: float = 1000.0) -> tuple[float, bool]:
+    """(metres, True when the value was in another unit than metres: feet, inches, cm, km)."""
     s = value.strip()
     m = _FEET_INCHES.match(s)
+    converted = bool(m)
     if m:
         metres = float(m.group(1)) * FOOT + float(m.group(2)) * INCH
     else:
@@ -93,13 +98,14 @@ def parse_length(value: str, max_value: float = 1000.0) -> float:
             raise ParseError("not_a_length", f"{value!r} is not a length (expected e.g. 12, 12 m, 12,5, 40 ft)")
         unit = m.group(2).lower() if m.group(2) else None
         metres = _to_float(m.group(1)) * _UNIT_FACTOR[unit]
+        converted = _UNIT_FACTOR[unit] != 1.0
     if not math.isfinite(metres):
         raise ParseError("not_a_length", f"{value!r} is not a finite length")
     if metres < 0:
         raise ParseError("negative", f"{value!r} is negative")
     if metres > max_value:
         raise ParseError("out_of_range", f"{value!r} = {metres:g} m exceeds {max_value:g} m")
-    return metres
+    return metres, converted
 
 
 def parse_count(value: str, max_value: float = 200.0) -> float:
@@ -233,11 +239,13 @@ def parse_building_tags(
             return None
 
     def length(key: str) -> float | None:
-        v = take(key, parse_length, max_height)
-        raw = tags.get(key, "").strip()
-        if v is not None and not _PLAIN_METRES.match(raw):  # kept, but analysts want to see odd units
-            out.issues.append(TagIssue(key, raw, "unit_converted", f"{raw!r} read as {v:g} m"))
-        return v
+        v = take(key, parse_length_unit, max_height)
+        if v is None:
+            return None
+        if v[1]:  # kept, but analysts want to see odd units
+            raw = tags[key].strip()
+            out.issues.append(TagIssue(key, raw, "unit_converted", f"{raw!r} read as {v[0]:g} m"))
+        return v[0]
 
     out.height = length("height")
     out.min_height = length("min_height")

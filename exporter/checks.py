@@ -29,6 +29,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 
 from .geodesy import geodetic_to_ecef
+from .gltf import SCALAR_DTYPES, accessor_array, read_glb
 
 TOLERANCE_RAD = 1e-9
 TOLERANCE_M = 1e-3
@@ -116,10 +117,6 @@ def _check_glb(path: Path, where: str, problems: list[str]) -> None:
     problems.extend(f"{where}: {path.name}: {p}" for p in check_glb(path.read_bytes()))
 
 
-_COMPONENT_BYTES = {"INT8": 1, "UINT8": 1, "INT16": 2, "UINT16": 2, "INT32": 4, "UINT32": 4, "INT64": 8,
-                    "UINT64": 8, "FLOAT32": 4, "FLOAT64": 8}
-_OFFSET_DTYPES = {"UINT8": "<u1", "UINT16": "<u2", "UINT32": "<u4", "UINT64": "<u8"}
-_ACCESSOR_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 
 
 def check_glb(data: bytes) -> list[str]:
@@ -127,27 +124,14 @@ def check_glb(data: bytes) -> list[str]:
     range and all used, property tables consistent with their class, buffer views inside the buffer and
     8-byte aligned, string offsets increasing and inside their buffer). Empty list = passes."""
     problems: list[str] = []
-    if len(data) < 20:
-        return ["too short to be a GLB"]
-    magic, version, length = struct.unpack_from("<4sII", data, 0)
-    if magic != b"glTF" or version != 2:
-        return ["not a GLB 2.0 file"]
-    if length != len(data):
-        return [f"header length {length} != file size {len(data)}"]
-    jlen, jtype = struct.unpack_from("<I4s", data, 12)
-    if jtype != b"JSON":
-        return ["first chunk is not JSON"]
     try:
-        gltf = json.loads(data[20 : 20 + jlen])
-    except ValueError as e:
-        return [f"JSON chunk does not parse: {e}"]
-    binary = b""
-    if 20 + jlen + 8 <= len(data):
-        blen, btype = struct.unpack_from("<I4s", data, 20 + jlen)
-        if btype == b"BIN\0":
-            binary = data[28 + jlen : 28 + jlen + blen]
+        gltf, binary = read_glb(data)
+    except (ValueError, struct.error) as e:
+        return [str(e)]
     views = gltf.get("bufferViews", [])
     buffers = gltf.get("buffers", [])
+    if buffers and buffers[0].get("byteLength", 0) > len(binary):
+        return [f"buffer 0 declares {buffers[0].get('byteLength')} bytes, the BIN chunk holds {len(binary)}"]
     for i, v in enumerate(views):
         buf = buffers[v.get("buffer", 0)] if v.get("buffer", 0) < len(buffers) else None
         if buf is None or v.get("byteOffset", 0) + v.get("byteLength", 0) > buf.get("byteLength", 0):
@@ -192,7 +176,7 @@ def check_glb(data: bytes) -> list[str]:
                     if "stringOffsets" not in col:
                         problems.append(f"{where}: STRING property without stringOffsets")
                         continue
-                    dtype = _OFFSET_DTYPES[col.get("stringOffsetType", "UINT32")]
+                    dtype = SCALAR_DTYPES[col.get("stringOffsetType", "UINT32")]
                     offs = np.frombuffer(view_bytes(col["stringOffsets"]), dtype=dtype)
                     if len(offs) < count + 1:
                         problems.append(f"{where}: {len(offs)} string offsets for {count} values")
@@ -200,7 +184,8 @@ def check_glb(data: bytes) -> list[str]:
                             or offs[count] > views[col["values"]]["byteLength"]:
                         problems.append(f"{where}: string offsets must start at 0, increase and stay in the buffer")
                 elif spec.get("type") == "SCALAR":
-                    need = count * _COMPONENT_BYTES.get(spec.get("componentType", ""), 0)
+                    comp = spec.get("componentType", "")
+                    need = count * (np.dtype(SCALAR_DTYPES[comp]).itemsize if comp in SCALAR_DTYPES else 0)
                     if views[col["values"]]["byteLength"] < need:
                         problems.append(f"{where}: values need {need} bytes, bufferView has fewer")
     for m_index, mesh in enumerate(gltf.get("meshes", [])):
@@ -231,9 +216,7 @@ def check_glb(data: bytes) -> list[str]:
                     if acc.get("type") != "SCALAR" or acc.get("normalized"):
                         problems.append(f"{where}: feature ids must be a SCALAR, non-normalized accessor")
                         continue
-                    v = views[acc["bufferView"]]
-                    ids = np.frombuffer(binary, dtype=_ACCESSOR_DTYPES[acc["componentType"]], count=acc["count"],
-                                        offset=v.get("byteOffset", 0) + acc.get("byteOffset", 0))
+                    ids = accessor_array(gltf, binary, acc_i)
                     if np.any(ids != np.round(ids)) or np.any(ids < 0) or np.any(ids >= n):
                         problems.append(f"{where}: feature ids must be integers in [0, {n})")
                     elif len(np.unique(ids)) != n:

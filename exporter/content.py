@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from etl.geom.semantics import SEM_DOOR, SEM_ROOF, SEM_WINDOW
+
 from .geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
 
 DEFAULT_WALL = "#d8d2c4"
@@ -45,9 +47,11 @@ class ContentArrays:
     dropped_degenerate: int
 
 
-SEM_ROOF, SEM_WINDOW, SEM_DOOR = 2, 3, 4  # lod.surface_type codes
 WINDOW_RGBA = np.array([58, 74, 92, 255], dtype=np.uint8)  # dark blue-grey glass
 DOOR_RGBA = np.array([101, 67, 33, 255], dtype=np.uint8)  # brown wood
+SEM_UNKNOWN = 255  # a triangle without a stored semantic: coloured as roof when it faces up
+_WINDOW_LINEAR = srgb_to_linear16(WINDOW_RGBA)
+_DOOR_LINEAR = srgb_to_linear16(DOOR_RGBA)
 
 
 def tile_arrays(
@@ -61,8 +65,8 @@ def tile_arrays(
 ) -> ContentArrays:
     """triangles_ecef (m, 3, 3); feature_of_triangle (m,); wall/roof_rgba (features, 4) sRGB uint8.
     The local frame's origin is on the ellipsoid at (origin_lon, origin_lat): the tile transform's.
-    ``semantics`` (m,) lod.surface_type codes colour roofs, windows and doors; without it up-facing
-    triangles take the roof colour."""
+    ``semantics`` (m,) lod.surface_type codes colour roofs, windows and doors; where it is missing (None, or
+    SEM_UNKNOWN for a triangle) up-facing triangles take the roof colour."""
     origin = geodetic_to_ecef(origin_lon, origin_lat, 0.0)
     rot = enu_rotation(origin_lon, origin_lat)  # columns: E, N, U in ECEF
     enu = (np.asarray(triangles_ecef, dtype=np.float64) - origin) @ rot
@@ -76,15 +80,11 @@ def tile_arrays(
     gl, nrm, length = gl[keep], nrm[keep], length[keep]
     feat = np.asarray(feature_of_triangle)[keep]
     nrm = nrm / length[:, None]
-    if semantics is None:
-        up = nrm[:, 2] > UP_FACING
-    else:
-        sem = np.asarray(semantics)[keep]
-        up = sem == SEM_ROOF
+    sem = np.full(len(feat), SEM_UNKNOWN, np.uint8) if semantics is None else np.asarray(semantics)[keep]
+    up = (sem == SEM_ROOF) | ((sem == SEM_UNKNOWN) & (nrm[:, 2] > UP_FACING))
     colour = np.where(up[:, None], srgb_to_linear16(roof_rgba)[feat], srgb_to_linear16(wall_rgba)[feat])
-    if semantics is not None:
-        colour = np.where((sem == SEM_WINDOW)[:, None], srgb_to_linear16(WINDOW_RGBA[None])[0], colour)
-        colour = np.where((sem == SEM_DOOR)[:, None], srgb_to_linear16(DOOR_RGBA[None])[0], colour)
+    colour = np.where((sem == SEM_WINDOW)[:, None], _WINDOW_LINEAR, colour)
+    colour = np.where((sem == SEM_DOOR)[:, None], _DOOR_LINEAR, colour)
     nrm_gl = nrm @ Z_UP_TO_Y_UP.T
 
     m = len(gl)

@@ -1,9 +1,9 @@
 """Stage export: tiles in PostGIS -> a 3D Tiles 1.1 tileset directory.
 
-Streams tile by tile: for each leaf, api.buildings_for_tile(level, x, y) gives the features with their meshes
-lifted by the base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the
-ellipsoid); content.py turns
-them into glTF arrays in the tile's local frame and gltf.py writes the glb with EXT_mesh_features +
+Streams tile by tile (a few worker threads, each with its own connection): for each leaf,
+api.buildings_for_tile(level, x, y, lod) gives the features with their meshes at the chosen LOD, lifted by the
+base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid);
+content.py turns them into glTF arrays in the tile's local frame and gltf.py writes the glb with EXT_mesh_features +
 EXT_structural_metadata. The tileset is written into ``<out>.partial`` and swapped in at the end, so a failed
 export never leaves a half-written tileset behind.
 """
@@ -27,7 +27,7 @@ from etl.geom.wkb import decode_triangles
 from etl.progress import Progress, summary
 from etl.settings import Settings
 
-from .content import DEFAULT_ROOF, DEFAULT_WALL, hex_rgba, tile_arrays
+from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, hex_rgba, tile_arrays
 from .gltf import Primitive, Property, write_glb
 from .tileset import TileRecord, build_tileset, region_centre
 
@@ -70,11 +70,12 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
     wall = np.array([hex_rgba(r["building_colour"], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
     roof = np.array([hex_rgba(r["roof_colour"], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
     lon, lat = region_centre(region)
-    sem = None
-    if all(r["semantics"] is not None for r in rows) and rows:
-        sem = np.concatenate([np.frombuffer(bytes(r["semantics"]), dtype=np.uint8) for r in rows])
-        if len(sem) != len(triangles):
-            raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
+    # a row without semantics falls back to colouring by orientation, alone, not the whole tile
+    sem = np.concatenate([np.zeros(0, np.uint8)] + [
+        np.full(len(t), SEM_UNKNOWN, np.uint8) if r["semantics"] is None
+        else np.frombuffer(bytes(r["semantics"]), dtype=np.uint8) for r, t in zip(rows, tris, strict=True)])
+    if len(sem) != len(triangles):
+        raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem)
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
@@ -90,7 +91,7 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
 
 
 def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: float, workers: int,
-                   progress: Progress, lod: int = 1) -> tuple[int, int, int]:
+                   progress: Progress, lod: int) -> tuple[int, int, int]:
     """Write every leaf's glb; tiles are independent, so ``workers`` threads each with their own connection
     share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
     local = threading.local()
@@ -146,8 +147,7 @@ def replaceable(path: Path) -> bool:
     return isinstance(asset, dict) and str(asset.get("generator", "")).startswith("citylod")
 
 
-def export_tileset(url: str, out: Path, settings: Settings, workers: int | None = None, lod: int = 1
-                   ) -> dict[str, object]:
+def export_tileset(url: str, out: Path, settings: Settings, lod: int) -> dict[str, object]:
     """Write the tileset with every building at level of detail ``lod`` (1 block, 2 roofs, 3 facades)."""
     if lod not in (1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
@@ -183,7 +183,7 @@ def export_tileset(url: str, out: Path, settings: Settings, workers: int | None 
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "buildings", total=in_tiles)
     n_features, n_triangles, n_bytes = _export_leaves(
-        url, leaves, partial, settings.base_height_m, workers or min(4, os.cpu_count() or 1), progress, lod)
+        url, leaves, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod)
     if n_features != in_tiles:
         raise RuntimeError(f"export lost features: {in_tiles} in the tiles, {n_features} written")
     tileset = build_tileset(records, tileset_version=(dataset[0][:16] if dataset and dataset[0] else ""))

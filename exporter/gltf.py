@@ -22,7 +22,7 @@ FLOAT, UNSIGNED_BYTE, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 #: Metadata component types -> numpy dtypes (EXT_structural_metadata SCALAR properties).
-_SCALAR_DTYPES = {
+SCALAR_DTYPES = {
     "INT8": "<i1", "UINT8": "<u1", "INT16": "<i2", "UINT16": "<u2", "INT32": "<i4", "UINT32": "<u4",
     "INT64": "<i8", "UINT64": "<u8", "FLOAT32": "<f4", "FLOAT64": "<f8",
 }
@@ -96,11 +96,14 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         raise ValueError("indices must describe whole triangles")
     b = _Builder()
     pos = np.asarray(prim.positions, dtype=np.float32)
+    colors = np.asarray(prim.colors)
     attrs = {
         "POSITION": b.accessor(pos, FLOAT, "VEC3", ARRAY_BUFFER, minmax=True),
         "NORMAL": b.accessor(np.asarray(prim.normals, dtype=np.float32), FLOAT, "VEC3", ARRAY_BUFFER),
-        "COLOR_0": b.accessor(np.asarray(prim.colors), UNSIGNED_SHORT if prim.colors.dtype == np.uint16
-                              else UNSIGNED_BYTE, "VEC4", ARRAY_BUFFER, normalized=True),
+        # 16-bit linear colours as they come; anything else is 8-bit
+        "COLOR_0": b.accessor(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
+                              UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4", ARRAY_BUFFER,
+                              normalized=True),
         "_FEATURE_ID_0": b.accessor(np.asarray(prim.feature_ids, dtype=np.float32), FLOAT, "SCALAR",
                                     ARRAY_BUFFER),
     }
@@ -130,7 +133,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         else:
             spec["type"] = "SCALAR"
             spec["componentType"] = p.component_type
-            dtype = np.dtype(_SCALAR_DTYPES[p.component_type])
+            dtype = np.dtype(SCALAR_DTYPES[p.component_type])
             vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
             table_props[p.name] = {"values": b.view(vals.tobytes())}
             if p.no_data is not None and not p.required:
@@ -184,13 +187,20 @@ def _pack(gltf: dict[str, object], binary: bytes) -> bytes:
 
 def read_glb(data: bytes) -> tuple[dict[str, object], bytes]:
     """(JSON, BIN chunk) of a GLB; raises ValueError on a malformed container."""
+    if len(data) < 20:
+        raise ValueError("too short to be a GLB")
     magic, version, total = struct.unpack_from("<4sII", data, 0)
-    if magic != b"glTF" or version != 2 or total != len(data):
+    if magic != b"glTF" or version != 2:
         raise ValueError("not a GLB 2.0 file")
+    if total != len(data):
+        raise ValueError(f"header length {total} != file size {len(data)}")
     jlen, jtype = struct.unpack_from("<I4s", data, 12)
     if jtype != b"JSON":
-        raise ValueError("first GLB chunk is not JSON")
-    gltf = json.loads(data[20 : 20 + jlen])
+        raise ValueError("first chunk is not JSON")
+    try:
+        gltf = json.loads(data[20 : 20 + jlen])
+    except ValueError as e:
+        raise ValueError(f"JSON chunk does not parse: {e}") from None
     off = 20 + jlen
     binary = b""
     if off < len(data):
@@ -232,6 +242,6 @@ def property_table(gltf: dict, binary: bytes) -> dict[str, list[object]]:
             raw = binary[vstart : vstart + vlen]
             out[name] = [raw[offs[i] : offs[i + 1]].decode("utf-8") for i in range(count)]
         else:
-            out[name] = np.frombuffer(binary, _SCALAR_DTYPES[spec["componentType"]], count=count,
+            out[name] = np.frombuffer(binary, SCALAR_DTYPES[spec["componentType"]], count=count,
                                       offset=vstart).tolist()
     return out

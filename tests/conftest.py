@@ -31,7 +31,7 @@ sys.path.insert(0, str(REPO))
 
 from etl import cluster  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
-from tests.fixtures.osm_fixtures import write_all  # noqa: E402
+from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
 
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
 SHARED = (Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm").resolve()
@@ -39,6 +39,8 @@ BUILD = REPO / "build" / "test"
 #: The hand-written fixtures (tests/fixtures/osm_fixtures.py), written out as .osm files for this session.
 FIXTURES = BUILD / "fixtures-osm"
 write_all(FIXTURES)
+#: The spine fixtures (1xx, 9xx) that city('fixtures') merges into one dataset.
+SPINE_FILES = [FIXTURES / f.filename for f in SPINE]
 KEEP = os.environ.get("KEEP_TEST_DB") == "1"
 #: Databases of one test session share this prefix (pid included, so concurrent sessions never collide).
 PREFIX = f"citylod_test{os.getpid()}"
@@ -160,7 +162,7 @@ def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
         if name in cache:
             return cache[name]
         if name == "fixtures":
-            osm = merge_osm(sorted(FIXTURES.glob("[19]*.osm")), BUILD / f"fixtures-{os.getpid()}.osm")
+            osm = merge_osm(SPINE_FILES, BUILD / f"fixtures-{os.getpid()}.osm")
         else:
             osm = sources[name]
             if name == "helsinki" and not osm.exists():

@@ -31,6 +31,19 @@ class Closure:
         return self.watertight & self.winding_consistent & (self.volume > 0)
 
 
+def signed_volume(triangles: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Signed enclosed volume per mesh (trimesh ``volume``): > 0 for closed, outward-facing shells. Measured
+    from each mesh's first vertex, since projected coordinates (~1e6 m) would cost the precision."""
+    n = len(offsets) - 1
+    owner = np.repeat(np.arange(n), np.diff(offsets))
+    if not len(owner):
+        return np.zeros(n)
+    first = triangles[np.minimum(offsets[:-1], len(triangles) - 1), 0]
+    rel = triangles - first[owner][:, None, :]
+    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    return np.bincount(owner, weights=det, minlength=n) / 6.0
+
+
 def closure(triangles: np.ndarray, offsets: np.ndarray) -> Closure:
     """triangles (m, 3, 3); mesh k is triangles[offsets[k]:offsets[k+1]]."""
     n = len(offsets) - 1
@@ -55,7 +68,7 @@ def closure(triangles: np.ndarray, offsets: np.ndarray) -> Closure:
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     undirected = lo * nv + hi
     directed = a * nv + b
-    u, u_first, u_inv, u_count = np.unique(undirected, return_index=True, return_inverse=True, return_counts=True)
+    _, u_first, u_inv, u_count = np.unique(undirected, return_index=True, return_inverse=True, return_counts=True)
     d, d_count = np.unique(directed, return_counts=True)
     per_edge = u_count[u_inv]
     open_e = np.bincount(e_owner[u_first[u_count == 1]], minlength=n)
@@ -63,10 +76,7 @@ def closure(triangles: np.ndarray, offsets: np.ndarray) -> Closure:
     # winding (as trimesh: over the edges shared by exactly two triangles): run once in each direction
     dup = np.isin(directed, d[d_count > 1])
     bad_wind = np.bincount(e_owner[dup & (per_edge == 2)], minlength=n)
-    first = triangles[offsets[:-1].clip(max=m - 1), 0] if n else np.zeros((0, 3))
-    rel = triangles - first[owner][:, None, :]
-    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
-    vol = np.bincount(owner, weights=det, minlength=n) / 6.0
+    vol = signed_volume(triangles, offsets)
     empty = np.diff(offsets) == 0
     return Closure(
         watertight=(open_e == 0) & (nonman == 0) & ~empty,

@@ -17,6 +17,20 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from .check import signed_volume
+from .semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
+
+
+@dataclass(frozen=True)
+class Walls:
+    """Footprint ring edges a -> b with the interior on the left (exterior rings counter-clockwise, holes
+    clockwise), repeated points removed."""
+
+    a: np.ndarray  # (w, 2)
+    b: np.ndarray  # (w, 2)
+    owner: np.ndarray  # (w,) footprint index
+    exterior: np.ndarray  # (w,) bool: on an exterior ring (False: a courtyard wall)
+
 
 @dataclass(frozen=True)
 class Extrusion:
@@ -26,7 +40,8 @@ class Extrusion:
     offsets: np.ndarray  # (n + 1,) int64
     ok: np.ndarray  # (n,) bool: False = cap triangulation did not cover the footprint (no triangles then)
     volume: np.ndarray  # (n,) float64 enclosed volume
-    semantics: np.ndarray  # (m,) uint8 per triangle: 0 ground (bottom cap), 1 wall, 2 roof (top cap)
+    semantics: np.ndarray  # (m,) uint8 per triangle: ground (bottom cap), wall, roof (top cap); etl/geom/semantics
+    walls: Walls  # the footprint ring edges the walls stand on (LOD3 puts its openings on them)
 
     def of(self, k: int) -> np.ndarray:
         return self.triangles[self.offsets[k] : self.offsets[k + 1]]
@@ -78,7 +93,10 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
     coords, coord_ring = shapely.get_coordinates(rings, return_index=True)
     same = coord_ring[:-1] == coord_ring[1:]  # consecutive points of one closed ring = an edge
     a2, b2 = coords[:-1][same], coords[1:][same]
-    wall_owner = ring_owner[coord_ring[:-1][same]]
+    wall_ring = coord_ring[:-1][same]
+    wall_owner = ring_owner[wall_ring]
+    ring_exterior = np.zeros(len(rings), dtype=bool)
+    ring_exterior[np.unique(ring_poly, return_index=True)[1]] = True  # a polygon's first ring is its exterior
 
     def lift(xy: np.ndarray, z: np.ndarray) -> np.ndarray:
         return np.concatenate([xy, z[:, None]], axis=1)
@@ -95,8 +113,8 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
 
     triangles = np.concatenate([bottom_caps, top_caps, walls])
     owner = np.concatenate([tri_owner, tri_owner, walls_owner])
-    sem = np.concatenate([np.zeros(len(tri_owner), np.uint8), np.full(len(tri_owner), 2, np.uint8),
-                          np.ones(len(walls_owner), np.uint8)])
+    sem = np.concatenate([np.full(len(tri_owner), SEM_GROUND, np.uint8), np.full(len(tri_owner), SEM_ROOF, np.uint8),
+                          np.full(len(walls_owner), SEM_WALL, np.uint8)])
     keep = ok[owner]
     triangles, owner, sem = triangles[keep], owner[keep], sem[keep]
     order = np.argsort(owner, kind="stable")
@@ -104,10 +122,8 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
     counts = np.bincount(owner, minlength=n)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
-    rel = triangles - np.concatenate([first[owner], np.zeros((len(owner), 1))], axis=1)[:, None, :]
-    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
-    vol = np.bincount(owner, weights=det, minlength=n) / 6.0
-    return Extrusion(triangles=triangles, offsets=offsets, ok=ok, volume=vol, semantics=sem)
+    return Extrusion(triangles=triangles, offsets=offsets, ok=ok, volume=signed_volume(triangles, offsets),
+                     semantics=sem, walls=Walls(a2, b2, wall_owner, ring_exterior[wall_ring]))
 
 
 def _area(tri2d: np.ndarray) -> np.ndarray:

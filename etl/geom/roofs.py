@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-SEM_GROUND, SEM_WALL, SEM_ROOF = 0, 1, 2
+from .semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
+
 GRID = 1e-7
 
 SKELETON_SHAPES = {
@@ -141,14 +142,26 @@ def _triangulate_faces(mesh: _Mesh, faces: list[list[int]]) -> np.ndarray:
     xy = np.asarray(mesh.xy)
     flat = np.concatenate([np.asarray(f + f[:1]) for f in faces])
     ring_of = np.repeat(np.arange(len(faces)), [len(f) + 1 for f in faces])
-    polys = shapely.polygons(shapely.linearrings(xy[flat], indices=ring_of))
-    tri = shapely.get_parts(shapely.constrained_delaunay_triangles(polys))
+    return _triangulate(mesh, shapely.polygons(shapely.linearrings(xy[flat], indices=ring_of)))
+
+
+def _triangulate(mesh: _Mesh, polygons: object) -> np.ndarray:
+    """(m, 3) vertex ids of the GEOS constrained Delaunay triangles of ``polygons`` (a shapely array or
+    collection), counter-clockwise from above, degenerate ones dropped. No Steiner points: every corner is
+    one of mesh's vertices, found by its exact coordinates."""
+    tri = shapely.get_parts(shapely.constrained_delaunay_triangles(polygons))
     coords = shapely.get_coordinates(shapely.get_exterior_ring(tri)).reshape(-1, 4, 2)[:, :3]
     ids = np.array([mesh.index[(float(x), float(y))] for x, y in coords.reshape(-1, 2)], dtype=np.int64).reshape(-1, 3)
-    a, b, c = xy[ids[:, 0]], xy[ids[:, 1]], xy[ids[:, 2]]
-    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    xy = np.asarray(mesh.xy)
+    cross = _cross2(xy[ids])
     ids[cross < 0] = ids[cross < 0][:, [0, 2, 1]]
     return ids[np.abs(cross) > 0]
+
+
+def _cross2(tri2d: np.ndarray) -> np.ndarray:
+    """Twice the signed area of (m, 3, 2) triangles: > 0 counter-clockwise."""
+    a, b, c = tri2d[:, 0], tri2d[:, 1], tri2d[:, 2]
+    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
 
 
 def _slice(xyz_d: list[list[float]], tris: np.ndarray, sem: np.ndarray, levels: np.ndarray
@@ -513,14 +526,8 @@ def _field_roof(poly: shapely.Polygon, shape: str, axis: np.ndarray, height: flo
     for p in pieces:
         for x, y in shapely.get_coordinates(p):
             mesh.vid(x, y)
-    tri = shapely.get_parts(shapely.constrained_delaunay_triangles(shapely.GeometryCollection(pieces)))
-    coords = shapely.get_coordinates(shapely.get_exterior_ring(tri)).reshape(-1, 4, 2)[:, :3]
-    ids = np.array([mesh.index[(float(x), float(y))] for x, y in coords.reshape(-1, 2)], dtype=np.int64).reshape(-1, 3)
+    ids = _triangulate(mesh, shapely.GeometryCollection(pieces))
     xy = np.asarray(mesh.xy)
-    a, b, c = xy[ids[:, 0]], xy[ids[:, 1]], xy[ids[:, 2]]
-    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    ids[cross < 0] = ids[cross < 0][:, [0, 2, 1]]
-    ids = ids[np.abs(cross) > 0]
     g, _ = _field(shape, xy @ eu, xy @ ev, U, V)
     return np.column_stack([xy, height * g]), ids
 
@@ -654,9 +661,7 @@ def solid(roof: RoofSurface, z_eave: float, z_bottom: float, rim_semantic: int =
     base = shapely.Polygon(outer[0], holes)
     cdt = shapely.get_parts(shapely.constrained_delaunay_triangles(base))
     bt = shapely.get_coordinates(shapely.get_exterior_ring(cdt)).reshape(-1, 4, 2)[:, :3]
-    a, b, c = bt[:, 0], bt[:, 1], bt[:, 2]
-    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    bt = np.where((cross > 0)[:, None, None], bt[:, [0, 2, 1]], bt)  # facing down
+    bt = np.where((_cross2(bt) > 0)[:, None, None], bt[:, [0, 2, 1]], bt)  # facing down
     bottom = np.concatenate([bt, np.full((len(bt), 3, 1), z_bottom)], axis=2)
     top = v[t]
     tris = np.concatenate([bottom, walls, top])

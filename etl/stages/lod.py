@@ -4,7 +4,7 @@ doors) solids in lod.building_mesh, one row per building and LOD.
 Streams osm.building through a server-side cursor in batches; heights are resolved for a whole batch with
 numpy (etl/heights.py). LOD1 and the flat LOD2 roofs (most buildings) are extruded for the whole batch at
 once (etl/geom/extrude.py); pitched roofs are built per footprint from the straight skeleton SFCGAL computes
-in the same query (lod.straight_skeleton, etl/geom/roofs.py); LOD3 adds facade boxes for the whole batch
+in the same query (lod.straight_skeleton, etl/geom/roofs.py); LOD3 adds windows and doors for the whole batch
 (etl/geom/facade.py). Every LOD2 solid is measured (closed, consistently wound, volume > 0,
 etl/geom/check.py) and failures are recorded. Meshes are COPYed as POLYHEDRALSURFACE Z EWKB with one
 surface-semantic byte per triangle.
@@ -34,7 +34,8 @@ from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams, facades
-from ..geom.wkb import encode_triangles, encode_triangles_batch
+from ..geom.semantics import N_SEMANTICS, SEM_ROOF, SEM_WALL
+from ..geom.wkb import encode_triangles_batch
 from ..progress import Progress, summary
 from ..settings import Settings
 
@@ -108,11 +109,11 @@ class Meshes:
 
 
 def _areas(m: Meshes, n: int) -> np.ndarray:
-    """(n, 5) area per building and surface type."""
+    """(n, N_SEMANTICS) area per building and surface type."""
     t = m.triangles
     area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
     owner = np.repeat(np.arange(n), np.diff(m.offsets))
-    out = np.zeros((n, 5))
+    out = np.zeros((n, N_SEMANTICS))
     np.add.at(out, (owner, m.semantics.astype(np.int64)), area)
     return out
 
@@ -140,15 +141,12 @@ def _replace(base: Meshes, own: dict[int, tuple[np.ndarray, np.ndarray]], n: int
     return Meshes(tri, sem, offsets)
 
 
-def _volume(m: Meshes, n: int) -> np.ndarray:
-    """Signed enclosed volume per building (every shell closed and outward-facing)."""
-    owner = np.repeat(np.arange(n), np.diff(m.offsets))
-    if not len(owner):
-        return np.zeros(n)
-    first = m.triangles[np.minimum(m.offsets[:-1], len(m.triangles) - 1), 0]
-    rel = m.triangles - first[owner][:, None, :]
-    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
-    return np.bincount(owner, weights=det, minlength=n) / 6.0
+def _subset(m: Meshes, keys: np.ndarray) -> Meshes:
+    """The meshes of buildings ``keys``, in that order."""
+    parts = [m.of(int(j)) for j in keys]
+    counts = [len(t) for t, _ in parts]
+    return Meshes(np.concatenate([t for t, _ in parts]), np.concatenate([s_ for _, s_ in parts]),
+                  np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
 
 
 def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, bottom: float, top: float,
@@ -178,7 +176,7 @@ def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, b
         surf, h = roofs.roof_surface(local, shape, arcs, roof_tagged, angle, direction, orientation, max_h)
         eave = top - h if included else top
         z_bottom = max(bottom, eave - ROOF_SLAB_M) if roof_only else bottom
-        tri, sem = roofs.solid(surf, eave, min(z_bottom, eave), roofs.SEM_ROOF if roof_only else roofs.SEM_WALL)
+        tri, sem = roofs.solid(surf, eave, min(z_bottom, eave), SEM_ROOF if roof_only else SEM_WALL)
         tri = tri + np.array([origin[0], origin[1], 0.0])
         parts.append((tri, sem))
         h_used, engine, note = max(h_used, h), surf.engine, surf.fallback or note
@@ -187,7 +185,7 @@ def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, b
             note)
 
 
-def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[int, ...] = LODS) -> Batch:
+def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
     """Mesh rows, rejects and diagnostics for a batch of rows of _SELECT. Pure apart from its inputs."""
     out = Batch()
     drawn = []
@@ -242,15 +240,20 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
     shape_used = np.array(["flat"] * n, dtype=object)
     engine = np.array(["flat"] * n, dtype=object)
     own: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # LOD2 differing from LOD1 (pitched, roof-only)
+    # building:part=roof / building=roof: a roof without walls
+    roof_only = np.array([(cols[13][k] or "").lower() == "roof" or (cols[3][k] or "").lower() == "roof"
+                          for k in k_of.tolist()], dtype=bool)
+    slabs = []  # flat roofs without walls: extruded together after the loop
     for j, k in enumerate(k_of.tolist()):
         raw = cols[14][k]
         shape, known = roofs.canonical_shape(raw)
-        roof_only = (cols[13][k] or "").lower() == "roof" or (cols[3][k] or "").lower() == "roof"
         ot, oi = osm_types[k], osm_ids[k]
         if not known:
             out.diagnostics.append((ot, oi, "unknown_roof_shape",
                                     f"roof:shape={raw} is not in the catalogue; drawn flat"))
-        if shape == "flat" and not roof_only:
+        if shape == "flat":
+            if roof_only[j]:
+                slabs.append(j)
             continue
         rh, rl, angle = cols[9][k], cols[8][k], cols[15][k]
         # roof:height, else roof:angle (roof_surface), else roof:levels, else the shape's default pitch
@@ -265,17 +268,12 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
             out.diagnostics.append((ot, oi, "roof_height_clamped",
                                     f"roof height {roof_tagged:g} m exceeds the building's {top[j] - bottom[j]:g} m"))
         try:
-            if shape == "flat":  # a flat roof without walls: the slab alone
-                zb = max(bottom[j], top[j] - ROOF_SLAB_M)
-                e1 = extrude(geoms[k:k + 1], np.array([zb]), np.array([top[j]]))
-                own[j] = (e1.triangles, np.where(e1.semantics == 1, roofs.SEM_ROOF, e1.semantics).astype(np.uint8))
-                continue
             direction = cols[16][k]
             roof_geom = geoms[k] if cols[19][k] is None else shapely.from_wkb(cols[19][k])
             tri, sem, h, t2, eng, note = _pitched_solid(
                 roof_geom, cols[18][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
                 None if angle is None else float(angle), None if direction is None else float(direction),
-                cols[17][k], roof_only)
+                cols[17][k], bool(roof_only[j]))
             own[j] = (tri, sem)
             roof_h[j], top2[j], shape_used[j], engine[j] = h, t2, shape, eng
             out.pitched += 1
@@ -284,6 +282,12 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
         except (roofs.RoofError, ValueError, KeyError, shapely.errors.GEOSException) as e:
             code = e.code if isinstance(e, roofs.RoofError) else type(e).__name__
             out.diagnostics.append((ot, oi, "roof_fallback", f"{shape} roof failed ({code}: {e}); drawn flat"))
+    if slabs:
+        js = np.asarray(slabs)
+        es = extrude(geoms[k_of[js]], np.maximum(bottom[js], top[js] - ROOF_SLAB_M), top[js])
+        for i, j in enumerate(slabs):  # a slab's rim is roof, not wall
+            own[j] = (es.of(i), np.where(es.semantics[es.offsets[i]:es.offsets[i + 1]] == SEM_WALL, SEM_ROOF,
+                                         es.semantics[es.offsets[i]:es.offsets[i + 1]]).astype(np.uint8))
     lod2 = _replace(lod1, own, n)
     cl = closure(lod2.triangles, lod2.offsets)
     bad = np.flatnonzero(~cl.ok)
@@ -314,25 +318,19 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
 
     # --- LOD3: LOD2 plus windows and doors ----------------------------------------------------------------
     t0 = time.perf_counter()
-    polys, poly_owner = shapely.get_parts(geoms[k_of], return_index=True)
-    oriented = shapely.orient_polygons(polys, exterior_cw=False)
-    rings, ring_poly = shapely.get_rings(oriented, return_index=True)
-    ring_ext = np.zeros(len(rings), dtype=bool)
-    _, first = np.unique(ring_poly, return_index=True)
-    ring_ext[first] = True
-    coords, coord_ring = shapely.get_coordinates(rings, return_index=True)
-    same = coord_ring[:-1] == coord_ring[1:]
-    wa, wb = coords[:-1][same], coords[1:][same]
-    w_ring = coord_ring[:-1][same]
-    w_owner = poly_owner[ring_poly[w_ring]]
+    # the walls LOD1 stood on, renumbered from footprints of the batch to drawn buildings
+    j_of_sel = np.full(len(sel), -1)
+    j_of_sel[good] = np.arange(n)
+    w = ex.walls
+    w_owner = j_of_sel[w.owner]
+    keep = w_owner >= 0
+    keep[keep] &= ~roof_only[w_owner[keep]]
+    w_owner = w_owner[keep]
     eave = top2 - roof_h
-    roof_only_arr = np.array([(cols[13][k] or "").lower() == "roof" or (cols[3][k] or "").lower() == "roof"
-                              for k in k_of.tolist()], dtype=bool)
-    lv = np.array([np.nan if cols[6][k] is None else float(cols[6][k]) - float(cols[7][k] or 0) for k in k_of.tolist()])
-    keep = ~roof_only_arr[w_owner]
-    fac = facades(wa[keep], wb[keep], w_owner[keep], bottom[w_owner[keep]], eave[w_owner[keep]],
-                  lv[w_owner[keep]], (bottom < 0.5)[w_owner[keep]], ring_ext[w_ring[keep]], n,
-                  FacadeParams(level_height=lh, style=settings.lod3_openings))
+    storeys = (heights_mod.floats(cols[6]) - np.nan_to_num(heights_mod.floats(cols[7])))[k_of]  # NaN: untagged
+    params = FacadeParams(level_height=lh, style=settings.lod3_openings)
+    fac = facades(w.a[keep], w.b[keep], w_owner, bottom[w_owner], eave[w_owner], storeys[w_owner],
+                  (bottom < 0.5)[w_owner], w.exterior[keep], n, params)
     f_counts = np.bincount(fac.owner, minlength=n)
     f_off = np.concatenate([[0], np.cumsum(f_counts)])
     # each building's LOD2 triangles, then its openings: placed by index arithmetic, no sort
@@ -350,47 +348,39 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int, lods: tuple[in
 
     # --- rows ------------------------------------------------------------------------------------------------
     t0 = time.perf_counter()
-    vol1 = ex.volume[good]
-    wkb1: list[bytes] | None = None
-    # LOD3 = LOD2 + openings: their areas add up; boxes add their volume, open panels none
-    fac_m = Meshes(fac.triangles, fac.semantics, f_off)
+    # LOD3 = LOD2 + openings: their areas add up
     area2 = _areas(lod2, n)
-    area_by_lod = {1: _areas(lod1, n), 2: area2, 3: area2 + _areas(fac_m, n)}
-    vol3 = cl.volume + (_volume(fac_m, n) if settings.lod3_openings == "box" else 0.0)
-    # LOD1 is LOD2 wherever the roof is flat: measured once; only the others' blocks are measured apart
+    area_by_lod = {1: _areas(lod1, n), 2: area2, 3: area2 + _areas(Meshes(fac.triangles, fac.semantics, f_off), n)}
+    # LOD1 is LOD2 wherever the roof is flat: measured and encoded once; only the other buildings apart
+    keys = np.fromiter(own, dtype=np.int64, count=len(own))
     cl1_wt, cl1_wc = cl.watertight.copy(), cl.winding_consistent.copy()
-    if own:
-        keys = np.fromiter(own, dtype=np.int64, count=len(own))
-        sub = [lod1.of(int(j)) for j in keys]
-        cnt = np.array([len(t) for t, _ in sub])
-        c1 = closure(np.concatenate([t for t, _ in sub]), np.concatenate([[0], np.cumsum(cnt)]))
+    if len(keys):
+        sub1 = _subset(lod1, keys)
+        c1 = closure(sub1.triangles, sub1.offsets)
         cl1_wt[keys], cl1_wc[keys] = c1.watertight, c1.winding_consistent
     if settings.lod3_openings == "box":  # every opening a closed box: LOD3 is measured like LOD2
         cl3 = closure(lod3.triangles, lod3.offsets)
-        cl3_wt, cl3_wc = cl3.watertight.tolist(), cl3.winding_consistent.tolist()
-    else:  # open panels: not a closed solid, so not measured (NULL)
-        cl3_wt = cl3_wc = [None] * n
-    for lod, m, vol, tops, rh_, shp, eng in (
-        (1, lod1, vol1, top, np.zeros(n), np.array(["flat"] * n, dtype=object), np.array(["flat"] * n, dtype=object)),
-        (2, lod2, cl.volume, top2, roof_h, shape_used, engine),
-        (3, lod3, vol3, top2, roof_h, shape_used, engine),
+        vol3, cl3_wt, cl3_wc = cl3.volume, cl3.watertight.tolist(), cl3.winding_consistent.tolist()
+    else:  # open panels: not a closed solid, so not measured (NULL); they enclose no volume
+        vol3, cl3_wt, cl3_wc = cl.volume, [None] * n, [None] * n
+    wkb1 = encode_triangles_batch(lod1.triangles, lod1.offsets, srid)
+    wkb2 = list(wkb1)
+    if len(keys):
+        sub2 = _subset(lod2, keys)
+        for j, b in zip(keys.tolist(), encode_triangles_batch(sub2.triangles, sub2.offsets, srid), strict=True):
+            wkb2[j] = b
+    flat = np.array(["flat"] * n, dtype=object)
+    for lod, m, wkbs, vol, tops, rh_, shp, eng, wt, wc in (
+        (1, lod1, wkb1, ex.volume[good], top, np.zeros(n), flat, flat, cl1_wt.tolist(), cl1_wc.tolist()),
+        (2, lod2, wkb2, cl.volume, top2, roof_h, shape_used, engine, cl.watertight.tolist(),
+         cl.winding_consistent.tolist()),
+        (3, lod3, encode_triangles_batch(lod3.triangles, lod3.offsets, srid), vol3, top2, roof_h, shape_used, engine,
+         cl3_wt, cl3_wc),
     ):
-        if lod not in lods:
-            continue
-        if lod == 2 and wkb1 is not None:  # LOD2 is LOD1 wherever the roof is flat: reuse those bytes
-            wkbs = list(wkb1)
-            for j in own:
-                wkbs[j] = encode_triangles(m.triangles[m.offsets[j]:m.offsets[j + 1]], srid)
-        else:
-            wkbs = encode_triangles_batch(m.triangles, m.offsets, srid)
-        if lod == 1:
-            wkb1 = wkbs
         ar = area_by_lod[lod]
         counts = np.diff(m.offsets)
         nwin = fac.n_windows if lod == 3 else np.zeros(n, int)
         ndoor = fac.n_doors if lod == 3 else np.zeros(n, int)
-        wt, wc = {1: (cl1_wt.tolist(), cl1_wc.tolist()), 2: (cl.watertight.tolist(), cl.winding_consistent.tolist()),
-                  3: (cl3_wt, cl3_wc)}[lod]
         out.triangles[lod] += int(counts.sum())
         sem_bytes = m.semantics.tobytes()
         offs = m.offsets.tolist()

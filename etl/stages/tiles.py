@@ -1,4 +1,5 @@
-"""Stage tiles: the quadtree over the LOD1 meshes (tiles.build_quadtree, set-based in SQL)."""
+"""Stage tiles: the quadtree over the buildings (tiles.build_quadtree, set-based in SQL), its triangle budget
+counted on LOD3, the largest mesh of each building, so a tileset exported at any LOD keeps to it."""
 
 from __future__ import annotations
 

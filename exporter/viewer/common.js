@@ -43,5 +43,22 @@
     return new URLSearchParams(window.location.search).get('tileset') || '/tiles/tileset.json';
   }
 
-  window.citylodCommon = { makeViewer, tilesetUrl };
+  // Resolve once the tileset has loaded everything the current view needs (or after timeoutMs). allTilesLoaded
+  // only fires when loading actually happened, so this polls tileset.tilesLoaded, after a few frames so the
+  // traversal from the current camera has issued its requests. tileset: a function, as it may load later.
+  function settle(scene, tileset, timeoutMs = 60000) {
+    const t0 = performance.now();
+    return new Promise((resolve) => {
+      let frames = 0;
+      const remove = scene.postRender.addEventListener(() => {
+        frames += 1;
+        const loaded = frames >= 3 && tileset() && tileset().tilesLoaded;
+        if (!loaded && performance.now() - t0 < timeoutMs) return;
+        remove();
+        resolve({ loaded: Boolean(loaded), ms: Math.round(performance.now() - t0), frames });
+      });
+    });
+  }
+
+  window.citylodCommon = { makeViewer, tilesetUrl, settle };
 })();

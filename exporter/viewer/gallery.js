@@ -29,20 +29,15 @@
   const panelEl = document.getElementById('panel');
   const pickedEl = document.getElementById('picked');
 
-  let resolveReady;
   const gallery = (window.citylodGallery = {
     viewer: null,
     tileset: null,
     ready: false, // tileset loaded, camera framed, every tile of the view loaded, legend built
-    whenReady: new Promise((resolve) => (resolveReady = resolve)),
     error: null,
     shapes: {}, // roof_shape -> number of buildings (distinct osm_type/osm_id)
     featureCount: 0, // distinct features over all loaded tile content
     tilesWithContent: 0, // tiles whose content the counts were read from
     selected: null, // the highlighted shape, or null
-    highlight,
-    frameAll,
-    settle,
   });
 
   const viewer = window.citylodCommon.makeViewer('cesium', gallery, '[gallery]');
@@ -73,7 +68,6 @@
     countShapes();
     buildLegend();
     gallery.ready = true;
-    resolveReady(gallery);
     log('ready:', gallery.featureCount, 'features,', Object.keys(gallery.shapes).length, 'roof shapes');
   }
 
@@ -204,20 +198,8 @@
     return gallery.frame;
   }
 
-  // Resolve once the tileset has loaded everything the current view needs (or after timeoutMs). Waits a few
-  // frames first so the traversal from the current camera has issued its requests.
-  function settle(timeoutMs = 60000) {
-    const t0 = performance.now();
-    return new Promise((resolve) => {
-      let frames = 0;
-      const remove = scene.postRender.addEventListener(() => {
-        frames += 1;
-        const loaded = frames >= 3 && gallery.tileset && gallery.tileset.tilesLoaded;
-        if (!loaded && performance.now() - t0 < timeoutMs) return;
-        remove();
-        resolve({ loaded: Boolean(loaded), ms: Math.round(performance.now() - t0), frames });
-      });
-    });
+  function settle() {
+    return window.citylodCommon.settle(scene, () => gallery.tileset);
   }
 
   // --- the legend ------------------------------------------------------------------------------------------

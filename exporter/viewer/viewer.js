@@ -183,25 +183,15 @@
   // --- test/automation helper ------------------------------------------------------------------------------
   // Look straight down (pitch -90°) at lon/lat/height (degrees, metres above the ellipsoid) from `range`
   // metres, then resolve once the tileset has loaded everything the new view needs (or after timeoutMs).
-  // allTilesLoaded only fires when loading actually happened, so this polls tileset.tilesLoaded instead,
-  // after a few frames so the first traversal from the new position has issued its requests.
   function lookAt(lon, lat, height = 0, range = 300, timeoutMs = 60000) {
     viewer.camera.setView({
       destination: Cesium.Cartesian3.fromDegrees(lon, lat, height + range),
       orientation: { heading: 0, pitch: -Cesium.Math.PI_OVER_TWO, roll: 0 },
     });
     citylod.allTilesLoaded = false;
-    const t0 = performance.now();
-    return new Promise((resolve) => {
-      let frames = 0;
-      const remove = scene.postRender.addEventListener(() => {
-        frames += 1;
-        const loaded = frames >= 3 && citylod.tileset && citylod.tileset.tilesLoaded;
-        if (!loaded && performance.now() - t0 < timeoutMs) return;
-        remove();
-        citylod.allTilesLoaded = Boolean(loaded);
-        resolve({ loaded: Boolean(loaded), ms: Math.round(performance.now() - t0), frames });
-      });
+    return window.citylodCommon.settle(scene, () => citylod.tileset, timeoutMs).then((r) => {
+      citylod.allTilesLoaded = r.loaded;
+      return r;
     });
   }
 })();

@@ -1,5 +1,5 @@
 -- tiles.build_quadtree(lod, max_features, max_triangles, max_level, ge_factor, base_height)
--- Builds the tile quadtree over the meshes of one LOD, set-based, one statement per level:
+-- Builds the tile quadtree, budgeted on the meshes of LOD `lod`, set-based, one statement per level:
 --   * features are grouped by building (an outline with its parts) and placed by the centre of the
 --     outline's bounding box, so a building and its parts always share a tile;
 --   * the level-0 cell is the square around all of them in the working CRS; a cell becomes a leaf when it
@@ -81,7 +81,7 @@ BEGIN
         v_level := v_level + 1;
     END LOOP;
 
-    -- Leaves: exact region of their footprints, heights of their meshes.
+    -- Leaves: region of their meshes at every LOD (each mesh's working-CRS box, reprojected).
     INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri)
     SELECT c.level, c.x, c.y, true, c.nf, c.nt,
            ST_MakeEnvelope(v_ox + c.x * v_size / 2 ^ c.level, v_oy + c.y * v_size / 2 ^ c.level,

@@ -5,6 +5,7 @@ import json
 import subprocess
 
 import numpy as np
+import psycopg
 import pytest
 
 from exporter.checks import check_tileset
@@ -170,7 +171,11 @@ def test_stale_tiles_are_refused(city, new_db, tmp_path) -> None:
     run_etl(url, "ingest", "--osm", str(city("fixtures").osm))
     run_etl(url, "lod")
     run_etl(url, "tiles")
-    run_etl(url, "lod", env={"CITYLOD_OUTLINE_PART_COVERAGE": "1.01"})  # more meshes; tiles emptied
+    with psycopg.connect(url, autocommit=True) as conn:  # a mesh gone behind the tiles' back
+        conn.execute("DELETE FROM lod.building_mesh WHERE building_id = 10001 AND lod = 2")
+    proc = run_etl(url, "export", "--out", str(tmp_path / "ts"), check=False)
+    assert proc.returncode != 0 and "tiles are stale" in proc.stderr
+    run_etl(url, "lod")  # a new lod run empties the tiles
     proc = run_etl(url, "export", "--out", str(tmp_path / "ts"), check=False)
     assert proc.returncode != 0 and "run the tiles stage" in proc.stderr
     run_etl(url, "tiles")

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from tests.conftest import FIXTURES, SHARED, merge_osm, run_etl
+from tests.conftest import SHARED, SPINE_FILES, merge_osm, run_etl
 
 
 @pytest.fixture(scope="module")
@@ -158,7 +158,7 @@ def _snapshot(conn) -> str:
 
 
 def test_rerun_gives_the_same_database(new_db, conn_of, tmp_path) -> None:
-    src = merge_osm(sorted(FIXTURES.glob("[19]*.osm")), tmp_path / "fixtures.osm")
+    src = merge_osm(SPINE_FILES, tmp_path / "fixtures.osm")
     url = new_db("ingest_rerun")
     run_etl(url, "ingest", "--osm", str(src))
     first = _snapshot(conn_of(url))

@@ -10,8 +10,8 @@ from tests.conftest import REPO
 QUERIES = re.findall(r"```sql\n(.*?)```", (REPO / "README.md").read_text(), flags=re.S)
 
 
-def test_readme_has_the_three_queries() -> None:
-    assert len(QUERIES) >= 4
+def test_readme_has_the_eight_queries() -> None:
+    assert len(QUERIES) == 8
 
 
 @pytest.fixture(scope="module")

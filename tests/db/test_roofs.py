@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from etl.geom import roofs
+from etl.geom.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
 from etl.geom.wkb import decode_triangles
 from exporter.checks import check_tileset
 from exporter.content import WINDOW_RGBA, srgb_to_linear16
@@ -44,10 +45,10 @@ def test_every_catalogue_shape_is_drawn_closed(gallery) -> None:
         if shape != "flat" and not ref.startswith("roof_part"):
             if "angle" not in ref and "levels0" not in ref:
                 assert rh == pytest.approx(4.0), ref  # roof:height
-            roof = tris[np.frombuffer(sem, np.uint8) == roofs.SEM_ROOF]
+            roof = tris[np.frombuffer(sem, np.uint8) == SEM_ROOF]
             eave = top - rh
             assert roof[:, :, 2].min() >= eave - 1e-6, ref  # no roof face below the eaves
-            walls = tris[np.frombuffer(sem, np.uint8) == roofs.SEM_WALL]
+            walls = tris[np.frombuffer(sem, np.uint8) == SEM_WALL]
             assert walls[:, :, 2].min() == pytest.approx(bottom, abs=1e-6), ref
 
 
@@ -62,7 +63,7 @@ def test_tag_variants(gallery) -> None:
     part = lod2["roof_part/rect"]
     tris = decode_triangles(part[5])
     assert tris[:, :, 2].min() >= 4.0 - 1e-6 and part[4] == 4.0
-    assert set(np.frombuffer(part[6], np.uint8)) <= {roofs.SEM_GROUND, roofs.SEM_ROOF}
+    assert set(np.frombuffer(part[6], np.uint8)) <= {SEM_GROUND, SEM_ROOF}
     codes = dict(gallery.execute(
         """SELECT b.tags->>'ref', string_agg(d.code, ',' ORDER BY d.code) FROM meta.building_diagnostic d
            JOIN osm.building b ON b.id = d.building_id GROUP BY 1""").fetchall())
@@ -77,6 +78,7 @@ def test_tag_variants(gallery) -> None:
 
 def test_lod3_adds_windows_and_doors(gallery) -> None:
     lod2, lod3 = rows(gallery, 2), rows(gallery, 3)
+    assert lod3 and lod3.keys() == lod2.keys()
     for ref, r3 in lod3.items():
         sem3 = np.frombuffer(r3[6], np.uint8)
         assert len(sem3) == r3[12]
@@ -108,9 +110,9 @@ def test_real_extract_lod2_watertight(city, conn_of, name) -> None:
         "SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'not_watertight'").fetchone()[0]
 
 
-@pytest.mark.parametrize("lod", [1, 3])
+@pytest.mark.parametrize("lod", [1, 2, 3])
 def test_export_lod_option(city, conn_of, tmp_path, lod) -> None:
-    c = city("roofs")  # its default export is LOD2; LOD1 and LOD3 are exported here
+    c = city("roofs")
     out = tmp_path / f"lod{lod}"
     run_etl(c.url, "export", "--out", str(out), "--lod", str(lod))
     proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,

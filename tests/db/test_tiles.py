@@ -23,14 +23,17 @@ def split_buildings(conn) -> list:
     ).fetchall()
 
 
+TRIANGLES = 3_000  # below what 60 features hold at LOD3 (~200 triangles each), above it at LOD1 (~30)
+
+
 @pytest.fixture(scope="module")
 def small_budget(city, new_db):
-    """Munich tiled with a budget of 60 features per tile, to get a deep tree."""
+    """Munich tiled with a budget of 60 features and 3,000 triangles per tile, to get a deep tree."""
     src = city("munich")
     url = new_db("tiles_budget")
     run_etl(url, "ingest", "--osm", str(src.osm))
     run_etl(url, "lod")
-    run_etl(url, "tiles", env={"CITYLOD_TILE_MAX_FEATURES": "60"})
+    run_etl(url, "tiles", env={"CITYLOD_TILE_MAX_FEATURES": "60", "CITYLOD_TILE_MAX_TRIANGLES": str(TRIANGLES)})
     return url
 
 
@@ -45,6 +48,14 @@ def test_budget_and_single_assignment(small_budget, conn_of) -> None:
            FROM tiles.tile t WHERE t.is_leaf AND t.n_features > 60"""
     ).fetchall()
     assert all(groups == 1 for *_, groups in over), over  # only a single big building may exceed the budget
+    # the triangle budget counts LOD3, the largest mesh, so a tile exported at any LOD keeps to it
+    heavy = conn.execute(
+        """SELECT bt.level, bt.x, bt.y, sum(m.n_triangles), count(DISTINCT coalesce(b.parent_id, b.id))
+           FROM tiles.building_tile bt JOIN osm.building b ON b.id = bt.building_id
+           JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 3
+           WHERE bt.level < 16  -- the deepest level is a leaf whatever its load
+           GROUP BY 1, 2, 3 HAVING sum(m.n_triangles) > %s""", (TRIANGLES,)).fetchall()
+    assert all(groups == 1 for *_, groups in heavy), heavy
     total = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 1").fetchone()[0]
     assigned = conn.execute("SELECT count(*), count(DISTINCT building_id) FROM tiles.building_tile").fetchone()
     assert assigned == (total, total)
@@ -83,11 +94,20 @@ def test_leaf_region_bounds_its_buildings(small_budget, conn_of) -> None:
     outside = conn.execute(
         """SELECT count(*) FROM tiles.building_tile bt JOIN tiles.tile t USING (level, x, y)
            JOIN osm.building b ON b.id = bt.building_id JOIN lod.building_mesh m ON m.building_id = b.id
-           WHERE radians(ST_XMin(b.geom)) < t.region[1] OR radians(ST_YMin(b.geom)) < t.region[2]
-              OR radians(ST_XMax(b.geom)) > t.region[3] OR radians(ST_YMax(b.geom)) > t.region[4]
-              OR m.min_height < t.region[5] OR m.height > t.region[6]"""
+           WHERE radians(ST_XMin(b.geom)) < t.region[1] - 1e-12 OR radians(ST_YMin(b.geom)) < t.region[2] - 1e-12
+              OR radians(ST_XMax(b.geom)) > t.region[3] + 1e-12 OR radians(ST_YMax(b.geom)) > t.region[4] + 1e-12
+              OR m.min_height < t.region[5] OR m.height > t.region[6]"""  # 1e-12 rad: 6 µm of reprojection
     ).fetchone()[0]
     assert outside == 0
+    # ... and every mesh, at every LOD: LOD3 openings stand out of the walls
+    outside_mesh = conn.execute(
+        """SELECT count(*) FROM tiles.building_tile bt JOIN tiles.tile t USING (level, x, y)
+           JOIN lod.building_mesh m ON m.building_id = bt.building_id
+           CROSS JOIN LATERAL (SELECT ST_Transform(m.geom, 4326) AS g) w
+           WHERE radians(ST_XMin(w.g)) < t.region[1] - 1e-12 OR radians(ST_YMin(w.g)) < t.region[2] - 1e-12
+              OR radians(ST_XMax(w.g)) > t.region[3] + 1e-12 OR radians(ST_YMax(w.g)) > t.region[4] + 1e-12"""
+    ).fetchone()[0]
+    assert outside_mesh == 0
     # the region is tight: the root spans the data (each mesh's UTM bounding box, so a few metres at most
     # more than the footprints: LOD3 openings stand out of the walls, grid north is not true north), not the
     # padded quadtree cell

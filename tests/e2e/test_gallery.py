@@ -13,7 +13,6 @@ A missing Chromium or Node.js fails this test; it never skips.
 from __future__ import annotations
 
 import os
-import xml.etree.ElementTree as ET
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
@@ -22,10 +21,10 @@ from urllib.parse import urlsplit
 import numpy as np
 import pytest
 
-from tests.conftest import FIXTURES, REPO, run_etl
+from tests.conftest import REPO
 from tests.e2e.test_viewer import run_driver, served
+from tests.fixtures.osm_fixtures import ROOF_SHAPES, roofs
 
-FIXTURE = FIXTURES / "200_roofs.osm"
 DRIVER = REPO / "tests" / "e2e" / "gallery_e2e.mjs"
 SCREENSHOTS = REPO / "build" / "screenshots"
 SCREENSHOT = SCREENSHOTS / "roof_gallery.png"
@@ -34,42 +33,27 @@ PICK = "hipped"  # the roof shape of the building the driver clicks
 HIGHLIGHT_SCREENSHOT = SCREENSHOTS / f"roof_gallery_{HIGHLIGHT}.png"
 CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
 
-#: the roof:shape values of the OSM catalogue (wiki Key:roof:shape); the fixture has each of them
-CATALOGUE = {
-    "flat", "skillion", "gabled", "half-hipped", "hipped", "side_hipped", "side_half-hipped", "hipped-and-gabled",
-    "pyramidal", "cone", "dome", "onion", "round", "gambrel", "mansard", "saltbox", "sawtooth", "butterfly",
-    "crosspitched", "gabled_height_moved",
-}
+CATALOGUE = set(ROOF_SHAPES)  # the roof:shape values of the OSM catalogue (wiki Key:roof:shape)
 
 
-def expected_from_osm(path: Path) -> tuple[Counter[str], dict[int, str]]:
-    """(buildings per roof shape, shape of each way id) as the OSM file tags them: roof:shape, else
+def expected_shapes() -> tuple[Counter[str], dict[int, str]]:
+    """(buildings per roof shape, shape of each way id) as fixture 200 tags them: roof:shape, else
     building:roof:shape, else flat; "many" and anything outside the catalogue are drawn flat."""
     counts: Counter[str] = Counter()
     by_id: dict[int, str] = {}
-    for way in ET.parse(path).getroot().iter("way"):
-        tags = {t.get("k"): t.get("v") for t in way.iter("tag")}
-        if "building" not in tags and "building:part" not in tags:
-            continue
+    for wid, _refs, tags in roofs().ways:
         shape = (tags.get("roof:shape") or tags.get("building:roof:shape") or "flat").strip().lower()
         if shape not in CATALOGUE:  # "many" included
             shape = "flat"
         counts[shape] += 1
-        by_id[int(way.get("id"))] = shape
+        by_id[wid] = shape
     return counts, by_id
 
 
 @pytest.fixture(scope="module")
-def roofs_tiles(new_db: Callable[[str], str], tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """200_roofs.osm alone in its own database (new_db names it per test session), exported at LOD 2."""
-    url = new_db("roof_gallery")
-    tiles = tmp_path_factory.mktemp("roof_gallery") / "tiles"
-    run_etl(url, "ingest", "--osm", str(FIXTURE))
-    run_etl(url, "lod")
-    run_etl(url, "tiles")
-    run_etl(url, "export", "--out", str(tiles), "--lod", "2")
-    assert (tiles / "tileset.json").is_file()
-    return tiles
+def roofs_tiles(city: Callable) -> Path:
+    """Fixture 200 alone in its own database, exported at LOD 2 (the default)."""
+    return city("roofs").tiles
 
 
 def read_rgb(path: Path) -> np.ndarray:
@@ -88,10 +72,8 @@ def test_roof_gallery_in_chromium(roofs_tiles: Path) -> None:
     for pkg in ("playwright-core", "cesium"):
         assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
 
-    expected, shape_of = expected_from_osm(FIXTURE)
-    # The fixture itself: every catalogue shape at least once ("many" counted as flat).
+    expected, shape_of = expected_shapes()
     total = sum(expected.values())
-    assert total == FIXTURE.read_text().count("<way ") and set(expected) == CATALOGUE, expected
 
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     for p in (SCREENSHOT, HIGHLIGHT_SCREENSHOT):

@@ -6,7 +6,8 @@ import pytest
 import shapely
 import trimesh
 
-from etl.geom.facade import SEM_DOOR, SEM_WINDOW, FacadeParams, Facades, facades
+from etl.geom.facade import FacadeParams, Facades, facades
+from etl.geom.semantics import SEM_DOOR, SEM_WINDOW
 
 P = FacadeParams()
 OFF = np.array([385_000.0, 6_672_000.0])  # UTM-sized coordinates
@@ -131,3 +132,28 @@ def test_two_buildings_sorted_with_counts() -> None:
     assert f.n_doors.tolist() == [1, 1]
     assert len(f.triangles) == len(f.semantics) == len(f.owner) == 12 * (23 + 32 + 2)
     assert np.bincount(f.owner, minlength=2).tolist() == [12 * 24, 12 * 33]
+
+
+def test_panels_are_the_boxes_front_faces() -> None:
+    # the pipeline default: per opening the 2 triangles of its box's front face, `depth` out of the wall, facing out
+    w = walls(RECT)
+    box = run(w)
+    panel = facades(**{k: w[k] for k in w}, n_buildings=1, params=FacadeParams(style="panel"))
+    assert (panel.n_windows, panel.n_doors) == (box.n_windows, box.n_doors)
+    assert len(panel.triangles) == 2 * (box.n_windows[0] + box.n_doors[0])
+    front = box.triangles.reshape(-1, 12, 3, 3)[:, 10:12].reshape(-1, 3, 3)
+    assert np.array_equal(panel.triangles, front) and np.array_equal(panel.semantics, box.semantics[::6])
+    t = panel.triangles - np.r_[OFF, 0]
+    normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, :2]
+    centre = t.mean(axis=1)[:, :2]
+    inside = shapely.contains_xy(RECT, centre[:, 0], centre[:, 1])
+    assert not inside.any()  # in front of the wall ...
+    dist = shapely.distance(RECT.exterior, shapely.points(centre))
+    assert np.allclose(dist, P.depth)  # ... by `depth`
+    outward = shapely.contains_xy(RECT, *(centre - 0.5 * normal / np.linalg.norm(normal, axis=1)[:, None]).T)
+    assert outward.all()  # stepping against the normal leads back into the building: it faces out
+
+
+def test_unknown_style_is_refused() -> None:
+    with pytest.raises(ValueError, match="opening style"):
+        facades(**walls(RECT), n_buildings=1, params=FacadeParams(style="decal"))

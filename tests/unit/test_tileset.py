@@ -89,7 +89,9 @@ def test_checks_catch_each_rule(tmp_path, mutate, needle) -> None:
 def test_checks_non_glb_content(tmp_path) -> None:
     p = write(tmp_path, build_tileset(records()))
     (tmp_path / "content/1/0/0.glb").write_bytes(b"not a glb at all")
-    assert any("GLB" in x for x in check_tileset(p))
+    assert any("too short to be a GLB" in x for x in check_tileset(p))
+    (tmp_path / "content/1/0/0.glb").write_bytes(b"not a glb at all, but long enough")
+    assert any("not a GLB 2.0 file" in x for x in check_tileset(p))
     broken = bytearray(write_glb(cube_primitive()))
     broken[8:12] = (len(broken) + 4).to_bytes(4, "little")  # header length disagrees with the file
     (tmp_path / "content/1/0/0.glb").write_bytes(bytes(broken))
