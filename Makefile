@@ -9,14 +9,14 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 OSM    ?= data/Helsinki.osm.pbf
 OUT    ?= build/tiles/demo
-LOD    ?= 2
+LOD    ?=
 PORT   ?= 8765
 HOST   ?= 127.0.0.1
 
 SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod tiles export serve demo test \
+.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod tiles generalize export serve demo test \
         test-unit bench lint clean distclean
 
 help: ## list the targets
@@ -72,15 +72,18 @@ lod: migrate ## build LOD1 blocks, LOD2 roofs, LOD3 facades into lod.building_me
 tiles: migrate ## build the tile quadtree into tiles.tile
 	$(PY) -m etl tiles
 
-export: migrate ## OUT=dir LOD=1|2|3: write 3D Tiles 1.1 (tileset.json + glb)
-	$(PY) -m etl export --out $(OUT) --lod $(LOD)
+generalize: migrate ## simplify footprints, decimate meshes, aggregate blocks; measure each tile's error
+	$(PY) -m etl generalize
 
-serve: $(SETUP_PY) $(SETUP_NODE) ## serve OUT and the CesiumJS viewer on http://HOST:PORT/
-	$(PY) -m etl serve --dir $(OUT) --host $(HOST) --port $(PORT)
+export: migrate ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
+	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD))
 
-demo: ## everything on Helsinki: install, database, ingest, lod, tiles, export, serve
+serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
+	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)),--dir $(OUT)) --host $(HOST) --port $(PORT)
+
+demo: ## everything on Helsinki: install, database, ingest, lod, tiles, generalize, export, serve
 	$(MAKE) setup
-	$(MAKE) ingest lod tiles export OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) ingest lod tiles generalize export OSM=$(OSM) OUT=$(OUT)
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------

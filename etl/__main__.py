@@ -95,6 +95,17 @@ def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .runs import pipeline_run
+    from .stages import generalize
+
+    url = _url(settings)
+    with pipeline_run(url, "generalize", settings.as_dict()) as run, connect(url) as conn:
+        run.counts = generalize.run(conn, url, settings)
+    return 0
+
+
 def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
     from exporter.export import export_tileset
 
@@ -109,6 +120,15 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
+    if args.db:
+        from exporter.serve import reader_url, serve_db
+
+        serve_db(reader_url(_url(settings)), args.host, args.port, lod=args.lod,
+                 base_height=settings.base_height_m, cache_bytes=int(args.cache_mb * 2**20))
+        return 0
+    if args.lod is not None:
+        print("serve: --lod needs --db (a tileset directory holds the LOD it was exported with)", file=sys.stderr)
+        return 2
     from exporter.serve import serve
 
     serve(Path(args.dir).resolve(), args.host, args.port)
@@ -135,16 +155,29 @@ def main(argv: list[str] | None = None) -> int:
 
     sub.add_parser("lod", help="osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)").set_defaults(fn=cmd_lod)
     sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
+    sub.add_parser("generalize", help="tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors"
+                   ).set_defaults(fn=cmd_generalize)
 
     exp = sub.add_parser("export", help="tiles -> 3D Tiles 1.1 (tileset.json + glb)")
     exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
                      help="output directory (replaced only if empty or a citylod tileset)")
-    exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=2,
-                     help="level of detail for every building: 1 block, 2 roofs (default), 3 windows and doors")
+    exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
+                     help="one level of detail for every building (1 block, 2 roofs, 3 windows and doors) instead "
+                          "of the generalized hierarchy (default: blocks far away down to LOD3 near)")
     exp.set_defaults(fn=cmd_export)
 
-    srv = sub.add_parser("serve", help="serve a tileset directory and the CesiumJS viewer (Ctrl-C stops)")
-    srv.add_argument("--dir", default=str(REPO / "build" / "tiles" / "demo"), help="tileset directory")
+    srv = sub.add_parser("serve", help="serve the tileset (a directory, or --db straight from the database) and "
+                                       "the CesiumJS viewer (Ctrl-C stops)")
+    src = srv.add_mutually_exclusive_group()
+    src.add_argument("--dir", default=str(REPO / "build" / "tiles" / "demo"), help="tileset directory")
+    src.add_argument("--db", action="store_true",
+                     help="build tileset.json and each glb on request from the database (cached), as the read-only "
+                          "role citylod_reader: CITYLOD_READER_URL, else DATABASE_URL / the local cluster with that "
+                          "user")
+    srv.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
+                     help="with --db: one level of detail for every building, as `export --lod` (default: the "
+                          "generalized hierarchy)")
+    srv.add_argument("--cache-mb", type=float, default=256.0, help="with --db: tile cache budget (MiB)")
     srv.add_argument("--host", default="127.0.0.1")
     srv.add_argument("--port", type=int, default=8765, help="0 picks a free port")
     srv.set_defaults(fn=cmd_serve)
@@ -160,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("CITYLOD_DEBUG") == "1":
             raise
         print(f"{args.command}: error: {e}", file=sys.stderr)
-        if args.command in ("ingest", "lod", "tiles", "export"):
+        if args.command in ("ingest", "lod", "tiles", "generalize", "export"):
             print("  (recorded as failed in meta.pipeline_run; CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
 

@@ -65,8 +65,14 @@ class Settings:
     tile_max_triangles: int = 100_000
     #: Deepest quadtree level (cells there are leaves whatever their load).
     tile_max_level: int = 16
-    #: Geometric error of a tile with children = cell edge length × this factor (metres).
-    tile_ge_factor: float = 0.5
+
+    # --- generalize (tolerances per level: gen.tolerance in sql/gen/tolerance.sql) --------------------------
+    #: Largest relative change of a footprint's area simplification may make; beyond it the original is kept.
+    gen_max_area_change: float = 0.1
+    #: LOD2 meshes with at least this many triangles are decimated for the LOD2 band ...
+    gen_decimate_min_triangles: int = 64
+    #: ... by this fraction of their triangles (fast-simplification), kept only within gen.tolerance(3).
+    gen_decimate_reduction: float = 0.5
 
     # --- export ---------------------------------------------------------------------------------------------
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on

@@ -1,7 +1,8 @@
 """Stage export: tiles in PostGIS -> a 3D Tiles 1.1 tileset directory.
 
-Streams tile by tile (a few worker threads, each with its own connection): for each leaf,
-api.buildings_for_tile(level, x, y, lod) gives the features with their meshes at the chosen LOD, lifted by the
+Streams tile by tile (a few worker threads, each with its own connection): for each tile,
+api.buildings_for_tile(level, x, y) gives the features of its band (blocks at the root down to LOD3 at the
+leaves; REPLACE refinement), or with ``lod`` every building of each leaf at that one LOD (ADD), lifted by the
 base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid);
 content.py turns them into glTF arrays in the tile's local frame and gltf.py writes the glb with EXT_mesh_features +
 EXT_structural_metadata. The tileset is written into ``<out>.partial`` and swapped in at the end, so a failed
@@ -20,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import psycopg
 from psycopg.rows import dict_row
 
 from etl.db import connect
@@ -37,14 +39,15 @@ SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.n
        f.roof_material, f.lod, f.semantics, ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
 FROM api.buildings_for_tile(%s, %s, %s, %s) f
 """
+_FEATURES = _FEATURES.replace("f.lod, f.semantics", "f.lod, f.gen_level, f.n_members, f.error_m, f.semantics")
 
-OSM_TYPE = {"W": "way", "R": "relation"}
+OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
 
 #: The property table: (column of _FEATURES, component type or None for STRING, description, required, noData)
 PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
-    ("osm_id", "INT64", "OSM id of the way or relation", True, None),
-    ("osm_type", None, "way or relation", True, None),
-    ("kind", None, "building (outline) or part (building:part)", True, None),
+    ("osm_id", "INT64", "OSM id of the way or relation (gen.block.block_id for a block)", True, None),
+    ("osm_type", None, "way, relation or block", True, None),
+    ("kind", None, "building (outline), part (building:part) or block (buildings merged)", True, None),
     ("building_osm_id", "INT64", "OSM id of the building outline this belongs to", True, None),
     ("building_osm_type", None, "way or relation (of building_osm_id)", True, None),
     ("name", None, "name=* (the building's when a part has none)", False, None),
@@ -57,7 +60,11 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("roof_colour", None, "roof:colour (#rrggbb)", False, None),
     ("building_material", None, "building:material", False, None),
     ("roof_material", None, "roof:material", False, None),
-    ("lod", "UINT8", "level of detail of the mesh", True, None),
+    ("lod", "UINT8", "level of detail of the mesh: 0 block, 1 simplified block, 2 roofs, 3 facades", True, None),
+    ("gen_level", "UINT8", "generalization level (gen.tolerance): 0-1 blocks, 2 simplified, 3 LOD2, 4 LOD3",
+     True, None),
+    ("n_members", "UINT32", "buildings merged into this feature (1 unless a block)", True, None),
+    ("error_m", "FLOAT32", "bound on the distance to the full-detail model (m)", True, None),
 ]
 
 
@@ -90,9 +97,36 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
     return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
 
 
-def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: float, workers: int,
-                   progress: Progress, lod: int) -> tuple[int, int, int]:
-    """Write every leaf's glb; tiles are independent, so ``workers`` threads each with their own connection
+def load_records(conn: psycopg.Connection) -> list[TileRecord]:
+    """The tile tree (api.tile_tree), parents first."""
+    return [
+        TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
+                   content_uri=r[8], n_features=r[4], content_features=r[9])
+        for r in conn.execute(
+            "SELECT level, x, y, is_leaf, n_features, n_triangles, region, geometric_error, content_uri,"
+            " content_features FROM api.tile_tree()"
+        )
+    ]
+
+
+def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int | None) -> bytes:
+    """tileset.json as written to disk and served (same bytes either way)."""
+    dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
+    version = dataset[0][:16] if dataset and dataset[0] else ""
+    return json.dumps(build_tileset(records, tileset_version=version, single_lod=lod is not None), indent=1).encode()
+
+
+def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None) -> tuple[bytes, int, int]:
+    """(glb bytes, features, triangles) of one tile's content."""
+    with conn.cursor(row_factory=dict_row) as cur:
+        rows = cur.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y, lod)).fetchall()
+    glb, tri = build_tile_glb(rows, rec.region)
+    return glb, len(rows), tri
+
+
+def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, workers: int,
+                  progress: Progress, lod: int | None) -> tuple[int, int, int]:
+    """Write every tile's glb; tiles are independent, so ``workers`` threads each with their own connection
     share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
     local = threading.local()
     lock = threading.Lock()
@@ -103,25 +137,38 @@ def _export_leaves(url: str, leaves: list[TileRecord], out: Path, base_height: f
             local.conn = connect(url)
             with lock:
                 conns.append(local.conn)
-        with local.conn.cursor(row_factory=dict_row) as cur:
-            rows = cur.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y, lod)).fetchall()
-        glb, tri = build_tile_glb(rows, rec.region)
+        glb, n, tri = tile_glb(local.conn, rec, base_height, lod)
         assert rec.content_uri is not None
         path = out / rec.content_uri
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(glb)
-        return len(rows), tri, len(glb)
+        return n, tri, len(glb)
 
     n_features = n_triangles = n_bytes = 0
     try:
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            for f, t, b in pool.map(one, leaves):
+            for f, t, b in pool.map(one, tiles):
                 n_features, n_triangles, n_bytes = n_features + f, n_triangles + t, n_bytes + b
                 progress.update(f)
     finally:
         for c in conns:
             c.close()
     return n_features, n_triangles, n_bytes
+
+
+def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int | None) -> None:
+    """Refuse tiles that no longer match the meshes (lod/tiles re-run) or that generalize has not finished."""
+    if not records:
+        raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
+    meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = %s", (lod or 3,)).fetchone()
+    in_tiles = sum(r.n_features for r in records if r.is_leaf)
+    if meshes is None or in_tiles != meshes[0]:
+        raise RuntimeError(
+            f"the tiles are stale: they hold {in_tiles} features but lod.building_mesh has "
+            f"{meshes[0] if meshes else 0} LOD{lod or 3} meshes; run the lod, tiles and generalize stages again "
+            "(make lod tiles generalize)")
+    if any(r.geometric_error is None or r.content_features is None for r in records):
+        raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
 
 
 PARTIAL_MARKER = ".citylod-partial"  # marks an export in progress (or one that crashed): ours to delete
@@ -147,9 +194,10 @@ def replaceable(path: Path) -> bool:
     return isinstance(asset, dict) and str(asset.get("generator", "")).startswith("citylod")
 
 
-def export_tileset(url: str, out: Path, settings: Settings, lod: int) -> dict[str, object]:
-    """Write the tileset with every building at level of detail ``lod`` (1 block, 2 roofs, 3 facades)."""
-    if lod not in (1, 2, 3):
+def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None) -> dict[str, object]:
+    """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
+    every building at that one level of detail (1 block, 2 roofs, 3 facades)."""
+    if lod not in (None, 1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
@@ -159,35 +207,20 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int) -> dict[st
                 f"refusing to overwrite {p}: it is not empty and holds no tileset written by citylod; "
                 "choose a new or empty directory")
     with connect(url) as conn:
-        records = [
-            TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
-                       content_uri=r[8], n_features=r[4])
-            for r in conn.execute(
-                "SELECT level, x, y, is_leaf, n_features, n_triangles, region, geometric_error, content_uri"
-                " FROM api.tile_tree()"
-            )
-        ]
-        if not records:
-            raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
-        dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
-        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = %s", (lod,)).fetchone()
-    leaves = [r for r in records if r.is_leaf]
-    in_tiles = sum(r.n_features for r in leaves)
-    if meshes is None or in_tiles != meshes[0]:
-        raise RuntimeError(
-            f"the tiles are stale: they hold {in_tiles} features but lod.building_mesh has "
-            f"{meshes[0] if meshes else 0} LOD{lod} meshes; run the lod and tiles stages again (make lod tiles)")
+        records = load_records(conn)
+        check_current(conn, records, lod)
+        js = tileset_bytes(conn, records, lod)
+    tiles = [r for r in records if r.is_leaf or lod is None]
+    expected = sum(r.n_features if lod else r.content_features for r in tiles)  # type: ignore[misc]
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
     (partial / PARTIAL_MARKER).touch()
-    progress = Progress("export", "buildings", total=in_tiles)
-    n_features, n_triangles, n_bytes = _export_leaves(
-        url, leaves, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod)
-    if n_features != in_tiles:
-        raise RuntimeError(f"export lost features: {in_tiles} in the tiles, {n_features} written")
-    tileset = build_tileset(records, tileset_version=(dataset[0][:16] if dataset and dataset[0] else ""))
-    js = json.dumps(tileset, indent=1).encode()
+    progress = Progress("export", "features", total=expected)
+    n_features, n_triangles, n_bytes = _export_tiles(
+        url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod)
+    if n_features != expected:
+        raise RuntimeError(f"export lost features: {expected} in the tiles, {n_features} written")
     (partial / "tileset.json").write_bytes(js)
     n_bytes += len(js)
     (partial / PARTIAL_MARKER).unlink()
@@ -195,14 +228,16 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int) -> dict[st
         shutil.rmtree(out)
     partial.rename(out)
     seconds = time.perf_counter() - t0
+    buildings = sum(r.n_features for r in records if r.is_leaf)
     summary(
         "export",
-        f"{n_features:,} features in {len(leaves):,} glb tiles, {n_triangles:,} triangles, "
-        f"{n_bytes / 1e6:.2f} MB ({n_bytes / max(n_features, 1):,.0f} bytes/feature) -> {out}",
+        f"{n_features:,} features in {len(tiles):,} glb tiles, {n_triangles:,} triangles, "
+        f"{n_bytes / 1e6:.2f} MB ({n_bytes / max(buildings, 1):,.0f} bytes/building) -> {out}",
         seconds,
-        n_features,
+        buildings,
     )
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
-    return {"lod": lod, "features": n_features, "tiles": len(records), "glb": len(leaves), "triangles": n_triangles,
-            "bytes": n_bytes, "bytes_per_feature": round(n_bytes / max(n_features, 1), 1),
+    return {"lod": lod or "all", "buildings": buildings, "features": n_features, "tiles": len(records),
+            "glb": len(tiles), "triangles": n_triangles, "bytes": n_bytes,
+            "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "out": str(out)}

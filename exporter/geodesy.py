@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 A = 6378137.0
@@ -60,3 +62,49 @@ def column_major(m: np.ndarray) -> list[float]:
 #: glTF is y-up; 3D Tiles content is z-up and clients rotate glTF by +90° about x. (E, N, U) -> (E, U, -N).
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 Y_UP_TO_Z_UP = Z_UP_TO_Y_UP.T
+
+
+def region_box(regions: np.ndarray, pad: float = 1.0) -> np.ndarray:
+    """(n, 12) oriented boxes in ECEF (centre, then the three half-axis vectors east, north, up) enclosing 3D
+    Tiles regions (n, 6: west, south, east, north in radians, min and max height in metres). Each box is
+    aligned with the east-north-up frame at its region's centre and bounds a 5 × 5 × 2 grid of points on the
+    region, padded by ``pad`` metres for the curvature between them (a few centimetres per kilometre)."""
+    r = np.atleast_2d(np.asarray(regions, float))
+    f = np.linspace(0.0, 1.0, 5)
+    lon = r[:, 0, None] + (r[:, 2] - r[:, 0])[:, None] * f  # (n, 5)
+    lat = r[:, 1, None] + (r[:, 3] - r[:, 1])[:, None] * f
+    lo = np.broadcast_to(lon[:, :, None, None], (len(r), 5, 5, 2))
+    la = np.broadcast_to(lat[:, None, :, None], (len(r), 5, 5, 2))
+    hh = np.broadcast_to(r[:, None, None, 4:6], (len(r), 5, 5, 2))
+    pts = geodetic_to_ecef(lo, la, hh).reshape(len(r), -1, 3)
+    clon, clat = (r[:, 0] + r[:, 2]) / 2, (r[:, 1] + r[:, 3]) / 2
+    sl, cl, sp, cp = np.sin(clon), np.cos(clon), np.sin(clat), np.cos(clat)
+    axes = np.stack([np.stack([-sl, cl, np.zeros_like(sl)], -1),
+                     np.stack([-sp * cl, -sp * sl, cp], -1),
+                     np.stack([cp * cl, cp * sl, sp], -1)], axis=1)  # (n, 3 axes, 3)
+    origin = geodetic_to_ecef(clon, clat, np.zeros_like(clon))
+    local = np.einsum("nij,npj->npi", axes, pts - origin[:, None, :])  # (n, p, 3) east/north/up
+    lo_, hi_ = local.min(axis=1), local.max(axis=1)
+    centre = origin + np.einsum("ni,nij->nj", (lo_ + hi_) / 2, axes)
+    half = ((hi_ - lo_) / 2 + pad)[:, :, None] * axes
+    return np.concatenate([centre, half.reshape(len(r), 9)], axis=1)
+
+
+def box_distance(box: np.ndarray, point: np.ndarray) -> float:
+    """Distance (m) from an ECEF point to a region_box box, 0 inside (tiles.box_distance in SQL)."""
+    d = np.asarray(point, float) - box[:3]
+    total = 0.0
+    for i in range(3):
+        axis = box[3 + 3 * i: 6 + 3 * i]
+        length = max(float(np.linalg.norm(axis)), 1e-9)
+        total += max(abs(float(d @ axis)) / length - length, 0.0) ** 2
+    return math.sqrt(total)
+
+
+def box_visible(box: np.ndarray, point: np.ndarray, planes: np.ndarray) -> bool:
+    """False when the box lies wholly behind one of the planes (rows: inward unit normals through ``point``);
+    tiles.box_visible in SQL."""
+    c = box[:3] - np.asarray(point, float)
+    half = box[3:].reshape(3, 3)
+    s = planes @ c + np.abs(planes @ half.T).sum(axis=1)
+    return bool(np.all(s >= 0))

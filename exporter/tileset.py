@@ -2,12 +2,16 @@
 
 * Bounding volumes are regions (radians, metres above the WGS84 ellipsoid), which need no transform and nest
   exactly: a parent's region is the union of its children's.
-* Leaves carry their glb content and the transform from the tile's local east-north-up frame (origin at the
-  centre of its region, on the ellipsoid) to ECEF; the glb stores coordinates in that frame, y up.
-* Geometric error: 0 for leaves; above, the value stored in tiles.tile (cell edge × tile_ge_factor), so it
-  halves level by level. The top-level geometricError is at least the diagonal of the root region: CesiumJS
-  silently loads nothing when it is too small for the distance the tileset is viewed from.
-* Refinement is ADD: inner tiles have no content of their own (until generalized parents arrive).
+* Every tile with content carries the transform from its local east-north-up frame (origin at the centre of
+  its region, on the ellipsoid) to its parent's frame (3D Tiles composes transforms down the tree), so each
+  glb stores coordinates in its own tile's frame, y up.
+* Geometric error: 0 for leaves; above, the value the generalize stage measured (tiles.tile.geometric_error:
+  the largest error bound of the tile's content or its children's). The top-level geometricError is at
+  least the diagonal of the root region: CesiumJS silently loads nothing when it is too small for the
+  distance the tileset is viewed from.
+* Refinement is REPLACE: every tile has content (blocks at the root down to LOD3 at the leaves), and children
+  replace their parent, so a client never draws two versions of a building. A single-LOD tileset
+  (``single_lod``) has content at the leaves only and refines by ADD.
 """
 
 from __future__ import annotations
@@ -58,9 +62,10 @@ class TileRecord:
     y: int
     is_leaf: bool
     region: tuple[float, float, float, float, float, float]
-    geometric_error: float
+    geometric_error: float | None
     content_uri: str | None
     n_features: int = 0
+    content_features: int | None = None
 
 
 def region_centre(region: tuple[float, ...] | list[float]) -> tuple[float, float]:
@@ -76,12 +81,13 @@ def region_diagonal(region: tuple[float, ...] | list[float]) -> float:
     return float(np.linalg.norm(a - b))
 
 
-def leaf_transform(region: tuple[float, ...] | list[float], base: float = 0.0) -> list[float]:
+def leaf_frame(region: tuple[float, ...] | list[float], base: float = 0.0) -> np.ndarray:
+    """4×4 matrix from the tile's east-north-up frame (origin at its region's centre) to ECEF."""
     lon, lat = region_centre(region)
-    return column_major(enu_to_ecef(lon, lat, base))
+    return enu_to_ecef(lon, lat, base)
 
 
-def build_tileset(records: Iterable[TileRecord], tileset_version: str = "") -> Tileset:
+def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False) -> Tileset:
     by_key = {(r.level, r.x, r.y): r for r in records}
     if (0, 0, 0) not in by_key:
         raise ValueError("no root tile (0, 0, 0): run the tiles stage first")
@@ -97,22 +103,26 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "") -> T
                 children[parent].append((lvl, x, y))
                 break
 
-    def tile(key: tuple[int, int, int]) -> Tile:
+    def tile(key: tuple[int, int, int], parent_world: np.ndarray) -> Tile:
         r = by_key[key]
+        if r.geometric_error is None:
+            raise ValueError(f"tile {key} has no geometric error: run the generalize stage")
         t: Tile = {"boundingVolume": {"region": [float(v) for v in r.region]},
                    "geometricError": float(r.geometric_error)}
-        if r.is_leaf:
+        world = parent_world
+        if r.is_leaf or not single_lod:
             if not r.content_uri:
-                raise ValueError(f"leaf {key} has no content")
+                raise ValueError(f"tile {key} has no content")
             t["content"] = {"uri": r.content_uri}
-            t["transform"] = leaf_transform(r.region)
+            world = leaf_frame(r.region)
+            t["transform"] = column_major(np.linalg.solve(parent_world, world))
         kids = children[key]
         if kids:
-            t["children"] = [tile(k) for k in kids]
+            t["children"] = [tile(k, world) for k in kids]
         return t
 
-    root = tile((0, 0, 0))
-    root["refine"] = "ADD"
+    root = tile((0, 0, 0), np.eye(4))
+    root["refine"] = "ADD" if single_lod else "REPLACE"
     root_region = by_key[(0, 0, 0)].region
     top_error = max(region_diagonal(root_region), float(root["geometricError"]))
     asset = {"version": "1.1", "generator": f"citylod {__version__}"}

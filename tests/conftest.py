@@ -6,8 +6,8 @@
   database is a copy of it (CREATE DATABASE ... TEMPLATE), which takes a fraction of a second.
 * Test databases are dropped at the end unless KEEP_TEST_DB=1; their names are printed so you can
   `psql` into them.
-* ``city(name)`` runs the real pipeline (python -m etl ingest, lod, tiles, export as subprocesses, exactly as
-  make does) on an OSM file once per session and returns its database URL and tileset directory. Tests must
+* ``city(name)`` runs the real pipeline (python -m etl ingest, lod, tiles, generalize, export as subprocesses,
+  exactly as make does) on an OSM file once per session and returns its database URL and tileset directory. Tests must
   treat those databases as read-only; a test that writes makes its own with ``new_db``.
 """
 
@@ -175,6 +175,7 @@ def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
         run_etl(url, "ingest", "--osm", str(osm))
         run_etl(url, "lod")
         run_etl(url, "tiles")
+        run_etl(url, "generalize")
         run_etl(url, "export", "--out", str(tiles))
         cache[name] = City(name, osm, url, tiles)
         return cache[name]

@@ -417,8 +417,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
             cur.execute("DELETE FROM lod.building_mesh WHERE lod = ANY(%s)", (list(LODS),))
         else:
             cur.execute("TRUNCATE lod.building_mesh")
-        # the tile tree was built from the old meshes; keeping it would let export drop or miss buildings
-        cur.execute("TRUNCATE tiles.building_tile, tiles.tile, tiles.grid")
+        # the tile tree and its generalized content were built from the old meshes; keeping them would let
+        # export drop or miss buildings
+        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, tiles.building_tile, tiles.tile, tiles.grid")
         cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
         cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")
         total = cur.execute("SELECT count(*) FROM osm.building").fetchone()[0]  # type: ignore[index]

@@ -15,10 +15,10 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     with conn.transaction():
         conn.execute(
-            "CALL tiles.build_quadtree(%s, %s, %s, %s, %s, %s)",
+            "CALL tiles.build_quadtree(%s, %s, %s, %s, %s)",
             # budgeted on LOD3, the largest mesh of every building, so any exported LOD fits the triangle budget
             (3, settings.tile_max_features, settings.tile_max_triangles, settings.tile_max_level,
-             settings.tile_ge_factor, settings.base_height_m),
+             settings.base_height_m),
         )
         n_tiles, n_leaves, depth = conn.execute(
             "SELECT count(*), count(*) FILTER (WHERE is_leaf), max(level) FROM tiles.tile"

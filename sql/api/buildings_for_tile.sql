@@ -1,13 +1,21 @@
--- api.buildings_for_tile(level, x, y, lod) -> one row per feature (building or part mesh) of a tile
--- What the exporter writes into the tile's glb: the mesh in the working CRS (POLYHEDRALSURFACE Z of
--- triangles, z = metres above ground)
--- and the properties a client shows when a building is picked, at the requested level of detail (1 block,
--- 2 roofs, 3 facades; one LOD for the whole tileset until the LOD hierarchy chooses per tile). Filtered on
--- the tiles.building_tile (level, x, y) index.
+-- api.buildings_for_tile(level, x, y, lod DEFAULT NULL) -> one row per feature of tile (level, x, y)
+-- What the exporter writes into the tile's glb and what api.lod_for_view lists: the features of the tile's
+-- band (gen.level_for_height of its height, tiles.tile.gen_level), one branch per band:
+--   4  leaves: every building and part at LOD3 (lod.building_mesh)
+--   3  LOD2: every building and part at LOD2, decimated where that paid (gen.building_mesh, gen_level 3)
+--   2  LOD1: every building (outline with its parts) as one solid on its simplified footprint (gen_level 2)
+--   1, 0  blocks: gen.block of this tile, plus protected buildings (landmarks) at gen_level 2, never merged
+-- The features below a tile are found on the GiST index of tiles.building_tile.anchor (bbox of the tile's
+-- cell), then exactly by quadtree arithmetic. With lod = 1, 2 or 3 the hierarchy is ignored: leaves give
+-- every building at that LOD and inner tiles nothing (a single-LOD tileset, ADD refinement).
+-- Meshes are POLYHEDRALSURFACE Z in the working CRS, z metres above ground; error_m bounds the distance to
+-- the full-detail LOD3 models. Blocks have osm_type 'B' and osm_id = gen.block.block_id.
 -- Example:
---   SELECT osm_type, osm_id, name, height, n_triangles FROM api.buildings_for_tile(0, 0, 0, 2) ORDER BY height DESC;
-CREATE OR REPLACE FUNCTION api.buildings_for_tile(level integer, x integer, y integer, lod integer DEFAULT 1)
+--   SELECT feature_kind, lod, count(*), sum(n_triangles), max(error_m)
+--   FROM api.buildings_for_tile(0, 0, 0) GROUP BY 1, 2;
+CREATE OR REPLACE FUNCTION api.buildings_for_tile(level integer, x integer, y integer, lod integer DEFAULT NULL)
 RETURNS TABLE (
+    feature_kind      text,
     building_id       bigint,
     osm_type          text,
     osm_id            bigint,
@@ -25,6 +33,9 @@ RETURNS TABLE (
     building_material text,
     roof_material     text,
     lod               smallint,
+    gen_level         smallint,
+    n_members         integer,
+    error_m           real,
     n_triangles       integer,
     roof_height       real,
     semantics         bytea,
@@ -32,20 +43,64 @@ RETURNS TABLE (
 )
 LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
-    SELECT b.id, b.osm_type::text, b.osm_id, b.kind,
-           coalesce(p.osm_type, b.osm_type)::text AS building_osm_type,
-           coalesce(p.osm_id, b.osm_id) AS building_osm_id,
+    WITH t AS (
+        SELECT t.level, t.x, t.y, t.cell, t.is_leaf, t.gen_level FROM tiles.tile t
+        WHERE t.level = $1 AND t.x = $2 AND t.y = $3
+    ), sub AS (
+        SELECT bt.building_id, bt.group_id
+        FROM t JOIN tiles.building_tile bt
+          ON bt.anchor && t.cell AND bt.level >= t.level
+         AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
+    )
+    -- LOD3 at the leaves (or the one LOD asked for)
+    SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
+           coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
            coalesce(b.name, p.name), coalesce(b.building, p.building),
            m.height, m.min_height, b.levels, m.roof_shape,
            b.building_colour, coalesce(b.roof_colour, p.roof_colour),
            coalesce(b.building_material, p.building_material), b.roof_material,
-           m.lod, m.n_triangles, m.roof_height, m.semantics, m.geom
-    FROM tiles.building_tile bt
-    JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = $4
-    JOIN osm.building b ON b.id = bt.building_id
+           m.lod, 4::smallint, 1, 0::real, m.n_triangles, m.roof_height, m.semantics, m.geom
+    FROM t CROSS JOIN sub
+    JOIN lod.building_mesh m ON m.building_id = sub.building_id AND m.lod = coalesce($4, 3)
+    JOIN osm.building b ON b.id = sub.building_id
     LEFT JOIN osm.building p ON p.id = b.parent_id
-    WHERE bt.level = $1 AND bt.x = $2 AND bt.y = $3
-    ORDER BY b.id
+    WHERE CASE WHEN $4 IS NULL THEN t.gen_level = 4 ELSE t.is_leaf END
+    UNION ALL
+    -- LOD2 band: roofs, decimated where it paid
+    SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
+           coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
+           coalesce(b.name, p.name), coalesce(b.building, p.building),
+           m.height, m.min_height, b.levels, m.roof_shape,
+           b.building_colour, coalesce(b.roof_colour, p.roof_colour),
+           coalesce(b.building_material, p.building_material), b.roof_material,
+           2::smallint, 3::smallint, 1, d.total_error_m,
+           coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
+           coalesce(d.geom, m.geom)
+    FROM t CROSS JOIN sub
+    JOIN lod.building_mesh m ON m.building_id = sub.building_id AND m.lod = 2
+    JOIN gen.building_mesh d ON d.building_id = sub.building_id AND d.gen_level = 3
+    JOIN osm.building b ON b.id = sub.building_id
+    LEFT JOIN osm.building p ON p.id = b.parent_id
+    WHERE $4 IS NULL AND t.gen_level = 3
+    UNION ALL
+    -- LOD1 band: each building with its parts as one solid on its simplified footprint; protected
+    -- buildings (landmarks) keep it in the block bands
+    SELECT 'building', b.id, b.osm_type::text, b.osm_id, b.kind, b.osm_type::text, b.osm_id,
+           b.name, b.building, g.height, g.min_height, b.levels, 'flat',
+           b.building_colour, b.roof_colour, b.building_material, b.roof_material,
+           1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom
+    FROM t CROSS JOIN (SELECT DISTINCT sub.group_id FROM sub) s
+    JOIN gen.building_mesh g ON g.building_id = s.group_id AND g.gen_level = 2
+    JOIN osm.building b ON b.id = s.group_id
+    WHERE $4 IS NULL AND (t.gen_level = 2 OR (t.gen_level <= 1 AND b.protected))
+    UNION ALL
+    -- block bands: the tile's aggregated blocks
+    SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,
+           NULL, NULL, k.height, 0::real, NULL, 'flat', NULL, NULL, NULL, NULL,
+           0::smallint, k.gen_level, k.n_members, k.total_error_m, k.n_triangles, 0::real, k.semantics, k.geom
+    FROM gen.block k
+    WHERE $4 IS NULL AND k.level = $1 AND k.x = $2 AND k.y = $3
+    ORDER BY 1, 2
 $$;
 COMMENT ON FUNCTION api.buildings_for_tile(integer, integer, integer, integer) IS
-    'Features of tile (level, x, y) at LOD lod (1-3): mesh (PolyhedralSurface Z, working CRS), per-triangle semantics and properties. Example: SELECT osm_id, name, height FROM api.buildings_for_tile(0, 0, 0, 2);';
+    'Features of tile (level, x, y) at its band (blocks, simplified LOD1, LOD2, LOD3 at the leaves), or every building of a leaf at LOD lod when lod is given: mesh (PolyhedralSurface Z, working CRS), per-triangle semantics, properties, error bound. Example: SELECT feature_kind, lod, count(*) FROM api.buildings_for_tile(0, 0, 0) GROUP BY 1, 2;';

@@ -1,20 +1,21 @@
--- tiles.build_quadtree(lod, max_features, max_triangles, max_level, ge_factor, base_height)
+-- tiles.build_quadtree(lod, max_features, max_triangles, max_level, base_height)
 -- Builds the tile quadtree, budgeted on the meshes of LOD `lod`, set-based, one statement per level:
 --   * features are grouped by building (an outline with its parts) and placed by the centre of the
 --     outline's bounding box, so a building and its parts always share a tile;
 --   * the level-0 cell is the square around all of them in the working CRS; a cell becomes a leaf when it
 --     holds at most max_features meshes and max_triangles triangles, holds a single building, or is at
 --     max_level; otherwise its groups move on to the four cells of the next level;
---   * tiles.tile gets every cell (leaves with a content URI), its 3D Tiles bounding region (extent of the
---     meshes of every LOD below it, heights above the ellipsoid from base_height) and geometric error
---     (0 for leaves, cell edge × ge_factor above); tiles.building_tile gets each mesh's leaf.
--- Example: CALL tiles.build_quadtree(1, 500, 100000, 16, 0.5, 0);
+--   * tiles.tile gets every cell with a content URI, its height above its deepest leaf and the generalization
+--     level of its content (gen.level_for_height), its 3D Tiles bounding region (extent of the meshes of
+--     every LOD below it, heights above the ellipsoid from base_height) and geometric error 0 for leaves;
+--     inner tiles get theirs from the generalize stage (tiles.finish_hierarchy), which measures it;
+--   * tiles.building_tile gets each mesh's leaf, its outline (group) and the anchor point that placed it.
+-- Example: CALL tiles.build_quadtree(3, 500, 100000, 16, 0);
 CREATE OR REPLACE PROCEDURE tiles.build_quadtree(
     lod integer,
     max_features integer,
     max_triangles integer,
     max_level integer,
-    ge_factor double precision,
     base_height double precision
 )
 LANGUAGE plpgsql
@@ -82,14 +83,16 @@ BEGIN
     END LOOP;
 
     -- Leaves: region of their meshes at every LOD (each mesh's working-CRS box, reprojected).
-    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri)
+    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri,
+                            height, gen_level)
     SELECT c.level, c.x, c.y, true, c.nf, c.nt,
            ST_MakeEnvelope(v_ox + c.x * v_size / 2 ^ c.level, v_oy + c.y * v_size / 2 ^ c.level,
                            v_ox + (c.x + 1) * v_size / 2 ^ c.level, v_oy + (c.y + 1) * v_size / 2 ^ c.level, v_srid),
            ARRAY[radians(ST_XMin(e.ext)), radians(ST_YMin(e.ext)), radians(ST_XMax(e.ext)), radians(ST_YMax(e.ext)),
                  base_height + e.zmin, base_height + e.zmax],
            0.0,
-           format('content/%s/%s/%s.glb', c.level, c.x, c.y)
+           format('content/%s/%s/%s.glb', c.level, c.x, c.y),
+           0, gen.level_for_height(0)
     FROM _cell c
     JOIN (
         -- bounds of every LOD's mesh: roofs add height, onion domes and LOD3 openings stand out of the walls
@@ -103,14 +106,16 @@ BEGIN
     WHERE c.is_leaf;
 
     -- Inner tiles: union of the leaves below them (each leaf expanded to all its ancestors).
-    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri)
+    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri,
+                            height, gen_level)
     SELECT a.level, a.x, a.y, false, sum(l.n_features), sum(l.n_triangles),
            ST_MakeEnvelope(v_ox + a.x * v_size / 2 ^ a.level, v_oy + a.y * v_size / 2 ^ a.level,
                            v_ox + (a.x + 1) * v_size / 2 ^ a.level, v_oy + (a.y + 1) * v_size / 2 ^ a.level, v_srid),
            ARRAY[min(l.region[1]), min(l.region[2]), max(l.region[3]), max(l.region[4]),
                  min(l.region[5]), max(l.region[6])],
-           ge_factor * v_size / 2 ^ a.level,
-           NULL
+           NULL,
+           format('content/%s/%s/%s.glb', a.level, a.x, a.y),
+           max(l.level - a.level), gen.level_for_height(max(l.level - a.level))
     FROM tiles.tile l
     CROSS JOIN LATERAL (
         SELECT k AS level, l.x >> (l.level - k) AS x, l.y >> (l.level - k) AS y
@@ -119,13 +124,13 @@ BEGIN
     WHERE l.is_leaf
     GROUP BY a.level, a.x, a.y;
 
-    INSERT INTO tiles.building_tile (building_id, level, x, y)
-    SELECT m.building_id, g.lvl, g.tx, g.ty
+    INSERT INTO tiles.building_tile (building_id, level, x, y, group_id, anchor)
+    SELECT m.building_id, g.lvl, g.tx, g.ty, g.group_id, ST_SetSRID(ST_MakePoint(g.ax, g.ay), v_srid)
     FROM lod.building_mesh m
     JOIN osm.building b ON b.id = m.building_id
     JOIN _grp g ON g.group_id = coalesce(b.parent_id, b.id)
     WHERE m.lod = build_quadtree.lod;
 END
 $$;
-COMMENT ON PROCEDURE tiles.build_quadtree(integer, integer, integer, integer, double precision, double precision) IS
+COMMENT ON PROCEDURE tiles.build_quadtree(integer, integer, integer, integer, double precision) IS
     'Fills tiles.grid, tiles.tile and tiles.building_tile: a quadtree over the meshes of one LOD split by a feature/triangle budget.';

@@ -39,10 +39,9 @@ def test_3d_tiles_tools_parses_the_tileset(city, conn_of, name) -> None:
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
-    n_tiles, n_leaves = conn_of(c.url).execute(
-        "SELECT count(*), count(*) FILTER (WHERE is_leaf) FROM tiles.tile").fetchone()
+    n_tiles = conn_of(c.url).execute("SELECT count(*) FROM tiles.tile").fetchone()[0]
     assert out["tiles"] == n_tiles
-    assert out["contentTypes"] == {"CONTENT_TYPE_GLB": n_leaves} and out["unresolved"] == []
+    assert out["contentTypes"] == {"CONTENT_TYPE_GLB": n_tiles} and out["unresolved"] == []  # REPLACE: all have content
 
 
 def tile_of(conn, building_id: int):
@@ -51,16 +50,28 @@ def tile_of(conn, building_id: int):
            WHERE bt.building_id = %s""", (building_id,)).fetchone()[0]
 
 
-def tile_json(tiles_dir, uri: str) -> dict:
-    def find(t):
+def tile_world(tiles_dir, uri: str) -> np.ndarray:
+    """The 4×4 matrix from the tile's content frame to ECEF: the transforms from the root down, composed."""
+    def find(t, world):
+        if "transform" in t:
+            world = world @ np.array(t["transform"]).reshape(4, 4).T
         if t.get("content", {}).get("uri") == uri:
-            return t
+            return world
         for k in t.get("children", []):
-            if (r := find(k)) is not None:
+            if (r := find(k, world)) is not None:
                 return r
         return None
 
-    return find(json.loads((tiles_dir / "tileset.json").read_text())["root"])
+    return find(json.loads((tiles_dir / "tileset.json").read_text())["root"], np.eye(4))
+
+
+@pytest.fixture(scope="module")
+def lod2(city, tmp_path_factory):
+    """The fixtures city exported at LOD2 alone: every vertex a footprint corner at the bottom or the top."""
+    c = city("fixtures")
+    out = tmp_path_factory.mktemp("lod2") / "ts"
+    run_etl(c.url, "export", "--out", str(out), "--lod", "2")
+    return c.url, out
 
 
 def feature_vertices(tiles_dir, uri: str, osm_id: int):
@@ -80,7 +91,7 @@ def assert_placed(conn, tiles_dir, base: float = 0.0) -> float:
     for osm_id, bottom, top in ((10001, 0.0, 12.0), (11001, 0.0, 12.0), (13003, 5.0, 20.0)):
         uri = tile_of(conn, osm_id)
         verts, props = feature_vertices(tiles_dir, uri, osm_id)
-        m = np.array(tile_json(tiles_dir, uri)["transform"]).reshape(4, 4).T
+        m = tile_world(tiles_dir, uri)
         ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
         truth = np.array(conn.execute(
             """SELECT ST_X(p), ST_Y(p), ST_Z(p) FROM (
@@ -96,9 +107,9 @@ def assert_placed(conn, tiles_dir, base: float = 0.0) -> float:
     return worst
 
 
-def test_building_sits_at_its_place_on_the_globe(city, conn_of) -> None:
-    c = city("fixtures")
-    assert_placed(conn_of(c.url), c.tiles)
+def test_building_sits_at_its_place_on_the_globe(lod2, conn_of) -> None:
+    url, tiles = lod2
+    assert_placed(conn_of(url), tiles)
 
 
 def test_base_height_lifts_content_and_regions_alike(city, new_db, conn_of, tmp_path) -> None:
@@ -107,7 +118,8 @@ def test_base_height_lifts_content_and_regions_alike(city, new_db, conn_of, tmp_
     run_etl(url, "ingest", "--osm", str(city("fixtures").osm))
     run_etl(url, "lod")
     run_etl(url, "tiles", env=env)
-    run_etl(url, "export", "--out", str(tmp_path / "ts"), env=env)
+    run_etl(url, "generalize", env=env)
+    run_etl(url, "export", "--out", str(tmp_path / "ts"), "--lod", "2", env=env)
     conn = conn_of(url)
     assert_placed(conn, tmp_path / "ts", base=100.0)
     lo, hi = conn.execute("SELECT min(region[5]), max(region[6]) FROM tiles.tile").fetchone()
@@ -119,8 +131,8 @@ def test_feature_metadata(city, conn_of) -> None:
     c = city("fixtures")
     conn = conn_of(c.url)
     _, sq = feature_vertices(c.tiles, tile_of(conn, 10001), 10001)
-    assert (sq["name"], sq["osm_type"], sq["kind"], sq["height"], sq["min_height"], sq["lod"]) == (
-        "Square 100", "way", "building", 12.0, 0.0, 2)  # export defaults to LOD2
+    assert (sq["name"], sq["osm_type"], sq["kind"], sq["height"], sq["min_height"], sq["lod"], sq["gen_level"],
+            sq["n_members"], sq["error_m"]) == ("Square 100", "way", "building", 12.0, 0.0, 3, 4, 1, 0.0)  # a leaf
     _, part = feature_vertices(c.tiles, tile_of(conn, 13003), 13003)
     assert (part["kind"], part["building_osm_id"], part["building_osm_type"], part["min_height"], part["height"]) == (
         "part", 13001, "way", 5.0, 20.0)
@@ -138,18 +150,18 @@ def test_triangle_counts_and_run_record(city, conn_of) -> None:
         prim = gltf["meshes"][0]["primitives"][0]
         total += gltf["accessors"][prim["indices"]]["count"] // 3
         assert gltf["asset"]["copyright"].startswith("© OpenStreetMap contributors")
-    stored = conn.execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = 2").fetchone()[0]
+    stored, features = conn.execute(
+        "SELECT sum(content_triangles)::bigint, sum(content_features)::bigint FROM tiles.tile").fetchone()
     assert 0.99 * stored <= total <= stored  # only zero-area triangles are dropped
     counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' AND status = 'ok'").fetchone()[0]
-    assert counts["triangles"] == total
-    assert counts["features"] == conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 2").fetchone()[0]
+    assert counts["triangles"] == total and counts["features"] == features
     ts = json.loads((c.tiles / "tileset.json").read_text())
     assert ts["asset"]["version"] == "1.1" and ts["extras"]["copyright"].startswith("©")
 
 
 def test_export_never_deletes_a_foreign_directory(city, new_db, tmp_path) -> None:
     url = new_db("export_foreign")  # its own database: the shared city databases are read-only
-    for stage in (("ingest", "--osm", str(city("fixtures").osm)), ("lod",), ("tiles",)):
+    for stage in (("ingest", "--osm", str(city("fixtures").osm)), ("lod",), ("tiles",), ("generalize",)):
         run_etl(url, *stage)
     victim = tmp_path / "notes"
     victim.mkdir()
@@ -171,18 +183,22 @@ def test_stale_tiles_are_refused(city, new_db, tmp_path) -> None:
     run_etl(url, "ingest", "--osm", str(city("fixtures").osm))
     run_etl(url, "lod")
     run_etl(url, "tiles")
+    proc = run_etl(url, "export", "--out", str(tmp_path / "ts"), check=False)
+    assert proc.returncode != 0 and "run the generalize stage" in proc.stderr
+    run_etl(url, "generalize")
     with psycopg.connect(url, autocommit=True) as conn:  # a mesh gone behind the tiles' back
-        conn.execute("DELETE FROM lod.building_mesh WHERE building_id = 10001 AND lod = 2")
+        conn.execute("DELETE FROM lod.building_mesh WHERE building_id = 10001 AND lod = 3")
     proc = run_etl(url, "export", "--out", str(tmp_path / "ts"), check=False)
     assert proc.returncode != 0 and "tiles are stale" in proc.stderr
     run_etl(url, "lod")  # a new lod run empties the tiles
     proc = run_etl(url, "export", "--out", str(tmp_path / "ts"), check=False)
     assert proc.returncode != 0 and "run the tiles stage" in proc.stderr
     run_etl(url, "tiles")
+    run_etl(url, "generalize")
     run_etl(url, "export", "--out", str(tmp_path / "ts"))
 
 
-def test_placement_against_the_osm_file_itself(city, conn_of) -> None:
+def test_placement_against_the_osm_file_itself(lod2, conn_of) -> None:
     """Independent of PostGIS/PROJ: exported vertices, through the tile transform and our own ECEF->geodetic,
     must land on the fixture's node coordinates (as written in the .osm file) at the tagged heights."""
     import math
@@ -193,10 +209,10 @@ def test_placement_against_the_osm_file_itself(city, conn_of) -> None:
 
     root = ET.parse(FIXTURES / "100_square.osm").getroot()
     nodes = np.array([(float(n.get("lon")), float(n.get("lat"))) for n in root.iter("node")])
-    c = city("fixtures")
-    uri = tile_of(conn_of(c.url), 10001)
-    verts, _ = feature_vertices(c.tiles, uri, 10001)
-    m = np.array(tile_json(c.tiles, uri)["transform"]).reshape(4, 4).T
+    url, tiles = lod2
+    uri = tile_of(conn_of(url), 10001)
+    verts, _ = feature_vertices(tiles, uri, 10001)
+    m = tile_world(tiles, uri)
     ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
     lon, lat, h = ecef_to_geodetic(ecef).T
     lonlat = np.degrees(np.c_[lon, lat])

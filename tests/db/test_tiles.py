@@ -75,14 +75,14 @@ def test_every_leaf_has_its_parents(small_budget, conn_of) -> None:
     assert orphans == []
 
 
-def test_regions_nest_and_errors_halve(small_budget, conn_of) -> None:
+def test_regions_nest_and_errors_wait_for_generalize(small_budget, conn_of) -> None:
     conn = conn_of(small_budget)
     tiles = {(lv, x, y): (leaf, reg, ge) for lv, x, y, leaf, reg, ge in conn.execute(
         "SELECT level, x, y, is_leaf, region, geometric_error FROM tiles.tile")}
-    size = conn.execute("SELECT size FROM tiles.grid").fetchone()[0]
     for (lv, x, y), (leaf, reg, ge) in tiles.items():
         assert reg[0] <= reg[2] and reg[1] <= reg[3] and reg[4] < reg[5]
-        assert ge == (0.0 if leaf else pytest.approx(0.5 * size / 2**lv))
+        # no rule of thumb: inner tiles get the error generalize measures, leaves are exact
+        assert ge == (0.0 if leaf else None)
         if lv:
             p = tiles[(lv - 1, x // 2, y // 2)][1]
             assert p[0] <= reg[0] and p[1] <= reg[1] and reg[2] <= p[2] and reg[3] <= p[3]

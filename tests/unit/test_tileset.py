@@ -21,18 +21,17 @@ def records() -> list[TileRecord]:
     a = (D(24.90), D(60.10), D(24.95), D(60.20), 0.0, 60.0)
     b = (D(24.95), D(60.12), D(25.00), D(60.20), 0.0, 30.0)
     return [
-        TileRecord(0, 0, 0, False, root, 500.0, None),
+        TileRecord(0, 0, 0, False, root, 500.0, "content/0/0/0.glb"),
         TileRecord(1, 0, 0, True, a, 0.0, "content/1/0/0.glb"),
         TileRecord(1, 1, 0, True, b, 0.0, "content/1/1/0.glb"),
     ]
 
 
 def write(tmp_path, ts) -> object:
-    (tmp_path / "content/1/0").mkdir(parents=True, exist_ok=True)
-    (tmp_path / "content/1/1").mkdir(parents=True, exist_ok=True)
     glb = write_glb(cube_primitive())
-    (tmp_path / "content/1/0/0.glb").write_bytes(glb)
-    (tmp_path / "content/1/1/0.glb").write_bytes(glb)
+    for uri in ("content/0/0/0.glb", "content/1/0/0.glb", "content/1/1/0.glb"):
+        (tmp_path / uri).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / uri).write_bytes(glb)
     p = tmp_path / "tileset.json"
     p.write_text(json.dumps(ts))
     return p
@@ -49,14 +48,37 @@ def test_geodesy_roundtrip_and_enu() -> None:
     assert column_major(m)[12:15] == pytest.approx(list(m[:3, 3]))
 
 
+def world(m: list[float]) -> np.ndarray:
+    return np.array(m, float).reshape(4, 4).T
+
+
 def test_build_and_check(tmp_path) -> None:
     ts = build_tileset(records())
     assert ts["asset"]["version"] == "1.1"
-    assert ts["root"]["refine"] == "ADD"
+    assert ts["root"]["refine"] == "REPLACE"
     assert len(ts["root"]["children"]) == 2
-    assert "content" not in ts["root"] and all("content" in c and "transform" in c for c in ts["root"]["children"])
+    assert all("content" in t and "transform" in t for t in [ts["root"], *ts["root"]["children"]])
     assert ts["geometricError"] >= region_diagonal(records()[0].region)
     assert check_tileset(write(tmp_path, ts)) == []
+    # transforms compose down the tree: parent frame × child transform = the child's own ENU frame
+    root = world(ts["root"]["transform"])
+    for child, rec in zip(ts["root"]["children"], records()[1:], strict=True):
+        lon, lat = (rec.region[0] + rec.region[2]) / 2, (rec.region[1] + rec.region[3]) / 2
+        assert np.allclose(root @ world(child["transform"]), enu_to_ecef(lon, lat, 0.0), atol=1e-6)
+
+
+def test_single_lod_is_add_with_leaf_content(tmp_path) -> None:
+    ts = build_tileset(records(), single_lod=True)
+    assert ts["root"]["refine"] == "ADD" and "content" not in ts["root"] and "transform" not in ts["root"]
+    assert all("content" in c for c in ts["root"]["children"])
+    assert check_tileset(write(tmp_path, ts)) == []
+
+
+def test_unmeasured_error_refused() -> None:
+    recs = records()
+    recs[0] = TileRecord(0, 0, 0, False, recs[0].region, None, "content/0/0/0.glb")
+    with pytest.raises(ValueError, match="generalize"):
+        build_tileset(recs)
 
 
 @pytest.mark.parametrize(

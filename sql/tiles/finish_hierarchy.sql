@@ -1,0 +1,54 @@
+-- tiles.finish_hierarchy(base_height)
+-- Completes the tile hierarchy once the generalize stage has filled gen.*: for every tile, its own content
+-- (api.buildings_for_tile, exactly what the exporter writes) gives content_features, content_triangles and
+-- content_error_m (the largest error bound of its features) and widens its region to the generalized meshes
+-- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
+-- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
+-- (so it never grows downwards) and its region the union with its children's.
+-- Example: CALL tiles.finish_hierarchy(0);
+CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision)
+LANGUAGE plpgsql
+AS $$
+DECLARE
+    v_level integer;
+BEGIN
+    CREATE TEMP TABLE _content ON COMMIT DROP AS
+    SELECT t.level, t.x, t.y, count(f.building_id)::integer AS nf, coalesce(sum(f.n_triangles), 0)::bigint AS nt,
+           coalesce(max(f.error_m), 0)::double precision AS err,
+           ST_Extent(ST_Transform(ST_Envelope(f.geom), 4326))::box2d AS ext,
+           min(f.min_height) AS zmin, max(f.height) AS zmax
+    FROM tiles.tile t
+    CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
+    GROUP BY t.level, t.x, t.y;
+
+    UPDATE tiles.tile t
+    SET content_features = c.nf, content_triangles = c.nt, content_error_m = CASE WHEN t.is_leaf THEN 0 ELSE c.err END,
+        geometric_error = CASE WHEN t.is_leaf THEN 0 ELSE c.err END,
+        region = ARRAY[least(t.region[1], radians(ST_XMin(c.ext))), least(t.region[2], radians(ST_YMin(c.ext))),
+                       greatest(t.region[3], radians(ST_XMax(c.ext))), greatest(t.region[4], radians(ST_YMax(c.ext))),
+                       least(t.region[5], base_height + c.zmin), greatest(t.region[6], base_height + c.zmax)]
+    FROM _content c
+    WHERE c.level = t.level AND c.x = t.x AND c.y = t.y;
+
+    IF EXISTS (SELECT 1 FROM tiles.tile WHERE content_features IS NULL OR content_features = 0) THEN
+        RAISE EXCEPTION 'tiles without content: run the generalize stage after the tiles stage';
+    END IF;
+
+    FOR v_level IN SELECT DISTINCT t.level FROM tiles.tile t WHERE NOT t.is_leaf ORDER BY 1 DESC LOOP
+        UPDATE tiles.tile p
+        SET geometric_error = greatest(p.geometric_error, k.ge),
+            region = ARRAY[least(p.region[1], k.w), least(p.region[2], k.s), greatest(p.region[3], k.e),
+                           greatest(p.region[4], k.n), least(p.region[5], k.lo), greatest(p.region[6], k.hi)]
+        FROM (
+            SELECT c.x >> 1 AS px, c.y >> 1 AS py, max(c.geometric_error) AS ge,
+                   min(c.region[1]) AS w, min(c.region[2]) AS s, max(c.region[3]) AS e, max(c.region[4]) AS n,
+                   min(c.region[5]) AS lo, max(c.region[6]) AS hi
+            FROM tiles.tile c WHERE c.level = v_level + 1
+            GROUP BY 1, 2
+        ) k
+        WHERE p.level = v_level AND p.x = k.px AND p.y = k.py;
+    END LOOP;
+END
+$$;
+COMMENT ON PROCEDURE tiles.finish_hierarchy(double precision) IS
+    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile from the generalized content. Run by the generalize stage.';

@@ -1,0 +1,243 @@
+"""Stage generalize and the multi-LOD hierarchy on real data (Munich with a small tile budget, so the tree has
+every band): each tile stands for every building below it exactly once, blocks merge what is close and nothing
+else, footprints stay valid and close, errors are measured and grow towards the root, and api.lod_for_view
+chooses exactly what a 3D Tiles client traversing the exported tileset.json chooses."""
+
+import json
+import math
+
+import pytest
+
+from exporter.checks import check_tileset
+from exporter.traverse import Camera, select
+from tests.conftest import run_etl
+
+BUDGET = {"CITYLOD_TILE_MAX_FEATURES": "40", "CITYLOD_TILE_MAX_TRIANGLES": "4000"}
+
+
+@pytest.fixture(scope="module")
+def deep(city, new_db, tmp_path_factory):
+    """Munich with 40 features per leaf: a tree deep enough for blocks, LOD1, LOD2 and LOD3 bands."""
+    src = city("munich")
+    url = new_db("gen_deep")
+    out = tmp_path_factory.mktemp("gen") / "tiles"
+    run_etl(url, "ingest", "--osm", str(src.osm))
+    run_etl(url, "lod")
+    run_etl(url, "tiles", env=BUDGET)
+    run_etl(url, "generalize")
+    run_etl(url, "export", "--out", str(out))
+    return url, out
+
+
+def test_every_band_is_present(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    bands = dict(conn.execute("SELECT gen_level, count(*) FROM tiles.tile GROUP BY 1").fetchall())
+    assert set(bands) == {0, 1, 2, 3, 4}, bands
+    wrong = conn.execute(
+        "SELECT count(*) FROM tiles.tile WHERE gen_level <> gen.level_for_height(height) OR (is_leaf <> (height = 0))"
+    ).fetchone()[0]
+    assert wrong == 0
+    lods = dict(conn.execute(
+        """SELECT t.gen_level, array_agg(DISTINCT f.lod) FROM tiles.tile t
+           CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f GROUP BY 1""").fetchall())
+    assert lods == {0: [0, 1], 1: [0, 1], 2: [1], 3: [2], 4: [3]} or lods == {0: [0], 1: [0], 2: [1], 3: [2], 4: [3]}
+
+
+def test_each_tile_draws_each_building_below_it_once(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    # the osm outline ids a tile stands for (blocks through their members) = the buildings below it
+    bad = conn.execute(
+        """WITH drawn AS (
+               SELECT t.level, t.x, t.y, coalesce(m.member, b.id) AS group_id
+               FROM tiles.tile t
+               CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
+               LEFT JOIN gen.block k ON f.feature_kind = 'block' AND k.block_id = f.building_id
+               LEFT JOIN LATERAL unnest(k.members) m(member) ON true
+               LEFT JOIN osm.building b ON f.feature_kind <> 'block' AND b.id = f.building_id
+           ), want AS (
+               SELECT DISTINCT t.level, t.x, t.y, bt.group_id
+               FROM tiles.tile t JOIN tiles.building_tile bt
+                 ON bt.level >= t.level AND bt.x >> (bt.level - t.level) = t.x AND bt.y >> (bt.level - t.level) = t.y
+           ), got AS (
+               SELECT d.level, d.x, d.y, coalesce(o.parent_id, o.id) AS group_id, count(*) AS n
+               FROM drawn d JOIN osm.building o ON o.id = d.group_id
+               JOIN tiles.tile t USING (level, x, y)
+               WHERE t.gen_level <= 2
+               GROUP BY 1, 2, 3, 4
+           )
+           SELECT * FROM want w FULL JOIN got g USING (level, x, y, group_id)
+           JOIN tiles.tile t USING (level, x, y)
+           WHERE t.gen_level <= 2 AND (w.group_id IS NULL OR g.group_id IS NULL OR g.n <> 1)
+           LIMIT 5"""
+    ).fetchall()
+    assert bad == []
+    # LOD2 and LOD3 bands: every feature (building or part) below the tile once
+    bad = conn.execute(
+        """SELECT t.level, t.x, t.y FROM tiles.tile t
+           WHERE t.gen_level >= 3 AND t.content_features <> t.n_features""").fetchall()
+    assert bad == []
+
+
+def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    n_blocks, multi = conn.execute(
+        "SELECT count(*), count(*) FILTER (WHERE n_members > 1) FROM gen.block").fetchone()
+    assert multi > 20 and n_blocks > multi
+    assert conn.execute("SELECT count(*) FROM gen.block WHERE n_members <> cardinality(members)").fetchone()[0] == 0
+    # no two buildings of different blocks in one tile are within the band's distance (else one cluster)
+    close = conn.execute(
+        """SELECT a.block_id, b.block_id FROM gen.block a
+           JOIN gen.block b ON (a.level, a.x, a.y) = (b.level, b.x, b.y) AND a.block_id < b.block_id
+           JOIN gen.footprint fa ON fa.building_id = ANY(a.members)
+           JOIN gen.footprint fb ON fb.building_id = ANY(b.members)
+           WHERE ST_DWithin(fa.geom, fb.geom, gen.tolerance(a.gen_level) * 0.999)
+           LIMIT 3""").fetchall()
+    assert close == []
+    # members of one block are chained by gaps of at most the distance: the block covers its members
+    uncovered = conn.execute(
+        """SELECT k.block_id FROM gen.block k JOIN gen.footprint f ON f.building_id = ANY(k.members)
+           WHERE k.n_members > 1
+             AND ST_Area(ST_Difference(f.geom, ST_Buffer(k.footprint, gen.tolerance(k.gen_level)))) > 1
+           LIMIT 3""").fetchall()
+    assert uncovered == []
+    # height is the members' area-weighted height
+    off = conn.execute(
+        """SELECT k.block_id, k.height, sum(g.height * ST_Area(f.geom)) / sum(ST_Area(f.geom)) FROM gen.block k
+           JOIN gen.footprint f ON f.building_id = ANY(k.members)
+           JOIN gen.building_mesh g ON g.building_id = f.building_id AND g.gen_level = 2
+           GROUP BY k.block_id, k.height
+           HAVING abs(k.height - sum(g.height * ST_Area(f.geom)) / sum(ST_Area(f.geom))) > 0.01""").fetchall()
+    assert off == []
+
+
+def test_footprints_are_valid_close_and_smaller(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    row = conn.execute(
+        """SELECT count(*), count(*) FILTER (WHERE NOT ST_IsValid(geom)),
+                  count(*) FILTER (WHERE status LIKE 'kept_original%%'
+                                   AND abs(area_out_m2 - area_in_m2) > 0.1 * area_in_m2
+                                   OR status NOT LIKE 'kept_original%%'
+                                   AND abs(area_out_m2 - area_in_m2) > 0.1 * area_in_m2 + 1e-6),
+                  sum(n_vertices_in), sum(n_vertices_out), max(error_m), max(tolerance_m)
+           FROM gen.footprint""").fetchone()
+    n, invalid, area_off, v_in, v_out, worst, tol = row
+    assert n > 1000 and invalid == 0 and area_off == 0
+    assert v_out < 0.85 * v_in  # Munich's old town outlines lose more than 15 % of their vertices at 2.5 m
+    assert 0 < worst <= 2 * tol  # measured, and of the order of the tolerance
+    # the stored error is the Hausdorff distance PostGIS measures between the outlines
+    diff = conn.execute(
+        """SELECT max(abs(f.error_m - ST_HausdorffDistance(ST_Boundary(b.geom_local), ST_Boundary(f.geom), 0.05)))
+           FROM gen.footprint f JOIN osm.building b ON b.id = f.building_id""").fetchone()[0]
+    assert diff < 0.05
+
+
+def test_decimation_within_tolerance(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    n, worst, saved = conn.execute(
+        """SELECT count(*), max(error_m), sum(n_triangles_in - n_triangles) FROM gen.building_mesh
+           WHERE gen_level = 3 AND geom IS NOT NULL""").fetchone()
+    assert n > 0 and worst <= conn.execute("SELECT gen.tolerance(3)").fetchone()[0] and saved > 0
+    assert conn.execute(
+        """SELECT count(*) FROM gen.building_mesh
+           WHERE gen_level = 3 AND geom IS NOT NULL AND n_triangles >= n_triangles_in""").fetchone()[0] == 0
+    # every feature has its LOD2-band row, decimated or not
+    assert conn.execute(
+        """SELECT count(*) FROM tiles.building_tile bt LEFT JOIN gen.building_mesh g
+           ON g.building_id = bt.building_id AND g.gen_level = 3 WHERE g.building_id IS NULL""").fetchone()[0] == 0
+
+
+def test_geometric_error_is_measured_and_monotone(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    rows = {(lv, x, y): (leaf, ge, ce) for lv, x, y, leaf, ge, ce in conn.execute(
+        "SELECT level, x, y, is_leaf, geometric_error, content_error_m FROM tiles.tile")}
+    for (lv, x, y), (leaf, ge, ce) in rows.items():
+        if leaf:
+            assert ge == 0 and ce == 0
+        else:
+            assert ge >= ce > 0
+            kids = [rows[k][1] for k in ((lv + 1, 2 * x + i, 2 * y + j) for i in (0, 1) for j in (0, 1)) if k in rows]
+            assert kids and ge == pytest.approx(max(ce, *kids))
+    # the coarsest band carries the 10 m aggregation and more; LOD2 tiles are near-exact
+    by_band = dict(conn.execute("SELECT gen_level, max(content_error_m) FROM tiles.tile GROUP BY 1").fetchall())
+    assert by_band[0] > by_band[2] > by_band[3] > 0 and by_band[4] == 0
+
+
+def test_tileset_is_replace_with_content_everywhere(deep) -> None:
+    ts_path = deep[1] / "tileset.json"
+    assert check_tileset(ts_path) == []
+    ts = json.loads(ts_path.read_text())
+    assert ts["root"]["refine"] == "REPLACE"
+
+    def walk(t):
+        yield t
+        for k in t.get("children", []):
+            yield from walk(k)
+
+    assert all("content" in t for t in walk(ts["root"]))
+
+
+def test_protected_buildings_are_never_merged(deep, conn_of, new_db) -> None:
+    conn = conn_of(deep[0])
+    bid = conn.execute(
+        "SELECT members[1] FROM gen.block WHERE n_members > 3 ORDER BY block_id LIMIT 1").fetchone()[0]
+    conn.execute("UPDATE osm.building SET protected = true WHERE id = %s", (bid,))
+    try:
+        run_etl(deep[0], "generalize")
+        assert conn.execute("SELECT count(*) FROM gen.block WHERE %s = ANY(members)", (bid,)).fetchone()[0] == 0
+        bands = conn.execute(
+            """SELECT DISTINCT t.gen_level, f.lod FROM tiles.tile t
+               CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
+               WHERE f.feature_kind <> 'block' AND f.building_id = %s AND t.gen_level <= 2""", (bid,)).fetchall()
+        assert {b for b, _ in bands} == {0, 1, 2} and {lod for _, lod in bands} == {1}
+    finally:
+        conn.execute("UPDATE osm.building SET protected = false WHERE id = %s", (bid,))
+        run_etl(deep[0], "generalize")
+
+
+CAMERAS = [
+    Camera(11.575, 48.137, 30_000, 0, -90),  # the whole old town from far above
+    Camera(11.575, 48.137, 3_000, 0, -90),
+    Camera(11.575, 48.137, 800, 30, -45),
+    Camera(11.572, 48.136, 150, 120, -20),  # street level, oblique
+    Camera(11.58, 48.14, 400, 250, -60),
+    Camera(11.575, 48.122, 1_500, 0, -30, fov=40, viewport_height=720, aspect=1.0),  # 1.7 km south, looking north
+]
+
+
+@pytest.mark.parametrize("cam", CAMERAS, ids=lambda c: f"{c.height:g}m{c.heading:g}h{c.pitch:g}p")
+def test_lod_for_view_agrees_with_the_tileset_traversal(deep, conn_of, cam) -> None:
+    conn = conn_of(deep[0])
+    ts = json.loads((deep[1] / "tileset.json").read_text())
+    want = {d.uri: d.sse for d in select(ts, cam)}
+    rows = conn.execute(
+        """SELECT DISTINCT format('content/%%s/%%s/%%s.glb', level, x, y), screen_space_error
+           FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, 16, %s)""",
+        (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov, cam.viewport_height, cam.aspect),
+    ).fetchall()
+    got = dict(rows)
+    assert want, "the camera sees nothing: a useless test camera"
+    assert set(got) == set(want)
+    for uri, sse in want.items():
+        assert got[uri] == pytest.approx(sse, rel=1e-6, abs=1e-9)
+
+
+def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    far, near = CAMERAS[0], CAMERAS[3]
+
+    def view(cam):
+        return conn.execute(
+            """SELECT v.lod, count(*), sum(f.n_triangles) FROM api.lod_for_view(
+                   ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s) v
+               CROSS JOIN LATERAL (SELECT n_triangles FROM api.buildings_for_tile(v.level, v.x, v.y) b
+                                   WHERE b.feature_kind = v.feature_kind AND b.building_id = v.feature_id) f
+               GROUP BY v.lod""", (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov,
+                                   cam.viewport_height)).fetchall()
+
+    far_lods = {lod for lod, *_ in view(far)}
+    assert far_lods <= {0, 1}
+    assert 3 in {lod for lod, *_ in view(near)}
+    far_tris = sum(t for *_, t in view(far))
+    all_lod3 = conn.execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = 3").fetchone()[0]
+    assert far_tris * 5 <= all_lod3
+    assert math.isfinite(far_tris)
