@@ -17,7 +17,7 @@ SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
 .PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod tiles generalize export serve demo test \
-        test-unit bench lint clean distclean
+        test-unit bench report-generalization lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -100,6 +100,9 @@ lint: $(SETUP_PY) ## ruff
 bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md
 	scripts/install-system.sh bench
 	$(PY) -m benchmarks.bench --write BENCHMARKS.md
+
+report-generalization: $(SETUP_PY) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
+	$(PY) -m benchmarks.report_generalization --out build/reports $(if $(EXTRACTS),--extracts $(EXTRACTS))
 
 clean: ## remove build outputs (keeps the database, venv and downloads)
 	rm -rf build .pytest_cache .ruff_cache

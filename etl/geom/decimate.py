@@ -105,12 +105,23 @@ def decimate(triangles: np.ndarray, owner: np.ndarray, n: int, target_reduction:
     _, replay_faces, mapping = fast_simplification.replay_simplification(points, faces, collapses)
     if not np.array_equal(replay_faces, out_faces):
         raise RuntimeError("fast_simplification replay disagrees with the simplification")
-    out_owner_v = np.full(len(out_pts), -1, dtype=np.int64)
-    hit = mapping >= 0
-    out_owner_v[mapping[hit]] = v_owner[hit]
+    # Every collapse (kept, removed) drops its second vertex and the output keeps the others in order, so output
+    # vertex k is the k-th survivor and has its owner. (The replay mapping alone is ambiguous: a mesh that
+    # collapses entirely maps its vertices onto an index another mesh keeps.)
+    survivor = np.ones(len(points), dtype=bool)
+    survivor[np.asarray(collapses, dtype=np.int64).reshape(-1, 2)[:, 1]] = False
+    if survivor.sum() == len(out_pts):
+        out_owner_v = v_owner[survivor]
+    else:
+        out_owner_v = np.full(len(out_pts), -1, dtype=np.int64)
+        hit = mapping >= 0
+        out_owner_v[mapping[hit]] = v_owner[hit]
     f_owner = out_owner_v[out_faces]
-    if np.any(f_owner[:, 0] < 0) or np.any(f_owner != f_owner[:, :1]):
-        raise RuntimeError("a decimated triangle spans owners")
+    mixed = np.any(f_owner[:, 0] < 0) | np.any(f_owner != f_owner[:, :1])
+    if mixed:
+        # never seen with the survivor rule; should it happen, the batch keeps its originals, not the run
+        status[eligible] = "kept: decimation mixed meshes"
+        return Decimated(tri, own, done, error, status)
     f_vid, f_owner = _tidy(out_pts, out_owner_v, out_faces, f_owner[:, 0])
     f_order = np.argsort(f_owner, kind="stable")
     f_owner = f_owner[f_order]

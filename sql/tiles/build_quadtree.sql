@@ -92,7 +92,7 @@ BEGIN
                  base_height + e.zmin, base_height + e.zmax],
            0.0,
            format('content/%s/%s/%s.glb', c.level, c.x, c.y),
-           0, gen.level_for_height(0)
+           0, 4
     FROM _cell c
     JOIN (
         -- bounds of every LOD's mesh: roofs add height, onion domes and LOD3 openings stand out of the walls
@@ -115,7 +115,7 @@ BEGIN
                  min(l.region[5]), max(l.region[6])],
            NULL,
            format('content/%s/%s/%s.glb', a.level, a.x, a.y),
-           max(l.level - a.level), gen.level_for_height(max(l.level - a.level))
+           max(l.level - a.level), NULL
     FROM tiles.tile l
     CROSS JOIN LATERAL (
         SELECT k AS level, l.x >> (l.level - k) AS x, l.y >> (l.level - k) AS y
@@ -123,6 +123,8 @@ BEGIN
     ) a
     WHERE l.is_leaf
     GROUP BY a.level, a.x, a.y;
+
+    UPDATE tiles.tile SET gen_level = gen.level_for_height(height, (SELECT r.height FROM tiles.tile r WHERE r.level = 0));
 
     INSERT INTO tiles.building_tile (building_id, level, x, y, group_id, anchor)
     SELECT m.building_id, g.lvl, g.tx, g.ty, g.group_id, ST_SetSRID(ST_MakePoint(g.ax, g.ay), v_srid)

@@ -10,8 +10,8 @@ from tests.conftest import REPO
 QUERIES = re.findall(r"```sql\n(.*?)```", (REPO / "README.md").read_text(), flags=re.S)
 
 
-def test_readme_has_the_eight_queries() -> None:
-    assert len(QUERIES) == 8
+def test_readme_has_the_eleven_queries() -> None:
+    assert len(QUERIES) == 11
 
 
 @pytest.fixture(scope="module")
@@ -87,3 +87,24 @@ def test_volume_by_lod(munich) -> None:
 def test_building_diagnostic_view(munich) -> None:
     got = {(r[0], r[1]): r[2] for r in munich.execute(QUERIES[7]).fetchall()}
     assert got[("unknown_roof_shape", False)] >= 1  # roof:shape=many
+
+
+def test_bands(munich) -> None:
+    rows = munich.execute(QUERIES[8]).fetchall()
+    assert [r[0] for r in rows] == sorted(r[0] for r in rows) and rows[-1][0] == 4  # leaves hold LOD3
+    assert rows[-1][5] == 0 and all(r[5] > 0 for r in rows[:-1])  # errors measured above the leaves
+    assert rows[0][1] > rows[-1][1] == 0
+
+
+def test_lod_for_view_query(munich) -> None:
+    # the README camera is over Helsinki: move it over Munich's old town, same view
+    q = QUERIES[9].replace("24.945, 60.165", "11.575, 48.125")
+    rows = munich.execute(q).fetchall()
+    assert rows and all(r[3] <= 16 or r[0] == 3 for r in rows)  # drawn tiles are fine enough, or leaves
+    assert sum(r[1] for r in rows) > 100
+
+
+def test_largest_blocks(munich) -> None:
+    rows = munich.execute(QUERIES[10]).fetchall()
+    assert len(rows) == 10 and rows[0][2] > 1 and rows[0][2] >= rows[-1][2]
+    assert all(len(r[5]) == min(5, r[2]) for r in rows)

@@ -155,3 +155,31 @@ def test_tidy_cancels_folded_fins() -> None:
     canonical = sorted(tuple(np.roll(t, -int(np.argmin(t)))) for t in f.tolist())
     assert canonical == [(0, 1, 2), (0, 1, 3)]
     assert fo.tolist() == [0, 0]
+
+
+def test_meshes_that_collapse_entirely_keep_owners_apart() -> None:
+    """A strong reduction wipes whole small meshes out; their vertices must not hand their owner to another
+    mesh's survivors (the replay mapping alone did: 'a decimated triangle spans owners'). The shapes are the
+    smallest failing batch found on real LOD2 data, rebuilt: two boxes, a slim 16-sided 30 m tower, a hipped
+    house."""
+    tower = trimesh.creation.cylinder(radius=1.3, height=30, sections=16)
+    tower.apply_translation((40, 0, 15))
+    house = trimesh.creation.box((10, 10, 5))
+    roof = trimesh.creation.cone(radius=7, height=2.1, sections=4)
+    roof.apply_translation((0, 0, 2.5))
+    house = trimesh.util.concatenate([house, roof])
+    house.apply_translation((80, 0, 2.5))
+    big = trimesh.creation.box((22.4, 20, 9))
+    small = trimesh.creation.box((12, 18.4, 9))
+    small.apply_translation((120, 0, 0))
+    tris, owners = [], []
+    for k, m in enumerate([big, tower, house, small]):
+        tris.append(m.vertices[m.faces] + np.array([385_000.0, 6_672_000.0, 0.0]))
+        owners.append(np.full(len(m.faces), k))
+    tri, own = np.concatenate(tris), np.concatenate(owners)
+    for reduction in (0.5, 0.75, 0.9):
+        d = decimate(tri, own, 4, reduction, min_triangles=8)
+        for k in np.flatnonzero(d.decimated):
+            mine = d.triangles[d.owner == k].reshape(-1, 3)
+            lo, hi = tri[own == k].reshape(-1, 3).min(axis=0), tri[own == k].reshape(-1, 3).max(axis=0)
+            assert np.all(mine >= lo - d.error[k] - 1e-6) and np.all(mine <= hi + d.error[k] + 1e-6)
