@@ -21,7 +21,7 @@ SETUP_NODE := node_modules/.installed
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
-	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) (DATABASE_URL to use another PostGIS)"
+	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database) (DATABASE_URL to use another PostGIS)"
 
 # --- installation (each step only when something is missing) -----------------------------------------------
 $(SETUP_PY): pyproject.toml constraints.txt
