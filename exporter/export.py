@@ -36,10 +36,10 @@ from .tileset import TileRecord, build_tileset, region_centre
 _FEATURES = """
 SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name, f.building, f.height,
        f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour, f.building_material,
-       f.roof_material, f.lod, f.semantics, ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
+       f.roof_material, f.lod, f.gen_level, f.n_members, f.error_m, f.semantics,
+       ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
 FROM api.buildings_for_tile(%s, %s, %s, %s) f
 """
-_FEATURES = _FEATURES.replace("f.lod, f.semantics", "f.lod, f.gen_level, f.n_members, f.error_m, f.semantics")
 
 OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
 
