@@ -9,8 +9,9 @@
     ends of an edge, so owners never merge, and their overlapping owner-relative coordinates never meet (the
     algorithm has no spatial search). The collapse thresholds rise globally, so the reduction is spent where
     it costs least - coplanar fans of any owner first - rather than the same share of every owner.
-  * ``fast_simplification.replay_simplification`` gives each original vertex its vertex in the result, hence
-    the owner of every output triangle.
+  * owners: following the returned collapses (kept, removed) gives each input vertex its representative; the
+    output vertices are the representatives the surviving faces use, in input order, hence the owner of every
+    output triangle. (The replay mapping is ambiguous when a whole mesh collapses away.)
   * tidy: the simplifier collapses edges without a link-condition check and leaves folded fins (a triangle and
     its mirror image) and vertices moved onto each other; those are undone (``_tidy``), which turns most such
     results back into closed manifolds (an over-tessellated box, for one).
@@ -101,25 +102,27 @@ def decimate(triangles: np.ndarray, owner: np.ndarray, n: int, target_reduction:
     # --- one simplification for the whole batch ---------------------------------------------------------------
     out_pts, out_faces, collapses = fast_simplification.simplify(points, faces, target_reduction=target_reduction,
                                                                  return_collapses=True)
-    # replay's own points are float32: only its vertex numbering is used, which is the numbering of out_pts
-    _, replay_faces, mapping = fast_simplification.replay_simplification(points, faces, collapses)
-    if not np.array_equal(replay_faces, out_faces):
-        raise RuntimeError("fast_simplification replay disagrees with the simplification")
-    # Every collapse (kept, removed) drops its second vertex and the output keeps the others in order, so output
-    # vertex k is the k-th survivor and has its owner. (The replay mapping alone is ambiguous: a mesh that
-    # collapses entirely maps its vertices onto an index another mesh keeps.)
-    survivor = np.ones(len(points), dtype=bool)
-    survivor[np.asarray(collapses, dtype=np.int64).reshape(-1, 2)[:, 1]] = False
-    if survivor.sum() == len(out_pts):
-        out_owner_v = v_owner[survivor]
+    # Each collapse (kept, removed) merges its second vertex into its first. Following the merges gives every
+    # input vertex its final representative; the faces whose three representatives differ are the output
+    # faces, and the output keeps exactly the representatives those faces use, in input order. So output
+    # vertex k is the k-th of them and has its owner. (fast_simplification's replay mapping is ambiguous
+    # here: a mesh that collapses entirely maps its vertices onto an index another mesh keeps.)
+    pairs = np.asarray(collapses, dtype=np.int64).reshape(-1, 2)
+    rep = np.arange(len(points))
+    rep[pairs[:, 1]] = pairs[:, 0]
+    while not np.array_equal(nxt := rep[rep], rep):
+        rep = nxt
+    merged = rep[faces]
+    live = (merged[:, 0] != merged[:, 1]) & (merged[:, 1] != merged[:, 2]) & (merged[:, 2] != merged[:, 0])
+    kept_v = np.unique(merged[live])
+    if len(kept_v) == len(out_pts) and live.sum() == len(out_faces):
+        out_owner_v = v_owner[kept_v]
     else:
         out_owner_v = np.full(len(out_pts), -1, dtype=np.int64)
-        hit = mapping >= 0
-        out_owner_v[mapping[hit]] = v_owner[hit]
     f_owner = out_owner_v[out_faces]
     mixed = np.any(f_owner[:, 0] < 0) | np.any(f_owner != f_owner[:, :1])
     if mixed:
-        # never seen with the survivor rule; should it happen, the batch keeps its originals, not the run
+        # not seen on real data; should it happen, the batch keeps its originals rather than stopping the run
         status[eligible] = "kept: decimation mixed meshes"
         return Decimated(tri, own, done, error, status)
     f_vid, f_owner = _tidy(out_pts, out_owner_v, out_faces, f_owner[:, 0])
