@@ -177,10 +177,10 @@ def test_meshes_that_collapse_entirely_keep_owners_apart() -> None:
         tris.append(m.vertices[m.faces] + np.array([385_000.0, 6_672_000.0, 0.0]))
         owners.append(np.full(len(m.faces), k))
     tri, own = np.concatenate(tris), np.concatenate(owners)
-    for reduction in (0.5, 0.75, 0.9):
+    for reduction in (0.3, 0.5, 0.75, 0.9):
         d = decimate(tri, own, 4, reduction, min_triangles=8)
-        if reduction == 0.5:
-            assert d.decimated.any(), d.status  # the batch is decimated, not kept whole
+        if reduction == 0.3:
+            assert d.decimated.any(), d.status  # some of the batch is decimated, not all kept
         for k in np.flatnonzero(d.decimated):
             mine = d.triangles[d.owner == k].reshape(-1, 3)
             lo, hi = tri[own == k].reshape(-1, 3).min(axis=0), tri[own == k].reshape(-1, 3).max(axis=0)
