@@ -1,19 +1,20 @@
--- api.buildings_for_tile(level, x, y, lod DEFAULT NULL) -> one row per feature of tile (level, x, y)
+-- api.buildings_for_tile(level, x, y, single_lod DEFAULT NULL) -> one row per feature of tile (level, x, y)
 -- What the exporter writes into the tile's glb and what api.lod_for_view lists: the features of the tile's
 -- band (gen.level_for_height of its height, tiles.tile.gen_level), one branch per band:
 --   4  leaves: every building and part at LOD3 (lod.building_mesh)
 --   3  LOD2: every building and part at LOD2, decimated where that paid (gen.building_mesh, gen_level 3)
 --   2  LOD1: every building (outline with its parts) as one solid on its simplified footprint (gen_level 2)
 --   1, 0  blocks: gen.block of this tile, plus protected buildings (landmarks) at gen_level 2, never merged
--- The features below a tile are found on the GiST index of tiles.building_tile.anchor (bbox of the tile's
--- cell), then exactly by quadtree arithmetic. With lod = 1, 2 or 3 the hierarchy is ignored: leaves give
--- every building at that LOD and inner tiles nothing (a single-LOD tileset, ADD refinement).
+-- Only the tile's band runs (plpgsql, one IF per band). The features below a tile are found on the GiST index
+-- of tiles.building_tile.anchor (bbox of the tile's cell), then exactly by quadtree arithmetic; protected
+-- buildings in the block bands through osm.building.protected. With single_lod = 1, 2 or 3 the hierarchy
+-- is ignored: leaves give every building at that LOD and inner tiles nothing (a single-LOD tileset, ADD).
 -- Meshes are POLYHEDRALSURFACE Z in the working CRS, z metres above ground; error_m bounds the distance to
 -- the full-detail LOD3 models. Blocks have osm_type 'B' and osm_id = gen.block.block_id.
 -- Example:
 --   SELECT feature_kind, lod, count(*), sum(n_triangles), max(error_m)
 --   FROM api.buildings_for_tile(0, 0, 0) GROUP BY 1, 2;
-CREATE OR REPLACE FUNCTION api.buildings_for_tile(level integer, x integer, y integer, lod integer DEFAULT NULL)
+CREATE OR REPLACE FUNCTION api.buildings_for_tile(level integer, x integer, y integer, single_lod integer DEFAULT NULL)
 RETURNS TABLE (
     feature_kind      text,
     building_id       bigint,
@@ -41,66 +42,77 @@ RETURNS TABLE (
     semantics         bytea,
     geom              geometry
 )
-LANGUAGE sql STABLE PARALLEL SAFE
+LANGUAGE plpgsql STABLE PARALLEL SAFE
 AS $$
-    WITH t AS (
-        SELECT t.level, t.x, t.y, t.cell, t.is_leaf, t.gen_level FROM tiles.tile t
-        WHERE t.level = $1 AND t.x = $2 AND t.y = $3
-    ), sub AS (
-        SELECT bt.building_id, bt.group_id
-        FROM t JOIN tiles.building_tile bt
-          ON bt.anchor && t.cell AND bt.level >= t.level
-         AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
-    )
-    -- LOD3 at the leaves (or the one LOD asked for)
-    SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
-           coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
-           coalesce(b.name, p.name), coalesce(b.building, p.building),
-           m.height, m.min_height, b.levels, m.roof_shape,
-           b.building_colour, coalesce(b.roof_colour, p.roof_colour),
-           coalesce(b.building_material, p.building_material), b.roof_material,
-           m.lod, 4::smallint, 1, 0::real, m.n_triangles, m.roof_height, m.semantics, m.geom
-    FROM t CROSS JOIN sub
-    JOIN lod.building_mesh m ON m.building_id = sub.building_id AND m.lod = coalesce($4, 3)
-    JOIN osm.building b ON b.id = sub.building_id
-    LEFT JOIN osm.building p ON p.id = b.parent_id
-    WHERE CASE WHEN $4 IS NULL THEN t.gen_level = 4 ELSE t.is_leaf END
-    UNION ALL
-    -- LOD2 band: roofs, decimated where it paid
-    SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
-           coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
-           coalesce(b.name, p.name), coalesce(b.building, p.building),
-           m.height, m.min_height, b.levels, m.roof_shape,
-           b.building_colour, coalesce(b.roof_colour, p.roof_colour),
-           coalesce(b.building_material, p.building_material), b.roof_material,
-           2::smallint, 3::smallint, 1, d.total_error_m,
-           coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
-           coalesce(d.geom, m.geom)
-    FROM t CROSS JOIN sub
-    JOIN lod.building_mesh m ON m.building_id = sub.building_id AND m.lod = 2
-    JOIN gen.building_mesh d ON d.building_id = sub.building_id AND d.gen_level = 3
-    JOIN osm.building b ON b.id = sub.building_id
-    LEFT JOIN osm.building p ON p.id = b.parent_id
-    WHERE $4 IS NULL AND t.gen_level = 3
-    UNION ALL
-    -- LOD1 band: each building with its parts as one solid on its simplified footprint; protected
-    -- buildings (landmarks) keep it in the block bands
-    SELECT 'building', b.id, b.osm_type::text, b.osm_id, b.kind, b.osm_type::text, b.osm_id,
-           b.name, b.building, g.height, g.min_height, b.levels, 'flat',
-           b.building_colour, b.roof_colour, b.building_material, b.roof_material,
-           1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom
-    FROM t CROSS JOIN (SELECT DISTINCT sub.group_id FROM sub) s
-    JOIN gen.building_mesh g ON g.building_id = s.group_id AND g.gen_level = 2
-    JOIN osm.building b ON b.id = s.group_id
-    WHERE $4 IS NULL AND (t.gen_level = 2 OR (t.gen_level <= 1 AND b.protected))
-    UNION ALL
-    -- block bands: the tile's aggregated blocks
-    SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,
-           NULL, NULL, k.height, 0::real, NULL, 'flat', NULL, NULL, NULL, NULL,
-           0::smallint, k.gen_level, k.n_members, k.total_error_m, k.n_triangles, 0::real, k.semantics, k.geom
-    FROM gen.block k
-    WHERE $4 IS NULL AND k.level = $1 AND k.x = $2 AND k.y = $3
-    ORDER BY 1, 2
+DECLARE
+    t tiles.tile%ROWTYPE;
+BEGIN
+    SELECT * INTO t FROM tiles.tile tt WHERE tt.level = $1 AND tt.x = $2 AND tt.y = $3;
+    IF NOT FOUND OR ($4 IS NOT NULL AND NOT t.is_leaf) THEN
+        RETURN;
+    END IF;
+    -- only the tile's own band runs: each branch joins just the buildings below the tile it needs
+    IF $4 IS NOT NULL OR t.gen_level = 4 THEN
+        -- LOD3 at the leaves (or the one LOD asked for)
+        RETURN QUERY
+        SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
+               coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
+               coalesce(b.name, p.name), coalesce(b.building, p.building),
+               m.height, m.min_height, b.levels, m.roof_shape,
+               b.building_colour, coalesce(b.roof_colour, p.roof_colour),
+               coalesce(b.building_material, p.building_material), b.roof_material,
+               m.lod, 4::smallint, 1, 0::real, m.n_triangles, m.roof_height, m.semantics, m.geom
+        FROM tiles.building_tile bt
+        JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = coalesce($4, 3)
+        JOIN osm.building b ON b.id = bt.building_id
+        LEFT JOIN osm.building p ON p.id = b.parent_id
+        WHERE bt.anchor && t.cell AND bt.level >= t.level
+          AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
+        ORDER BY 1, 2;
+    ELSIF t.gen_level = 3 THEN
+        -- LOD2 band: roofs, decimated where it paid
+        RETURN QUERY
+        SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
+               coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
+               coalesce(b.name, p.name), coalesce(b.building, p.building),
+               m.height, m.min_height, b.levels, m.roof_shape,
+               b.building_colour, coalesce(b.roof_colour, p.roof_colour),
+               coalesce(b.building_material, p.building_material), b.roof_material,
+               2::smallint, 3::smallint, 1, d.total_error_m,
+               coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
+               coalesce(d.geom, m.geom)
+        FROM tiles.building_tile bt
+        JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
+        JOIN gen.building_mesh d ON d.building_id = bt.building_id AND d.gen_level = 3
+        JOIN osm.building b ON b.id = bt.building_id
+        LEFT JOIN osm.building p ON p.id = b.parent_id
+        WHERE bt.anchor && t.cell AND bt.level >= t.level
+          AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
+        ORDER BY 1, 2;
+    ELSE
+        -- LOD1 band: each building with its parts as one solid on its simplified footprint; in the block
+        -- bands only protected buildings (landmarks) keep it, found through their own rows
+        RETURN QUERY
+        SELECT 'building', b.id, b.osm_type::text, b.osm_id, b.kind, b.osm_type::text, b.osm_id,
+               b.name, b.building, g.height, g.min_height, b.levels, 'flat',
+               b.building_colour, b.roof_colour, b.building_material, b.roof_material,
+               1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom
+        FROM (SELECT DISTINCT bt.group_id FROM tiles.building_tile bt
+              WHERE bt.anchor && t.cell AND bt.level >= t.level
+                AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
+                AND (t.gen_level = 2 OR bt.group_id IN (SELECT o.id FROM osm.building o WHERE o.protected))) s
+        JOIN gen.building_mesh g ON g.building_id = s.group_id AND g.gen_level = 2
+        JOIN osm.building b ON b.id = s.group_id
+        UNION ALL
+        -- block bands: the tile's aggregated blocks
+        SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,
+               NULL, NULL, k.height, 0::real, NULL, 'flat', NULL, NULL, NULL, NULL,
+               0::smallint, k.gen_level, k.n_members, k.total_error_m, k.n_triangles, 0::real, k.semantics, k.geom
+        FROM gen.block k
+        WHERE t.gen_level <= 1 AND k.level = t.level AND k.x = t.x AND k.y = t.y
+        ORDER BY 1, 2;
+    END IF;
+END
 $$;
 COMMENT ON FUNCTION api.buildings_for_tile(integer, integer, integer, integer) IS
-    'Features of tile (level, x, y) at its band (blocks, simplified LOD1, LOD2, LOD3 at the leaves), or every building of a leaf at LOD lod when lod is given: mesh (PolyhedralSurface Z, working CRS), per-triangle semantics, properties, error bound. Example: SELECT feature_kind, lod, count(*) FROM api.buildings_for_tile(0, 0, 0) GROUP BY 1, 2;';
+    'Features of tile (level, x, y) at its band (blocks, simplified LOD1, LOD2, LOD3 at the leaves), or every building of a leaf at LOD lod when single_lod is given: mesh (PolyhedralSurface Z, working CRS), per-triangle semantics, properties, error bound. Example: SELECT feature_kind, lod, count(*) FROM api.buildings_for_tile(0, 0, 0) GROUP BY 1, 2;';
