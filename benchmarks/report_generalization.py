@@ -41,6 +41,7 @@ import shapely
 
 from benchmarks.bench import DEMO_OSM, SHARED_OSM, drop_db, extract_name, machine, recreate_db, run_child
 from etl import cluster
+from etl.geom.check import weld as weld_rows
 from etl.geom.decimate import decimate
 from etl.geom.hausdorff import hausdorff
 from etl.geom.simplify import PIN_DISTANCE, simplify_footprints
@@ -102,12 +103,8 @@ def distinct_vertices(tri: np.ndarray, owner: np.ndarray, n: int, weld: float = 
     first = np.unique(po, return_index=True)
     origin = np.zeros((n, 3))
     origin[first[0]] = p[first[1]]
-    key = np.rint((p - origin[po]) / weld).astype(np.int64)
-    lex = np.lexsort((key[:, 2], key[:, 1], key[:, 0], po))
-    sk, so = key[lex], po[lex]
-    new = np.ones(len(lex), dtype=bool)
-    new[1:] = (so[1:] != so[:-1]) | np.any(sk[1:] != sk[:-1], axis=1)
-    return np.bincount(so[new], minlength=n)
+    _, first = weld_rows(np.rint((p - origin[po]) / weld).astype(np.int64), po)
+    return np.bincount(po[first], minlength=n)
 
 
 def outline_walls(geoms: np.ndarray, height: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

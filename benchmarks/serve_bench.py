@@ -23,9 +23,7 @@ import json
 import math
 import os
 import queue
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -33,7 +31,7 @@ from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
-from etl.settings import REPO
+from exporter.serve import spawned
 
 BROWSER_HEADERS = {"Accept-Encoding": "gzip, deflate, br"}
 
@@ -153,32 +151,8 @@ def served_db(database_url: str | None = None, extra_args: Sequence[str] = (),
     env = dict(os.environ)
     if database_url:
         env["DATABASE_URL"] = database_url
-    with tempfile.TemporaryFile(mode="w+") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "etl", "serve", "--db", "--port", "0", *extra_args],
-                                cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=err, text=True)
-        try:
-            lines: queue.Queue[str] = queue.Queue()
-            out = proc.stdout
-            assert out is not None
-            threading.Thread(target=lambda: lines.put(out.readline()), daemon=True).start()
-            try:
-                line = lines.get(timeout=timeout)
-            except queue.Empty:
-                line = ""
-            if not line.startswith("citylod viewer: "):
-                err.seek(0)
-                raise RuntimeError(f"serve --db did not start: {line!r}\n{err.read()}")
-            yield line.split(": ", 1)[1].strip()
-        finally:
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
-            if proc.stdout:
-                proc.stdout.close()
+    with spawned(["etl", "serve", "--db", "--port", "0", *extra_args], env, timeout) as (base, _, _err):
+        yield base
 
 
 def measure_db(database_url: str | None = None, clients: int = 64, rounds: int = 5,

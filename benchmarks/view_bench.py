@@ -65,13 +65,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import psycopg
 from psycopg import sql
 
 from etl import cluster
 from etl.settings import REPO
-from exporter.geodesy import region_box
+from etl.stages.generalize import store_boxes
 from exporter.traverse import Camera
 
 MAX_SSE = 16.0
@@ -207,7 +206,7 @@ def measure_latency(url: str, n: int = N_CAMERAS, seed: int = SEED, warmup: int 
     cameras (default all) are called once untimed first. A call over ``timeout_s`` is cancelled
     (statement_timeout) and counts as ``timeout_s`` in the percentiles; ``timeouts`` says how many."""
     with psycopg.connect(url, autocommit=True) as conn:
-        conn.execute(f"SET statement_timeout = {int(timeout_s * 1000)}")
+        conn.execute("SELECT set_config('statement_timeout', %s, false)", (str(int(timeout_s * 1000)),))
         buildings = int(conn.execute("SELECT count(*) FROM tiles.building_tile").fetchone()[0])  # type: ignore[index]
         tiles = int(conn.execute("SELECT count(*) FROM tiles.tile").fetchone()[0])  # type: ignore[index]
         cams = navigation_cameras(conn, n, seed)
@@ -270,7 +269,7 @@ def _file_hash(path: Path) -> str:
 
 
 def _inputs(osm: Path, step: str) -> dict[str, Any]:
-    builders = [build_100k] if step == "100k" else [build_100k, build_1m, _stack_levels, _copy_sql, _grid_values,
+    builders = [build_100k] if step == "100k" else [build_100k, build_1m, _stack_levels, _copy_sql, _grid_table,
                                                     _columns]
     return {"step": step, "osm": osm.name, "osm_sha256": _file_hash(osm), "copies_100k": COPIES_100K,
             "copies_1m": COPIES_1M, "offsets": [OFF_100K, OFF_1M, OFF_UP, GAP_M], "code": _code_hash(builders),
@@ -315,9 +314,16 @@ def _copy_sql(conn: psycopg.Connection, table: str, src: str, exprs: dict[str, s
         sql.SQL(", ").join(select), sql.SQL(src), sql.SQL(grid), sql.SQL(where))
 
 
-def _grid_values(cells: Sequence[tuple[int, int, int, float, float]]) -> str:
-    rows = ", ".join(f"({k}, {i}, {j}, {dx!r}::float8, {dy!r}::float8)" for k, i, j, dx, dy in cells)
-    return f"SELECT * FROM (VALUES {rows}) v(k, i, j, dx, dy)"
+def _grid_table(conn: psycopg.Connection, name: str, cells: Sequence[tuple[int, int, int, float, float]],
+                off: int, up: int = 0, srid: int = 0) -> str:
+    """A temp table ``name`` (k copy, i, j cell, dx, dy metres, off = k × ``off`` id offset, up levels added,
+    srid), filled with bind parameters; returns the SELECT the copy statements join as ``g``."""
+    conn.execute(sql.SQL("CREATE TEMP TABLE {} (k int, i int, j int, dx float8, dy float8, off bigint, up int,"
+                         " srid int)").format(sql.Identifier(name)))
+    with conn.cursor() as cur:
+        cur.executemany(sql.SQL("INSERT INTO {} VALUES (%s, %s, %s, %s, %s, %s, %s, %s)").format(sql.Identifier(name)),
+                        [(k, i, j, dx, dy, k * off, up, srid) for k, i, j, dx, dy in cells])
+    return f"SELECT * FROM {name}"
 
 
 def build_100k(admin_url: str, osm: Path, rebuild: bool = False) -> str:
@@ -345,9 +351,8 @@ def build_100k(admin_url: str, osm: Path, rebuild: bool = False) -> str:
                  for k in range(1, COPIES_100K)]
         moved = "ST_Translate(s.geom_local, g.dx, g.dy)"
         conn.execute(_copy_sql(conn, "osm.building", "osm.building", {
-            "id": f"s.id + g.k * {OFF_100K}", "osm_id": f"s.osm_id + g.k * {OFF_100K}",
-            "parent_id": f"s.parent_id + g.k * {OFF_100K}", "geom_local": moved,
-            "geom": f"ST_Transform({moved}, 4326)"}, _grid_values(cells)))
+            "id": "s.id + g.off", "osm_id": "s.osm_id + g.off", "parent_id": "s.parent_id + g.off",
+            "geom_local": moved, "geom": f"ST_Transform({moved}, 4326)"}, _grid_table(conn, "_grid", cells, OFF_100K)))
         conn.execute("ANALYZE osm.building")
         n = conn.execute("SELECT count(*) FROM osm.building").fetchone()[0]  # type: ignore[index]
     log(f"{DB_100K}: {n:,} buildings and parts; lod, tiles, generalize")
@@ -382,8 +387,9 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
         conn.execute("DELETE FROM bench.build")
         srid, size = conn.execute("SELECT srid, size FROM tiles.grid").fetchone()  # type: ignore[misc]
         cells = [(k, k % side, k // side, (k % side) * size, (k // side) * size) for k in range(COPIES_1M)]
-        grid_all, grid_new = _grid_values(cells), _grid_values(cells[1:])
-        off = f"g.k * {OFF_1M}"
+        grid_all = _grid_table(conn, "_grid_all", cells, OFF_1M, up, int(srid))
+        grid_new = _grid_table(conn, "_grid_new", cells[1:], OFF_1M, up, int(srid))
+        off = "g.off"
 
         def step(what: str, q: sql.Composable | str) -> None:
             t = time.perf_counter()
@@ -404,19 +410,20 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
             "building_id": f"s.building_id + {off}", "geom": "ST_Translate(s.geom, g.dx, g.dy)"}, grid_new))
         # the tile tree: every copy (0 included) moved down `up` levels into its cell
         for t in ("tiles.tile", "tiles.building_tile", "gen.block"):
-            conn.execute(f"CREATE TEMP TABLE src_{t.split('.')[1]} AS SELECT * FROM {t}")
+            conn.execute(sql.SQL("CREATE TEMP TABLE {} AS SELECT * FROM {}").format(
+                sql.Identifier("src_" + t.split(".")[1]), sql.Identifier(*t.split("."))))
         conn.execute("TRUNCATE tiles.tile CASCADE")  # and tiles.building_tile, gen.block
-        shift = {"level": f"s.level + {up}", "x": "s.x + (g.i << s.level)", "y": "s.y + (g.j << s.level)"}
+        shift = {"level": "s.level + g.up", "x": "s.x + (g.i << s.level)", "y": "s.y + (g.j << s.level)"}
         step("tiles.tile", _copy_sql(conn, "tiles.tile", "src_tile", {
             **shift, "cell": "ST_Translate(s.cell, g.dx, g.dy)",
-            "content_uri": f"format('content/%%s/%%s/%%s.glb', s.level + {up}, s.x + (g.i << s.level), "
+            "content_uri": "format('content/%s/%s/%s.glb', s.level + g.up, s.x + (g.i << s.level), "
                            "s.y + (g.j << s.level))",
-            "region": f"""(SELECT ARRAY[radians(ST_XMin(e)), radians(ST_YMin(e)), radians(ST_XMax(e)),
+            "region": """(SELECT ARRAY[radians(ST_XMin(e)), radians(ST_YMin(e)), radians(ST_XMax(e)),
                                        radians(ST_YMax(e)), s.region[5], s.region[6]]
                           FROM (SELECT ST_Transform(ST_Translate(ST_Transform(ST_Segmentize(ST_MakeEnvelope(
                                 degrees(s.region[1]), degrees(s.region[2]), degrees(s.region[3]),
-                                degrees(s.region[4]), 4326), 0.005), {int(srid)}), g.dx, g.dy), 4326) AS e) r)""",
-            "box": "NULL"}, grid_all).as_string(conn).replace("%%", "%"))
+                                degrees(s.region[4]), 4326), 0.005), g.srid), g.dx, g.dy), 4326) AS e) r)""",
+            "box": "NULL"}, grid_all))
         step("tiles.building_tile", _copy_sql(conn, "tiles.building_tile", "src_building_tile", {
             **shift, "building_id": f"s.building_id + {off}", "group_id": f"s.group_id + {off}",
             "anchor": "ST_Translate(s.anchor, g.dx, g.dy)"}, grid_all))
@@ -437,47 +444,40 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
     """``up`` new levels above the copies' roots (the blocks band, the union of their children's content, the
     largest child's geometric error), then every tile's box from its region."""
     # the new upper levels: the blocks band, holding the union of their children's content
-    bad = conn.execute(f"SELECT count(*) FROM tiles.tile WHERE level = {up} AND gen_level > 1").fetchone()[0]  # type: ignore[index]
+    bad = conn.execute("SELECT count(*) FROM tiles.tile WHERE level = %s AND gen_level > 1", (up,)).fetchone()[0]  # type: ignore[index]
     if bad:
         raise RuntimeError("the copies' roots are not in a block band: too few levels to stack")
     for lvl in range(up - 1, -1, -1):
         cs = size * 2 ** (up - lvl)
-        conn.execute(f"""
+        p = {"lvl": lvl, "child": lvl + 1, "cs": cs, "srid": srid, "off": OFF_UP, "h": up - lvl}
+        conn.execute("""
             INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error,
                                     content_uri, height, gen_level, content_error_m)
-            SELECT {lvl}, c.x >> 1, c.y >> 1, false, sum(c.n_features), sum(c.n_triangles),
-                   ST_MakeEnvelope(gr.origin_x + (c.x >> 1) * {cs!r}, gr.origin_y + (c.y >> 1) * {cs!r},
-                                   gr.origin_x + ((c.x >> 1) + 1) * {cs!r}, gr.origin_y + ((c.y >> 1) + 1) * {cs!r},
-                                   {srid}),
+            SELECT %(lvl)s, c.x >> 1, c.y >> 1, false, sum(c.n_features), sum(c.n_triangles),
+                   ST_MakeEnvelope(gr.origin_x + (c.x >> 1) * %(cs)s, gr.origin_y + (c.y >> 1) * %(cs)s,
+                                   gr.origin_x + ((c.x >> 1) + 1) * %(cs)s, gr.origin_y + ((c.y >> 1) + 1) * %(cs)s,
+                                   %(srid)s),
                    ARRAY[min(c.region[1]), min(c.region[2]), max(c.region[3]), max(c.region[4]),
                          min(c.region[5]), max(c.region[6])],
-                   max(c.geometric_error), format('content/%s/%s/%s.glb', {lvl}, c.x >> 1, c.y >> 1),
+                   max(c.geometric_error), format('content/%%s/%%s/%%s.glb', %(lvl)s, c.x >> 1, c.y >> 1),
                    max(c.height) + 1, 0, max(c.content_error_m)
-            FROM tiles.tile c CROSS JOIN tiles.grid gr WHERE c.level = {lvl + 1}
-            GROUP BY c.x >> 1, c.y >> 1, gr.origin_x, gr.origin_y""")
-        conn.execute(sql.SQL("""
+            FROM tiles.tile c CROSS JOIN tiles.grid gr WHERE c.level = %(child)s
+            GROUP BY c.x >> 1, c.y >> 1, gr.origin_x, gr.origin_y""", p)
+        conn.execute("""
             INSERT INTO gen.block OVERRIDING SYSTEM VALUE
-            SELECT b.block_id % {p} + {p} * {h}, {lvl}, b.x >> 1, b.y >> 1, b.gen_level, b.members, b.n_members,
-                   b.footprint, b.geom, b.semantics, b.n_triangles, b.height, b.error_m, b.total_error_m
+            SELECT b.block_id %% %(off)s + %(off)s * %(h)s, %(lvl)s, b.x >> 1, b.y >> 1, b.gen_level, b.members,
+                   b.n_members, b.footprint, b.geom, b.semantics, b.n_triangles, b.height, b.error_m, b.total_error_m
             FROM gen.block b JOIN tiles.tile c ON (c.level, c.x, c.y) = (b.level, b.x, b.y)
-            WHERE b.level = {lvl1}""").format(p=sql.Literal(OFF_UP), h=sql.Literal(up - lvl), lvl=sql.Literal(lvl),
-                                              lvl1=sql.Literal(lvl + 1)))
-        conn.execute(f"""
+            WHERE b.level = %(child)s""", p)
+        conn.execute("""
             UPDATE tiles.tile t SET content_features = k.n, content_triangles = k.tri
             FROM (SELECT level, x, y, count(*) AS n, sum(n_triangles) AS tri FROM gen.block
-                  WHERE level = {lvl} GROUP BY 1, 2, 3) k
-            WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y)""")
+                  WHERE level = %s GROUP BY 1, 2, 3) k
+            WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y)""", (lvl,))
     conn.execute("UPDATE tiles.grid SET size = size * %s", (2 ** up,))
     # boxes from the regions, as the generalize stage computes them
-    keys = conn.execute("SELECT level, x, y, region FROM tiles.tile ORDER BY level, x, y").fetchall()
-    boxes = region_box(np.array([k[3] for k in keys], float))
-    with conn.transaction():
-        conn.execute("CREATE TEMP TABLE _box (level smallint, x integer, y integer, box float8[]) ON COMMIT DROP")
-        with conn.cursor().copy("COPY _box (level, x, y, box) FROM STDIN") as copy:
-            for k, b in zip(keys, boxes.tolist(), strict=True):
-                copy.write_row((k[0], k[1], k[2], b))
-        conn.execute("UPDATE tiles.tile t SET box = b.box FROM _box b"
-                     " WHERE (t.level, t.x, t.y) = (b.level, b.x, b.y)")
+    with conn.transaction(), conn.cursor() as cur:
+        store_boxes(cur)
 
 
 def scale(admin_url: str, osm: Path, n: int = N_CAMERAS, seed: int = SEED, rebuild: bool = False,

@@ -19,3 +19,11 @@ def connect(url: str | None = None, autocommit: bool = False, settings: Settings
     if not autocommit:
         conn.commit()
     return conn
+
+
+def working_srid(conn: psycopg.Connection) -> int:
+    """The dataset's metric working CRS (meta.working_srid); a clear error before anything was ingested."""
+    row = conn.execute("SELECT meta.working_srid()").fetchone()
+    if not row or row[0] is None:
+        raise RuntimeError("no dataset loaded: run the ingest stage first (make ingest)")
+    return int(row[0])

@@ -38,11 +38,14 @@ import gzip
 import hashlib
 import json
 import os
+import queue
 import re
 import shutil
 import signal
 import socket
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 import traceback
@@ -55,7 +58,7 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 from urllib.parse import unquote, urlsplit
 
 from . import ATTRIBUTION
@@ -238,9 +241,47 @@ def _check_cesium() -> None:
         sys.exit(f"citylod serve: CesiumJS not found at {CESIUM_DIR}; run `make setup` (npm ci)")
 
 
+ANNOUNCE = "citylod viewer: "  # the one stdout line of a running server, followed by its base URL
+
+
+@contextlib.contextmanager
+def spawned(args: list[str], env: Mapping[str, str] | None = None,
+            timeout: float = 30.0) -> Iterator[tuple[str, subprocess.Popen, IO[str]]]:
+    """Run ``python -m <args>`` (a serve command, usually with ``--port 0``) and yield (its base URL, the
+    process, its stderr as a file); terminated after. The announcement is read on a thread, so a server that
+    hangs before announcing raises RuntimeError with its stderr instead of hanging the caller."""
+    with tempfile.TemporaryFile(mode="w+") as err:
+        proc = subprocess.Popen([sys.executable, "-m", *args], cwd=REPO, env=dict(env or os.environ),
+                                stdout=subprocess.PIPE, stderr=err, text=True)
+        try:
+            lines: queue.Queue[str] = queue.Queue()
+            out = proc.stdout
+            assert out is not None
+            threading.Thread(target=lambda: lines.put(out.readline()), daemon=True).start()
+            try:
+                line = lines.get(timeout=timeout)
+            except queue.Empty:
+                line = ""
+            if not line.startswith(ANNOUNCE):
+                err.seek(0)
+                raise RuntimeError(f"python -m {' '.join(args)} did not announce its URL (got {line!r}):\n"
+                                   f"{err.read()}")
+            yield line[len(ANNOUNCE):].strip(), proc, err
+        finally:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+            if proc.stdout:
+                proc.stdout.close()
+
+
 def _run_forever(server: ThreadingHTTPServer, notes: list[str]) -> None:
-    """Serve until SIGINT/SIGTERM. Prints exactly one line to stdout, ``citylod viewer: http://HOST:PORT/``,
-    which scripts and the e2e test read to find the port; ``notes`` go to stderr."""
+    """Serve until SIGINT/SIGTERM. Prints exactly one line to stdout, ANNOUNCE and the base URL, which scripts
+    and tests read to find the port (``spawned``); ``notes`` go to stderr."""
 
     def stop(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt  # unwinds serve_forever() in the main thread
@@ -248,7 +289,7 @@ def _run_forever(server: ThreadingHTTPServer, notes: list[str]) -> None:
     # SIGINT explicitly too: a shell starts background jobs with SIGINT ignored, and `kill -INT` should work.
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
-    print(f"citylod viewer: {server_url(server)}", flush=True)
+    print(f"{ANNOUNCE}{server_url(server)}", flush=True)
     for note in notes:
         print(f"  {note}", file=sys.stderr)
     print(f"  data {ATTRIBUTION}: keep this attribution visible wherever the tiles are shown",

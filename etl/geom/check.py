@@ -31,6 +31,19 @@ class Closure:
         return self.watertight & self.winding_consistent & (self.volume > 0)
 
 
+def weld(keys: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``keys`` (k, 3) that are equal within one owner are one vertex: (k,) the vertex of every row,
+    numbered in (owner, key) order, and (v,) the row each vertex was first seen at (in that order). Exact
+    coordinates weld as trimesh merges them; round them to a grid first to weld within a tolerance."""
+    lex = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0], owner))  # np.unique(axis=0) is ~10x slower
+    sk, so = keys[lex], owner[lex]
+    new = np.ones(len(lex), dtype=bool)
+    new[1:] = (so[1:] != so[:-1]) | np.any(sk[1:] != sk[:-1], axis=1)
+    vid = np.empty(len(lex), dtype=np.int64)
+    vid[lex] = np.cumsum(new) - 1
+    return vid, lex[new]
+
+
 def signed_volume(triangles: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Signed enclosed volume per mesh (trimesh ``volume``): > 0 for closed, outward-facing shells. Measured
     from each mesh's first vertex, since projected coordinates (~1e6 m) would cost the precision."""
@@ -52,15 +65,7 @@ def closure(triangles: np.ndarray, offsets: np.ndarray) -> Closure:
     if m == 0:
         z = np.zeros(n, dtype=bool)
         return Closure(z, z, np.zeros(n), np.zeros(n, np.int64), np.zeros(n, np.int64))
-    pts = triangles.reshape(-1, 3)
-    p_owner = np.repeat(owner, 3)
-    order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0], p_owner))  # np.unique(axis=0) is ~10x slower
-    sp, so = pts[order], p_owner[order]
-    new = np.ones(len(order), dtype=bool)
-    new[1:] = (so[1:] != so[:-1]) | np.any(sp[1:] != sp[:-1], axis=1)
-    vid = np.empty(len(order), dtype=np.int64)
-    vid[order] = np.cumsum(new) - 1
-    vid = vid.reshape(-1, 3)
+    vid = weld(triangles.reshape(-1, 3), np.repeat(owner, 3))[0].reshape(-1, 3)
     a = vid.reshape(-1)
     b = vid[:, [1, 2, 0]].reshape(-1)
     e_owner = np.repeat(owner, 3)

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import fast_simplification
 import numpy as np
 
-from .check import closure
+from .check import closure, weld
 from .hausdorff import hausdorff
 
 _WELD = 1e-3  # metres: vertices of one owner closer than this (on a grid) are one vertex
@@ -84,15 +84,9 @@ def decimate(triangles: np.ndarray, owner: np.ndarray, n: int, target_reduction:
     rel = src - origin[src_owner][:, None, :]
     pts = rel.reshape(-1, 3)
     p_owner = np.repeat(src_owner, 3)
-    key = np.rint(pts / _WELD).astype(np.int64)
-    lex = np.lexsort((key[:, 2], key[:, 1], key[:, 0], p_owner))  # np.unique(axis=0) is ~10x slower
-    sk, so = key[lex], p_owner[lex]
-    new = np.ones(len(lex), dtype=bool)
-    new[1:] = (so[1:] != so[:-1]) | np.any(sk[1:] != sk[:-1], axis=1)
-    vid = np.empty(len(lex), dtype=np.int64)
-    vid[lex] = np.cumsum(new) - 1
-    points = pts[lex[new]]  # first of each group: exact input coordinates where nothing needed welding
-    v_owner = so[new]
+    vid, first = weld(np.rint(pts / _WELD).astype(np.int64), p_owner)
+    points = pts[first]  # first of each group: exact input coordinates where nothing needed welding
+    v_owner = p_owner[first]
     faces = vid.reshape(-1, 3)
     solid = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
     faces = faces[solid].astype(np.int32)
@@ -168,13 +162,8 @@ def _tidy(pts: np.ndarray, v_owner: np.ndarray, faces: np.ndarray,
         them, in the net orientation, stay.
 
     Whatever is still not a closed manifold after this is caught by the closure check."""
-    lex = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0], v_owner))
-    sp, so = pts[lex], v_owner[lex]
-    new = np.ones(len(lex), dtype=bool)
-    new[1:] = (so[1:] != so[:-1]) | np.any(sp[1:] != sp[:-1], axis=1)
-    vid = np.empty(len(lex), dtype=np.int64)
-    vid[lex] = lex[new][np.cumsum(new) - 1]  # each vertex to the first of its group, indices into pts
-    f = vid[faces]
+    group, first = weld(pts, v_owner)
+    f = first[group][faces]  # each vertex to the first of its group, indices into pts
     ok = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
     f, f_owner = f[ok], f_owner[ok]
     if not len(f):

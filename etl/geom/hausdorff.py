@@ -42,6 +42,8 @@ import itertools
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .check import weld
+
 _BATCH = 1 << 15  # triangles refined together: a few hundred thousand (point, triangle) pairs
 _FAN_CHUNK = 1 << 12  # triangles cut by sectors at once (~5 pieces each): small enough to stay in cache
 _CHUNK = 1 << 13  # closest-point evaluations at once: small enough to stay in cache (2-3x faster)
@@ -364,13 +366,8 @@ def _weld(tri: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     their owners."""
     p = tri.reshape(-1, 3)
     po = np.repeat(own, 3)
-    order = np.lexsort((p[:, 2], p[:, 1], p[:, 0], po))
-    sp, so = p[order], po[order]
-    new = np.ones(len(order), dtype=bool)
-    new[1:] = (so[1:] != so[:-1]) | np.any(sp[1:] != sp[:-1], axis=1)
-    pid = np.empty(len(order), dtype=np.int64)
-    pid[order] = np.cumsum(new) - 1
-    return pid.reshape(-1, 3), sp[new], so[new]
+    pid, first = weld(p, po)
+    return pid.reshape(-1, 3), p[first], po[first]
 
 
 def _convex(pid: np.ndarray, pp: np.ndarray, pu: np.ndarray, d: np.ndarray, enough: np.ndarray,

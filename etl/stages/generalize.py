@@ -35,7 +35,7 @@ import shapely
 
 from exporter.geodesy import region_box
 
-from ..db import connect
+from ..db import connect, working_srid
 from ..geom.decimate import decimate
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
@@ -92,14 +92,12 @@ ORDER BY m.building_id
 # mitred joins keeps right angles); a lone building keeps its simplified footprint.
 _BLOCKS = """
 WITH t AS (
-    SELECT level, x, y, gen_level, cell, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level <= 1
+    SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level <= 1
 ), m AS (
     SELECT t.level, t.x, t.y, t.gen_level, t.d, f.building_id, f.geom, g.height, g.total_error_m,
            ST_Area(f.geom) AS area
     FROM t
-    JOIN (SELECT DISTINCT group_id, level, x, y, anchor FROM tiles.building_tile) bt
-      ON bt.anchor && t.cell AND bt.level >= t.level
-     AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
+    CROSS JOIN LATERAL (SELECT DISTINCT b.group_id FROM tiles.building_tiles_below(t.level, t.x, t.y) b) bt
     JOIN osm.building o ON o.id = bt.group_id AND NOT o.protected
     JOIN gen.footprint f ON f.building_id = bt.group_id
     JOIN gen.building_mesh g ON g.building_id = bt.group_id AND g.gen_level = 2
@@ -287,33 +285,21 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
     return stats
 
 
-def _coverage(cur: psycopg.Cursor) -> None:
-    """Every tile's content stands for every building below it exactly once."""
-    bad = cur.execute(
-        """SELECT t.level, t.x, t.y, t.gen_level, t.content_features, e.expected
-           FROM tiles.tile t
-           CROSS JOIN LATERAL (
-               SELECT CASE WHEN t.gen_level >= 3 THEN count(*)
-                           ELSE count(DISTINCT bt.group_id) END AS expected
-               FROM tiles.building_tile bt
-               WHERE bt.anchor && t.cell AND bt.level >= t.level
-                 AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y) e
-           CROSS JOIN LATERAL (
-               SELECT coalesce(sum(CASE WHEN f.feature_kind = 'block' THEN f.n_members ELSE 1 END), 0) AS got
-               FROM api.buildings_for_tile(t.level, t.x, t.y) f) g
-           WHERE g.got <> e.expected
-           LIMIT 5"""
-    ).fetchall()
-    if bad:
-        raise RuntimeError(f"generalize lost or doubled buildings (level, x, y, band, features, expected): {bad}")
+def store_boxes(cur: psycopg.Cursor) -> None:
+    """tiles.tile.box from each tile's region (region_box), all tiles in one COPY and one UPDATE; inside the
+    caller's transaction."""
+    keys = cur.execute("SELECT level, x, y, region FROM tiles.tile ORDER BY level, x, y").fetchall()
+    boxes = region_box(np.array([k[3] for k in keys], float))
+    cur.execute("CREATE TEMP TABLE _box (level smallint, x integer, y integer, box float8[]) ON COMMIT DROP")
+    with cur.copy("COPY _box (level, x, y, box) FROM STDIN") as copy:
+        for k, b in zip(keys, boxes.tolist(), strict=True):
+            copy.write_row((k[0], k[1], k[2], b))
+    cur.execute("UPDATE tiles.tile t SET box = b.box FROM _box b WHERE (t.level, t.x, t.y) = (b.level, b.x, b.y)")
 
 
 def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
-    srid_row = conn.execute("SELECT meta.working_srid()").fetchone()
-    if not srid_row or srid_row[0] is None:
-        raise RuntimeError("no dataset loaded: run the ingest stage first (make ingest)")
-    srid = int(srid_row[0])
+    srid = working_srid(conn)
     if not conn.execute("SELECT EXISTS (SELECT 1 FROM tiles.tile)").fetchone()[0]:  # type: ignore[index]
         raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
     tol = {g: float(conn.execute("SELECT gen.tolerance(%s)", (g,)).fetchone()[0]) for g in range(5)}  # type: ignore[index]
@@ -334,14 +320,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))
-        keys = cur.execute("SELECT level, x, y, region FROM tiles.tile ORDER BY level, x, y").fetchall()
-        boxes = region_box(np.array([k[3] for k in keys], float))
-        cur.execute("CREATE TEMP TABLE _box (level smallint, x integer, y integer, box float8[]) ON COMMIT DROP")
-        with cur.copy("COPY _box (level, x, y, box) FROM STDIN") as copy:
-            for k, b in zip(keys, boxes.tolist(), strict=True):
-                copy.write_row((k[0], k[1], k[2], b))
-        cur.execute("UPDATE tiles.tile t SET box = b.box FROM _box b WHERE (t.level, t.x, t.y) = (b.level, b.x, b.y)")
-        _coverage(cur)
+        store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = cur.execute(
             """SELECT gen_level, count(*), sum(content_features), sum(content_triangles), max(geometric_error)

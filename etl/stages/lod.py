@@ -29,7 +29,7 @@ import psycopg
 import shapely
 
 from .. import heights as heights_mod
-from ..db import connect
+from ..db import connect, working_srid
 from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
@@ -398,10 +398,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
 
 def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
-    srid_row = conn.execute("SELECT meta.working_srid()").fetchone()
-    if not srid_row or srid_row[0] is None:
-        raise RuntimeError("no dataset loaded: run the ingest stage first (make ingest)")
-    srid = int(srid_row[0])
+    srid = working_srid(conn)
     coverage = settings.outline_part_coverage
     counts = {"buildings": 0, "meshes": 0, "rejected": 0, "pitched_roofs": 0, "lod2_not_closed": 0,
               "triangles_lod1": 0, "triangles_lod2": 0, "triangles_lod3": 0}

@@ -5,9 +5,9 @@
 --   3  LOD2: every building and part at LOD2, decimated where that paid (gen.building_mesh, gen_level 3)
 --   2  LOD1: every building (outline with its parts) as one solid on its simplified footprint (gen_level 2)
 --   1, 0  blocks: gen.block of this tile, plus protected buildings (landmarks) at gen_level 2, never merged
--- Only the tile's band runs (plpgsql, one IF per band). The features below a tile are found on the GiST index
--- of tiles.building_tile.anchor (bbox of the tile's cell), then exactly by quadtree arithmetic; protected
--- buildings in the block bands through osm.building.protected. With single_lod = 1, 2 or 3 the hierarchy
+-- Only the tile's band runs (plpgsql, one IF per band). The features below a tile come from
+-- tiles.building_tiles_below (GiST on the anchors, then quadtree arithmetic); protected buildings in the block
+-- bands through osm.building.protected. With single_lod = 1, 2 or 3 the hierarchy
 -- is ignored: leaves give every building at that LOD and inner tiles nothing (a single-LOD tileset, ADD).
 -- Meshes are POLYHEDRALSURFACE Z in the working CRS, z metres above ground; error_m bounds the distance to
 -- the full-detail LOD3 models. Blocks have osm_type 'B' and osm_id = gen.block.block_id.
@@ -62,12 +62,10 @@ BEGIN
                b.building_colour, coalesce(b.roof_colour, p.roof_colour),
                coalesce(b.building_material, p.building_material), b.roof_material,
                m.lod, 4::smallint, 1, 0::real, m.n_triangles, m.roof_height, m.semantics, m.geom
-        FROM tiles.building_tile bt
+        FROM tiles.building_tiles_below($1, $2, $3) bt
         JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = coalesce($4, 3)
         JOIN osm.building b ON b.id = bt.building_id
         LEFT JOIN osm.building p ON p.id = b.parent_id
-        WHERE bt.anchor && t.cell AND bt.level >= t.level
-          AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
         ORDER BY 1, 2;
     ELSIF t.gen_level = 3 THEN
         -- LOD2 band: roofs, decimated where it paid
@@ -81,13 +79,11 @@ BEGIN
                2::smallint, 3::smallint, 1, d.total_error_m,
                coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
                coalesce(d.geom, m.geom)
-        FROM tiles.building_tile bt
+        FROM tiles.building_tiles_below($1, $2, $3) bt
         JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
         JOIN gen.building_mesh d ON d.building_id = bt.building_id AND d.gen_level = 3
         JOIN osm.building b ON b.id = bt.building_id
         LEFT JOIN osm.building p ON p.id = b.parent_id
-        WHERE bt.anchor && t.cell AND bt.level >= t.level
-          AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
         ORDER BY 1, 2;
     ELSE
         -- LOD1 band: each building with its parts as one solid on its simplified footprint; in the block
@@ -97,10 +93,8 @@ BEGIN
                b.name, b.building, g.height, g.min_height, b.levels, 'flat',
                b.building_colour, b.roof_colour, b.building_material, b.roof_material,
                1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom
-        FROM (SELECT DISTINCT bt.group_id FROM tiles.building_tile bt
-              WHERE bt.anchor && t.cell AND bt.level >= t.level
-                AND (bt.x >> (bt.level - t.level)) = t.x AND (bt.y >> (bt.level - t.level)) = t.y
-                AND (t.gen_level = 2 OR bt.group_id IN (SELECT o.id FROM osm.building o WHERE o.protected))) s
+        FROM (SELECT DISTINCT bt.group_id FROM tiles.building_tiles_below($1, $2, $3) bt
+              WHERE t.gen_level = 2 OR bt.group_id IN (SELECT o.id FROM osm.building o WHERE o.protected)) s
         JOIN gen.building_mesh g ON g.building_id = s.group_id AND g.gen_level = 2
         JOIN osm.building b ON b.id = s.group_id
         UNION ALL

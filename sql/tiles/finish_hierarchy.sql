@@ -4,22 +4,39 @@
 -- content_error_m (the largest error bound of its features) and widens its region to the generalized meshes
 -- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
 -- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
--- (so it never grows downwards) and its region the union with its children's.
+-- (so it never grows downwards) and its region the union with its children's. It refuses a tile whose content
+-- does not stand for the buildings below it (blocks through their members): as many features as below it in
+-- the LOD2/LOD3 bands, as many buildings (outlines with their parts) in the others.
 -- Example: CALL tiles.finish_hierarchy(0);
 CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision)
 LANGUAGE plpgsql
 AS $$
 DECLARE
     v_level integer;
+    v_bad text;
 BEGIN
     CREATE TEMP TABLE _content ON COMMIT DROP AS
-    SELECT t.level, t.x, t.y, count(f.building_id)::integer AS nf, coalesce(sum(f.n_triangles), 0)::bigint AS nt,
-           coalesce(max(f.error_m), 0)::double precision AS err,
-           ST_Extent(ST_Transform(ST_Envelope(f.geom), 4326))::box2d AS ext,
-           min(f.min_height) AS zmin, max(f.height) AS zmax
+    SELECT t.level, t.x, t.y, t.gen_level, c.*,
+           CASE WHEN t.gen_level >= 3 THEN t.n_features
+                ELSE (SELECT count(DISTINCT b.group_id) FROM tiles.building_tiles_below(t.level, t.x, t.y) b)
+           END AS expected
     FROM tiles.tile t
-    CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
-    GROUP BY t.level, t.x, t.y;
+    CROSS JOIN LATERAL (
+        SELECT count(f.building_id)::integer AS nf, coalesce(sum(f.n_triangles), 0)::bigint AS nt,
+               coalesce(max(f.error_m), 0)::double precision AS err,
+               ST_Extent(ST_Transform(ST_Envelope(f.geom), 4326))::box2d AS ext,
+               min(f.min_height) AS zmin, max(f.height) AS zmax,
+               coalesce(sum(CASE WHEN f.feature_kind = 'block' THEN f.n_members ELSE 1 END), 0) AS represented
+        FROM api.buildings_for_tile(t.level, t.x, t.y) f
+    ) c;
+
+    SELECT string_agg(format('(%s, %s, %s) band %s draws %s for %s', level, x, y, gen_level, represented, expected),
+                      '; ')
+    INTO v_bad
+    FROM (SELECT * FROM _content WHERE represented <> expected ORDER BY level, x, y LIMIT 5) b;
+    IF v_bad IS NOT NULL THEN
+        RAISE EXCEPTION 'tiles that do not stand for the buildings below them (run generalize after tiles): %', v_bad;
+    END IF;
 
     UPDATE tiles.tile t
     SET content_features = c.nf, content_triangles = c.nt, content_error_m = CASE WHEN t.is_leaf THEN 0 ELSE c.err END,
@@ -29,10 +46,6 @@ BEGIN
                        least(t.region[5], base_height + c.zmin), greatest(t.region[6], base_height + c.zmax)]
     FROM _content c
     WHERE c.level = t.level AND c.x = t.x AND c.y = t.y;
-
-    IF EXISTS (SELECT 1 FROM tiles.tile WHERE content_features IS NULL OR content_features = 0) THEN
-        RAISE EXCEPTION 'tiles without content: run the generalize stage after the tiles stage';
-    END IF;
 
     FOR v_level IN SELECT DISTINCT t.level FROM tiles.tile t WHERE NOT t.is_leaf ORDER BY 1 DESC LOOP
         UPDATE tiles.tile p
@@ -51,4 +64,4 @@ BEGIN
 END
 $$;
 COMMENT ON PROCEDURE tiles.finish_hierarchy(double precision) IS
-    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile from the generalized content. Run by the generalize stage.';
+    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile from the generalized content, and checks each tile stands for every building below it. Run by the generalize stage.';

@@ -8,7 +8,9 @@ import numpy as np
 import psycopg
 import pytest
 
+from etl.settings import Settings
 from exporter.checks import check_tileset
+from exporter.export import export_tileset
 from exporter.geodesy import Y_UP_TO_Z_UP
 from exporter.gltf import accessor_array, property_table, read_glb
 from tests.conftest import REPO, node_bin, run_etl
@@ -67,10 +69,11 @@ def tile_world(tiles_dir, uri: str) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def lod2(city, tmp_path_factory):
-    """The fixtures city exported at LOD2 alone: every vertex a footprint corner at the bottom or the top."""
+    """The fixtures city exported at LOD2 alone: every vertex a footprint corner at the bottom or the top. Through
+    the exporter's function, not the stage, so the shared city database gets no pipeline_run row."""
     c = city("fixtures")
     out = tmp_path_factory.mktemp("lod2") / "ts"
-    run_etl(c.url, "export", "--out", str(out), "--lod", "2")
+    export_tileset(c.url, out, Settings.from_env(), lod=2)
     return c.url, out
 
 

@@ -4,8 +4,8 @@ else, footprints stay valid and close, errors are measured and grow towards the 
 chooses exactly what a 3D Tiles client traversing the exported tileset.json chooses."""
 
 import json
-import math
 
+import psycopg
 import pytest
 
 from exporter.checks import check_tileset
@@ -179,8 +179,14 @@ def test_tileset_is_replace_with_content_everywhere(deep) -> None:
 
 def test_protected_buildings_are_never_merged(deep, conn_of, new_db) -> None:
     conn = conn_of(deep[0])
-    bid = conn.execute(
-        "SELECT members[1] FROM gen.block WHERE n_members > 3 ORDER BY block_id LIMIT 1").fetchone()[0]
+    # a building merged into a 5 m block, so both block bands stand above it
+    bid = conn.execute("SELECT members[1] FROM gen.block WHERE n_members > 3 AND gen_level = 1"
+                       " ORDER BY block_id LIMIT 1").fetchone()[0]
+    above = {g for (g,) in conn.execute(
+        """SELECT DISTINCT t.gen_level FROM tiles.tile t JOIN tiles.building_tile bt ON bt.group_id = %s
+           AND bt.level >= t.level AND bt.x >> (bt.level - t.level) = t.x AND bt.y >> (bt.level - t.level) = t.y
+           WHERE t.gen_level <= 2""", (bid,))}
+    assert {0, 1} <= above
     conn.execute("UPDATE osm.building SET protected = true WHERE id = %s", (bid,))
     try:
         run_etl(deep[0], "generalize")
@@ -189,7 +195,7 @@ def test_protected_buildings_are_never_merged(deep, conn_of, new_db) -> None:
             """SELECT DISTINCT t.gen_level, f.lod FROM tiles.tile t
                CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
                WHERE f.feature_kind <> 'block' AND f.building_id = %s AND t.gen_level <= 2""", (bid,)).fetchall()
-        assert {b for b, _ in bands} == {0, 1, 2} and {lod for _, lod in bands} == {1}
+        assert {b for b, _ in bands} == above and {lod for _, lod in bands} == {1}
     finally:
         conn.execute("UPDATE osm.building SET protected = false WHERE id = %s", (bid,))
         run_etl(deep[0], "generalize")
@@ -241,4 +247,12 @@ def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:
     far_tris = sum(t for *_, t in view(far))
     all_lod3 = conn.execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = 3").fetchone()[0]
     assert far_tris * 5 <= all_lod3
-    assert math.isfinite(far_tris)
+
+
+def test_a_tile_missing_buildings_is_refused(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    # the transaction is rolled back: the module's database stays as it was
+    with pytest.raises(psycopg.errors.RaiseException, match="do not stand for the buildings below them"), \
+            conn.transaction():
+        conn.execute("DELETE FROM gen.block WHERE block_id = (SELECT min(block_id) FROM gen.block)")
+        conn.execute("CALL tiles.finish_hierarchy(0)")

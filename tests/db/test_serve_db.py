@@ -12,10 +12,8 @@ import hashlib
 import http.client
 import json
 import os
-import queue
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -40,6 +38,7 @@ from exporter.serve import (
     make_payload,
     reader_url,
     server_url,
+    spawned,
     tile_address,
 )
 from tests.conftest import PREFIX, REPO, City, _with_db
@@ -542,36 +541,17 @@ def test_cli_serves_from_the_database(fixtures_city: City) -> None:
     same bytes; SIGTERM stops it cleanly."""
     env = {**os.environ, "DATABASE_URL": fixtures_city.url}
     env.pop("CITYLOD_READER_URL", None)
-    with tempfile.TemporaryFile(mode="w+") as stderr:
-        proc = subprocess.Popen([sys.executable, "-m", "etl", "serve", "--db", "--port", "0"], cwd=REPO, env=env,
-                                stdout=subprocess.PIPE, stderr=stderr, text=True)
+    with spawned(["etl", "serve", "--db", "--port", "0"], env, timeout=60) as (base, proc, stderr):
+        c = Client(base)
         try:
-            lines: queue.Queue[str] = queue.Queue()
-            out = proc.stdout
-            assert out is not None
-            threading.Thread(target=lambda: lines.put(out.readline()), daemon=True).start()
-            try:
-                line = lines.get(timeout=60)
-            except queue.Empty:
-                line = ""
-            stderr.seek(0)
-            assert line.startswith("citylod viewer: "), (line, stderr.read())
-            c = Client(line.split(": ", 1)[1].strip())
-            try:
-                status, _, body = c.get("/tiles/tileset.json")
-                assert status == 200 and body == (fixtures_city.tiles / "tileset.json").read_bytes()
-            finally:
-                c.close()
-            proc.terminate()
-            assert proc.wait(timeout=10) == 0
-            stderr.seek(0)
-            assert "straight from the database" in stderr.read()
+            status, _, body = c.get("/tiles/tileset.json")
+            assert status == 200 and body == (fixtures_city.tiles / "tileset.json").read_bytes()
         finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            if proc.stdout:
-                proc.stdout.close()
+            c.close()
+        proc.terminate()
+        assert proc.wait(timeout=10) == 0
+        stderr.seek(0)
+        assert "straight from the database" in stderr.read()
 
     r = subprocess.run([sys.executable, "-m", "etl", "serve", "--lod", "2", "--port", "0"], cwd=REPO,
                        capture_output=True, text=True, timeout=60)

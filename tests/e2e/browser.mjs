@@ -1,6 +1,7 @@
-// Headless Chromium for the e2e drivers (viewer_e2e.mjs, gallery_e2e.mjs): a fresh profile (nothing cached,
-// no state leaking between runs), the measured flag set (stack-notes §4: WebGL 2 through SwiftShader, no
-// background traffic), and a record of every request host, failed request and console error of the page.
+// Headless Chromium for the e2e drivers (viewer_e2e.mjs, gallery_e2e.mjs, lod_views_e2e.mjs): a fresh profile
+// (nothing cached, no state leaking between runs), the measured flag set (stack-notes §4: WebGL 2 through
+// SwiftShader, no background traffic), and a record of every request host, failed request and console error of
+// the page; startDriver holds what every driver does before and after its own checks.
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
@@ -47,11 +48,47 @@ export async function openBrowser({ chromiumPath, hosts, consoleErrors, failedRe
 }
 
 // What every driver reports about the page's traffic; a request to another host than the server's is a problem.
-export function recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds }) {
+function recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds }) {
   result.hosts = [...hosts].sort();
   result.consoleErrors = consoleErrors;
   result.failedRequests = failedRequests;
   result.seconds = seconds;
   const foreign = result.hosts.filter((h) => h !== serverHost);
   if (foreign.length) problems.push(`requests to hosts other than ${serverHost}: ${foreign.join(', ')}`);
+}
+
+// A driver's start: its required options (exit 2 with the usage when one is missing), Chromium present (exit 1),
+// a stopwatch for progress lines on stderr, and the traffic record. finish(result, problems) adds the traffic to
+// the result, prints it as one JSON line and exits 1 with the problems on stderr when there are any.
+export function startDriver(name, opt, required, usage) {
+  for (const k of required) {
+    if (!opt[k]) {
+      console.error(`usage: node ${name}.mjs ${usage}   (missing --${k})`);
+      process.exit(2);
+    }
+  }
+  if (!fs.existsSync(opt.chromium)) {
+    console.error(`chromium not found at ${opt.chromium}: install it with scripts/install-system.sh test`);
+    process.exit(1);
+  }
+  const t0 = Date.now();
+  const secs = () => ((Date.now() - t0) / 1000).toFixed(2);
+  const note = (...a) => console.error(`${secs()}s`, ...a);
+  const timeout = Number(opt.timeout);
+  const traffic = { hosts: new Set(), consoleErrors: [], failedRequests: [], serverHost: new URL(opt.url).host };
+  return {
+    note,
+    timeout,
+    // Poll on a timer: the default (every animation frame) lags seconds behind when SwiftShader frames are slow.
+    WAIT: { timeout, polling: 200 },
+    open: (tag) => openBrowser({ chromiumPath: opt.chromium, ...traffic, note, tag }),
+    finish(result, problems) {
+      recordTraffic(result, problems, { ...traffic, seconds: Number(secs()) });
+      console.log(JSON.stringify(result));
+      if (problems.length) {
+        console.error(`${name} FAILED: ${problems.join('; ')}`);
+        process.exit(1);
+      }
+    },
+  };
 }

@@ -16,7 +16,7 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
-import { openBrowser, recordTraffic } from './browser.mjs';
+import { startDriver } from './browser.mjs';
 
 const { values: opt } = parseArgs({
   options: {
@@ -29,28 +29,10 @@ const { values: opt } = parseArgs({
     timeout: { type: 'string', default: '120000' }, // ms per wait; SwiftShader is slow
   },
 });
-for (const k of ['url', 'screenshot']) {
-  if (!opt[k]) {
-    console.error(`usage: node gallery_e2e.mjs --url URL --screenshot PATH [--highlight SHAPE] (missing --${k})`);
-    process.exit(2);
-  }
-}
-const timeout = Number(opt.timeout);
-const WAIT = { timeout, polling: 200 }; // poll on a timer: animation frames lag under SwiftShader
-if (!fs.existsSync(opt.chromium)) {
-  console.error(`chromium not found at ${opt.chromium}: install it with scripts/install-system.sh test`);
-  process.exit(1);
-}
-
-const t0 = Date.now();
-const secs = () => ((Date.now() - t0) / 1000).toFixed(2);
-const note = (...a) => console.error(`${secs()}s`, ...a);
+const { note, timeout, WAIT, open, finish } = startDriver('gallery_e2e', opt, ['url', 'screenshot'],
+  '--url URL --screenshot PATH [--highlight SHAPE]');
 
 const pageUrl = new URL('viewer/gallery.html', opt.url).href;
-const serverHost = new URL(opt.url).host;
-const hosts = new Set();
-const consoleErrors = [];
-const failedRequests = [];
 const result = { url: pageUrl };
 const problems = [];
 
@@ -66,8 +48,7 @@ const frames = (page, n = 2) => page.evaluate((k) => new Promise((resolve) => {
 
 let browser;
 try {
-  browser = await openBrowser({ chromiumPath: opt.chromium, hosts, consoleErrors, failedRequests, note,
-    tag: '[gallery]' });
+  browser = await open('[gallery]');
   const page = browser.page;
 
   await page.goto(pageUrl, { waitUntil: 'load', timeout });
@@ -286,10 +267,4 @@ try {
   if (browser) await browser.close();
 }
 
-recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds: Number(secs()) });
-
-console.log(JSON.stringify(result));
-if (problems.length) {
-  console.error(`gallery_e2e FAILED: ${problems.join('; ')}`);
-  process.exit(1);
-}
+finish(result, problems);

@@ -17,7 +17,7 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
-import { openBrowser, recordTraffic } from './browser.mjs';
+import { startDriver } from './browser.mjs';
 
 const { values: opt } = parseArgs({
   options: {
@@ -29,31 +29,11 @@ const { values: opt } = parseArgs({
     timeout: { type: 'string', default: '90000' }, // ms per wait; SwiftShader is slow
   },
 });
-for (const k of ['url', 'cameras']) {
-  if (!opt[k]) {
-    console.error(`usage: node lod_views_e2e.mjs --url URL --cameras JSON [--max-sse 16] (missing --${k})`);
-    process.exit(2);
-  }
-}
+const { note, timeout, WAIT, open, finish } = startDriver('lod_views_e2e', opt, ['url', 'cameras'],
+  '--url URL --cameras JSON [--max-sse 16]');
 const cameras = JSON.parse(opt.cameras);
 const maxSse = Number(opt['max-sse']);
 const nFrames = Number(opt.frames);
-const timeout = Number(opt.timeout);
-// Poll on a timer: the default (every animation frame) lags seconds behind when SwiftShader frames are slow.
-const WAIT = { timeout, polling: 200 };
-if (!fs.existsSync(opt.chromium)) {
-  console.error(`chromium not found at ${opt.chromium}: install it with scripts/install-system.sh test`);
-  process.exit(1);
-}
-
-const t0 = Date.now();
-const secs = () => ((Date.now() - t0) / 1000).toFixed(2);
-const note = (...a) => console.error(`${secs()}s`, ...a);
-
-const serverHost = new URL(opt.url).host;
-const hosts = new Set();
-const consoleErrors = [];
-const failedRequests = [];
 const result = { url: opt.url, maxSse, views: [] };
 const problems = [];
 
@@ -155,8 +135,7 @@ async function recordView([cam, nFrames, timeoutMs]) {
 
 let browser;
 try {
-  browser = await openBrowser({ chromiumPath: opt.chromium, hosts, consoleErrors, failedRequests, note,
-    tag: '[citylod] all tiles' });
+  browser = await open('[citylod] all tiles');
   const page = browser.page;
 
   await page.goto(opt.url, { waitUntil: 'load', timeout });
@@ -196,9 +175,4 @@ try {
   if (browser) await browser.close();
 }
 
-recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds: Number(secs()) });
-console.log(JSON.stringify(result));
-if (problems.length) {
-  console.error(`lod_views_e2e FAILED: ${problems.join('; ')}`);
-  process.exit(1);
-}
+finish(result, problems);

@@ -10,18 +10,17 @@ from __future__ import annotations
 import http.client
 import json
 import os
-import queue
 import shutil
 import subprocess
 import sys
-import tempfile
-import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from urllib.parse import urlsplit
 
 import pytest
+
+from exporter.serve import spawned
 
 REPO = Path(__file__).resolve().parents[2]
 DRIVER = REPO / "tests" / "e2e" / "viewer_e2e.mjs"
@@ -61,36 +60,8 @@ def run_driver(driver: Path, args: list[str]) -> tuple[dict, str]:
 @contextmanager
 def served(tiles: Path, timeout: float = 30.0) -> Iterator[tuple[str, subprocess.Popen]]:
     """Run ``python -m exporter serve --port 0`` and yield (base URL, process); always terminated after."""
-    with tempfile.TemporaryFile(mode="w+") as stderr:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "exporter", "serve", "--dir", str(tiles), "--port", "0"],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=stderr, text=True,
-        )
-        try:
-            # The one stdout line tells the port; read it on a thread so a hung server cannot hang the test.
-            lines: queue.Queue[str] = queue.Queue()
-            out = proc.stdout
-            assert out is not None
-            threading.Thread(target=lambda: lines.put(out.readline()), daemon=True).start()
-            try:
-                line = lines.get(timeout=timeout)
-            except queue.Empty:
-                line = ""
-            prefix = "citylod viewer: "
-            if not line.startswith(prefix):
-                stderr.seek(0)
-                raise AssertionError(f"server did not announce its URL (got {line!r}):\n{stderr.read()}")
-            yield line[len(prefix):].strip(), proc
-        finally:
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
-            if proc.stdout:
-                proc.stdout.close()
+    with spawned(["exporter", "serve", "--dir", str(tiles), "--port", "0"], timeout=timeout) as (base, proc, _):
+        yield base, proc
 
 
 def raw_get(base: str, path: str, method: str = "GET") -> tuple[int, dict[str, str], bytes]:

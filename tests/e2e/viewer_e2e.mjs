@@ -11,7 +11,7 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
-import { openBrowser, recordTraffic } from './browser.mjs';
+import { startDriver } from './browser.mjs';
 
 const { values: opt } = parseArgs({
   options: {
@@ -26,40 +26,19 @@ const { values: opt } = parseArgs({
     timeout: { type: 'string', default: '90000' }, // ms per wait; SwiftShader is slow
   },
 });
-for (const k of ['url', 'lon', 'lat', 'screenshot']) {
-  if (!opt[k]) {
-    console.error(`usage: node viewer_e2e.mjs --url URL --lon X --lat Y --height H --screenshot PATH ` +
-      `[--expect-osm-id N] [--range M]   (missing --${k})`);
-    process.exit(2);
-  }
-}
+const { note, timeout, WAIT, open, finish } = startDriver('viewer_e2e', opt, ['url', 'lon', 'lat', 'screenshot'],
+  '--url URL --lon X --lat Y --height H --screenshot PATH [--expect-osm-id N] [--range M]');
 const lon = Number(opt.lon);
 const lat = Number(opt.lat);
 const height = Number(opt.height);
 const range = Number(opt.range);
-const timeout = Number(opt.timeout);
-// Poll on a timer: the default (every animation frame) lags seconds behind when SwiftShader frames are slow.
-const WAIT = { timeout, polling: 200 };
-if (!fs.existsSync(opt.chromium)) {
-  console.error(`chromium not found at ${opt.chromium}: install it with scripts/install-system.sh test`);
-  process.exit(1);
-}
 
-const t0 = Date.now();
-const secs = () => ((Date.now() - t0) / 1000).toFixed(2);
-const note = (...a) => console.error(`${secs()}s`, ...a);
-
-const serverHost = new URL(opt.url).host;
-const hosts = new Set();
-const consoleErrors = [];
-const failedRequests = [];
 const result = { url: opt.url };
 const problems = [];
 
 let browser;
 try {
-  browser = await openBrowser({ chromiumPath: opt.chromium, hosts, consoleErrors, failedRequests, note,
-    tag: '[citylod]' });
+  browser = await open('[citylod]');
   const page = browser.page;
 
   await page.goto(opt.url, { waitUntil: 'load', timeout });
@@ -130,7 +109,6 @@ try {
   if (browser) await browser.close();
 }
 
-recordTraffic(result, problems, { hosts, consoleErrors, failedRequests, serverHost, seconds: Number(secs()) });
 if (!(result.tilesWithContent > 0)) problems.push('no tile with content loaded');
 if (!(result.triangles > 0)) problems.push('no triangles rendered');
 const want = opt['expect-osm-id'];
@@ -138,8 +116,4 @@ if (want !== undefined && result.picked && String(result.picked.osm_id) !== Stri
   problems.push(`picked osm_id ${result.picked.osm_id}, expected ${want}`);
 }
 
-console.log(JSON.stringify(result));
-if (problems.length) {
-  console.error(`viewer_e2e FAILED: ${problems.join('; ')}`);
-  process.exit(1);
-}
+finish(result, problems);
