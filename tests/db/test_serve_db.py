@@ -103,16 +103,18 @@ def test_accept_encoding_and_if_none_match() -> None:
 
 
 def test_payload_keeps_gzip_only_when_it_pays() -> None:
-    text = make_payload(b'{"a": 1}' * 1000, "application/json")
-    assert text.gzip is not None and gzip.decompress(text.gzip) == text.body
+    raw = b'{"a": 1}' * 1000
+    text = make_payload(raw, "application/json")
+    assert text.gzip is not None and gzip.decompress(text.gzip) == raw and text.body == raw
+    assert text.size < len(raw) // 10  # only the compressed variant is kept in the cache
     assert text.etag == f'"{hashlib.sha256(text.body).hexdigest()[:32]}"' and text.gzip_etag != text.etag
     noise = make_payload(os.urandom(4096), "model/gltf-binary")
-    assert noise.gzip is None
+    assert noise.gzip is None and len(noise.body) == 4096 and noise.size >= 4096
 
 
 def test_lru_byte_budget_and_single_flight() -> None:
     def payload(n: int) -> Payload:
-        return Payload(b"x" * n, None, '"e"', "application/octet-stream")
+        return Payload(b"x" * n, False, '"e"', "application/octet-stream")
 
     lru = ByteLru(budget=3 * payload(1000).size)
     for k in "abc":
