@@ -474,3 +474,69 @@ def _point_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         s = np.clip(np.where(den > 0, np.einsum("ij,ij->i", ap, ab) / den, 0.0), 0.0, 1.0)
     r = ap - s[:, None] * ab
     return np.sqrt((r * r).sum(axis=1))
+
+
+_GEOS_PAIR_MAX = 250_000  # vertex pairs up to which GEOS' quadratic discrete Hausdorff is the faster
+
+
+def outline_hausdorff(a: np.ndarray, b: np.ndarray, spacing: np.ndarray | float) -> np.ndarray:
+    """Hausdorff distance between the boundaries of a[i] and b[i] (shapely polygons or lines), for a batch.
+
+    Every vertex of each boundary, and points every ``spacing[i]`` along it, are measured exactly to the other
+    boundary's nearest segment: one STRtree over the segments of every pair, the pairs moved apart along x so
+    that a point's nearest segment is always its own pair's. Near-linear in the vertices, where GEOS' discrete
+    Hausdorff is quadratic (a city block's outline has thousands). Never above the true distance, and within
+    spacing/2 of it: the farthest point of one boundary is within spacing/2 of a sample."""
+    import shapely
+
+    a = np.asarray(a, dtype=object)
+    b = np.asarray(b, dtype=object)
+    n = len(a)
+    out = np.zeros(n)
+    if n == 0:
+        return out
+    sp = np.broadcast_to(np.asarray(spacing, float), (n,))
+    lines = [shapely.segmentize(shapely.boundary(g), sp) for g in (a, b)]
+    # small pairs: GEOS (the same measure: every vertex to the other's segments), cheaper than a tree
+    small = shapely.get_num_coordinates(lines[0]) * shapely.get_num_coordinates(lines[1]) <= _GEOS_PAIR_MAX
+    out[small] = shapely.hausdorff_distance(lines[0][small], lines[1][small])
+    big = np.flatnonzero(~small)
+    if len(big) == 0:
+        return np.nan_to_num(out)
+    out[big] = _outline_tree(lines[0][big], lines[1][big])
+    return np.nan_to_num(out)
+
+
+def _outline_tree(la: np.ndarray, lb: np.ndarray) -> np.ndarray:
+    import shapely
+
+    n = len(la)
+    out = np.zeros(n)
+    lines = [la, lb]
+    bounds = np.concatenate([shapely.bounds(g) for g in lines])
+    if not np.isfinite(bounds).any():
+        return out
+    w = np.nanmax(bounds[:, 2]) - np.nanmin(bounds[:, 0])
+    h = np.nanmax(bounds[:, 3]) - np.nanmin(bounds[:, 1])
+    step = 3.0 * (w + h) + 1.0  # > twice any distance within a pair plus a pair's width
+    shift = np.arange(n) * step
+    pts, segs = [], []
+    for g in lines:
+        parts, owner = shapely.get_parts(g, return_index=True)
+        xy, part = shapely.get_coordinates(parts, return_index=True)
+        own = owner[part]
+        xy = xy + np.stack([shift[own], np.zeros(len(own))], axis=1)
+        pts.append((xy, own))
+        same = part[1:] == part[:-1]
+        segs.append((np.stack([xy[:-1][same], xy[1:][same]], axis=1), own[:-1][same]))
+    for (p, p_own), (s, s_own) in ((pts[0], segs[1]), (pts[1], segs[0])):
+        if len(p) == 0 or len(s) == 0:
+            continue
+        tree = shapely.STRtree(shapely.linestrings(s))
+        (_, _), dist = tree.query_nearest(shapely.points(p), return_distance=True, all_matches=False)
+        # query_nearest answers one row per point here (all_matches=False)
+        has = np.zeros(n, bool)
+        has[s_own] = True
+        keep = has[p_own]
+        np.maximum.at(out, p_own[keep], dist[keep])
+    return out
