@@ -474,6 +474,7 @@ def _generalize_section(results: list[ExtractResult], head: ExtractResult | None
         bands = head.counts("generalize").get("bands", [])
         names = {0: "blocks 10 m", 1: "blocks 5 m", 2: "LOD1, footprints 2.5 m", 3: "LOD2, decimated ≤ 1.25 m",
                  4: "LOD3 (leaves)"}
+        names.update({b["gen_level"]: f"blocks {10 * 2 ** -b['gen_level']:g} m" for b in bands if b["gen_level"] < 0})
         rows = [[f"{b['gen_level']} ({names.get(b['gen_level'], '?')})", f"{b['tiles']:,}", f"{b['features']:,}",
                  f"{b['triangles']:,}", f"{b['max_geometric_error_m']:.2f}"] for b in bands]
         out += [f"### generalize bands ({head.name})", "",

@@ -36,10 +36,11 @@ Three measurements, each usable alone (``--help`` of each subcommand) and called
       lod.building_mesh (LOD2 and LOD3, the ones the API reads), gen.building_mesh, gen.footprint,
       tiles.building_tile, tiles.tile and gen.block, every geometry translated (cells, anchors, outlines,
       meshes, blocks); regions are the translated regions reprojected, boxes recomputed with
-      exporter.geodesy.region_box. The 2 new upper levels (5 tiles) hold what the pipeline would put there:
-      the blocks band, i.e. the union of their children's content (the copies' root blocks, 10 m), with the
-      content error of those blocks and the geometric error of the largest child (tiles.finish_hierarchy's
-      rule: max of content and children's error), regions the union of their children's.
+      exporter.geodesy.region_box. The 2 new upper levels (5 tiles) are built as the pipeline builds them:
+      their band from height and width (gen.level_for_height), their blocks merged from their children's by
+      the generalize stage's own code (generalize.coarse_blocks), their content listed in tiles.tile_content
+      through api.buildings_for_tile, the geometric error the larger of their content's and their children's
+      (tiles.finish_hierarchy's rule), regions the union of their children's.
 
     Each database carries a marker row (bench.build) with a hash of its inputs: the extract, the copies, the
     CITYLOD_* settings and the code that builds it (etl/, sql/, migrations/ and this file). When the marker
@@ -69,7 +70,8 @@ import psycopg
 from psycopg import sql
 
 from etl import cluster
-from etl.settings import REPO
+from etl.settings import REPO, Settings
+from etl.stages import generalize
 from etl.stages.generalize import store_boxes
 from exporter.traverse import Camera
 
@@ -92,7 +94,6 @@ COPIES_100K = 6  # 3 × 2 copies of the extract, built for real
 COPIES_1M = 10  # tile-level copies of the 100k database on a 4 × 4 grid
 OFF_100K = 10**10  # id offset per copy at the first step
 OFF_1M = 10**12  # ... and at the second
-OFF_UP = 10**15  # block ids of the new upper levels: block_id + OFF_UP × (levels above the copies' roots)
 GAP_M = 500.0  # between the side-by-side copies of the 100k step
 
 _VIEW = """SELECT feature_kind, feature_id, lod, level, x, y
@@ -272,7 +273,7 @@ def _inputs(osm: Path, step: str) -> dict[str, Any]:
     builders = [build_100k] if step == "100k" else [build_100k, build_1m, _stack_levels, _copy_sql, _grid_table,
                                                     _columns]
     return {"step": step, "osm": osm.name, "osm_sha256": _file_hash(osm), "copies_100k": COPIES_100K,
-            "copies_1m": COPIES_1M, "offsets": [OFF_100K, OFF_1M, OFF_UP, GAP_M], "code": _code_hash(builders),
+            "copies_1m": COPIES_1M, "offsets": [OFF_100K, OFF_1M, GAP_M], "code": _code_hash(builders),
             "settings": {k: v for k, v in sorted(os.environ.items()) if k.startswith("CITYLOD_")}}
 
 
@@ -409,10 +410,10 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
         step("gen.footprint", _copy_sql(conn, "gen.footprint", "gen.footprint", {
             "building_id": f"s.building_id + {off}", "geom": "ST_Translate(s.geom, g.dx, g.dy)"}, grid_new))
         # the tile tree: every copy (0 included) moved down `up` levels into its cell
-        for t in ("tiles.tile", "tiles.building_tile", "gen.block"):
+        for t in ("tiles.tile", "tiles.building_tile", "gen.block", "tiles.tile_content"):
             conn.execute(sql.SQL("CREATE TEMP TABLE {} AS SELECT * FROM {}").format(
                 sql.Identifier("src_" + t.split(".")[1]), sql.Identifier(*t.split("."))))
-        conn.execute("TRUNCATE tiles.tile CASCADE")  # and tiles.building_tile, gen.block
+        conn.execute("TRUNCATE tiles.tile CASCADE")  # and tiles.building_tile, gen.block, tiles.tile_content
         shift = {"level": "s.level + g.up", "x": "s.x + (g.i << s.level)", "y": "s.y + (g.j << s.level)"}
         step("tiles.tile", _copy_sql(conn, "tiles.tile", "src_tile", {
             **shift, "cell": "ST_Translate(s.cell, g.dx, g.dy)",
@@ -432,7 +433,11 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
             "members": f"(SELECT array_agg(m + {off} ORDER BY m) FROM unnest(s.members) m)",
             "footprint": "ST_Translate(s.footprint, g.dx, g.dy)", "geom": "ST_Translate(s.geom, g.dx, g.dy, 0)"},
             grid_all, overriding=True))
+        step("tiles.tile_content", _copy_sql(conn, "tiles.tile_content", "src_tile_content", {
+            **shift, "feature_id": f"s.feature_id + {off}", "osm_id": f"s.osm_id + {off}"}, grid_all))
+        t = time.perf_counter()
         _stack_levels(conn, up, size, int(srid))
+        log(f"{DB_1M}: upper levels {time.perf_counter() - t:.0f} s")
         step("ANALYZE", "ANALYZE")
         n = conn.execute("SELECT count(*) FROM tiles.building_tile").fetchone()[0]  # type: ignore[index]
     _write_marker(url, inputs, time.perf_counter() - t0)
@@ -441,15 +446,17 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
 
 
 def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> None:
-    """``up`` new levels above the copies' roots (the blocks band, the union of their children's content, the
-    largest child's geometric error), then every tile's box from its region."""
-    # the new upper levels: the blocks band, holding the union of their children's content
-    bad = conn.execute("SELECT count(*) FROM tiles.tile WHERE level = %s AND gen_level > 1", (up,)).fetchone()[0]  # type: ignore[index]
-    if bad:
+    """``up`` new levels above the copies' roots, built as the pipeline builds them: each tile's band from its
+    height and width (gen.level_for_height), its blocks merged from its children's by the generalize stage's
+    own code (generalize.coarse_blocks), its content listed in tiles.tile_content, its geometric error the
+    larger of its content's and its children's; then every tile's box from its region."""
+    copy_band = conn.execute("SELECT min(gen_level) FROM tiles.tile WHERE level = %s", (up,)).fetchone()[0]  # type: ignore[index]
+    if copy_band > 1:
         raise RuntimeError("the copies' roots are not in a block band: too few levels to stack")
+    conn.execute("UPDATE tiles.grid SET size = size * %s", (2 ** up,))
+    root_h = conn.execute("SELECT max(height) FROM tiles.tile WHERE level = %s", (up,)).fetchone()[0] + up  # type: ignore[index]
     for lvl in range(up - 1, -1, -1):
         cs = size * 2 ** (up - lvl)
-        p = {"lvl": lvl, "child": lvl + 1, "cs": cs, "srid": srid, "off": OFF_UP, "h": up - lvl}
         conn.execute("""
             INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error,
                                     content_uri, height, gen_level, content_error_m)
@@ -460,21 +467,31 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
                    ARRAY[min(c.region[1]), min(c.region[2]), max(c.region[3]), max(c.region[4]),
                          min(c.region[5]), max(c.region[6])],
                    max(c.geometric_error), format('content/%%s/%%s/%%s.glb', %(lvl)s, c.x >> 1, c.y >> 1),
-                   max(c.height) + 1, 0, max(c.content_error_m)
+                   max(c.height) + 1, gen.level_for_height(max(c.height) + 1, %(root_h)s, %(cs)s), 0
             FROM tiles.tile c CROSS JOIN tiles.grid gr WHERE c.level = %(child)s
-            GROUP BY c.x >> 1, c.y >> 1, gr.origin_x, gr.origin_y""", p)
+            GROUP BY c.x >> 1, c.y >> 1, gr.origin_x, gr.origin_y""",
+                     {"lvl": lvl, "child": lvl + 1, "cs": cs, "srid": srid, "root_h": root_h})
+    with conn.transaction():
+        generalize.coarse_blocks(conn, Settings(), srid, below=copy_band)
+    conn.execute("""
+        INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
+                                        n_members, n_triangles, error_m)
+        SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
+               f.n_members, f.n_triangles, f.error_m
+        FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
+        WHERE t.level < %s""", (up,))
+    for lvl in range(up - 1, -1, -1):
         conn.execute("""
-            INSERT INTO gen.block OVERRIDING SYSTEM VALUE
-            SELECT b.block_id %% %(off)s + %(off)s * %(h)s, %(lvl)s, b.x >> 1, b.y >> 1, b.gen_level, b.members,
-                   b.n_members, b.footprint, b.geom, b.semantics, b.n_triangles, b.height, b.error_m, b.total_error_m
-            FROM gen.block b JOIN tiles.tile c ON (c.level, c.x, c.y) = (b.level, b.x, b.y)
-            WHERE b.level = %(child)s""", p)
-        conn.execute("""
-            UPDATE tiles.tile t SET content_features = k.n, content_triangles = k.tri
-            FROM (SELECT level, x, y, count(*) AS n, sum(n_triangles) AS tri FROM gen.block
-                  WHERE level = %s GROUP BY 1, 2, 3) k
+            UPDATE tiles.tile t SET content_features = k.n, content_triangles = k.tri, content_error_m = k.err,
+                   geometric_error = greatest(k.err, t.geometric_error)
+            FROM (SELECT level, x, y, count(*) AS n, sum(n_triangles) AS tri, max(error_m) AS err
+                  FROM tiles.tile_content WHERE level = %s GROUP BY 1, 2, 3) k
             WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y)""", (lvl,))
-    conn.execute("UPDATE tiles.grid SET size = size * %s", (2 ** up,))
+        conn.execute("""
+            UPDATE tiles.tile p SET geometric_error = greatest(p.geometric_error, k.ge)
+            FROM (SELECT x >> 1 AS x, y >> 1 AS y, max(geometric_error) AS ge FROM tiles.tile
+                  WHERE level = %s GROUP BY 1, 2) k
+            WHERE p.level = %s AND (p.x, p.y) = (k.x, k.y)""", (lvl + 1, lvl))
     # boxes from the regions, as the generalize stage computes them
     with conn.transaction(), conn.cursor() as cur:
         store_boxes(cur)

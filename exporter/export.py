@@ -61,7 +61,8 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("building_material", None, "building:material", False, None),
     ("roof_material", None, "roof:material", False, None),
     ("lod", "UINT8", "level of detail of the mesh: 0 block, 1 simplified block, 2 roofs, 3 facades", True, None),
-    ("gen_level", "UINT8", "generalization level (gen.tolerance): 0-1 blocks, 2 simplified, 3 LOD2, 4 LOD3",
+    ("gen_level", "INT8", "generalization level (gen.tolerance): 1 and below blocks (10 m at 0, 20 m at -1, ...), "
+     "2 simplified, 3 LOD2, 4 LOD3",
      True, None),
     ("n_members", "UINT32", "buildings merged into this feature (1 unless a block)", True, None),
     ("error_m", "FLOAT32", "bound on the distance to the full-detail model (m)", True, None),

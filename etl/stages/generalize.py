@@ -13,6 +13,9 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it closer than
    gen.tolerance(level) are clustered (ST_ClusterDBSCAN), merged by buffer-union-unbuffer, simplified at the
    same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members.
+   Tiles above those (levels -1, -2, ... of a large city) merge their children's blocks and buildings the
+   same way at 20 m, 40 m, ..., band by band upwards, so a coarse tile's content stays about as large as a
+   fine tile's instead of repeating every 10 m block of the city.
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
 
@@ -39,7 +42,7 @@ from ..db import connect, working_srid
 from ..geom.decimate import decimate
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
-from ..geom.hausdorff import hausdorff
+from ..geom.hausdorff import hausdorff, outline_hausdorff
 from ..geom.simplify import PIN_DISTANCE, simplify_footprints
 from ..geom.wkb import decode_triangles, encode_triangles_batch
 from ..progress import Progress, summary
@@ -92,7 +95,7 @@ ORDER BY m.building_id
 # mitred joins keeps right angles); a lone building keeps its simplified footprint.
 _BLOCKS = """
 WITH t AS (
-    SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level <= 1
+    SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level IN (0, 1)
 ), m AS (
     SELECT t.level, t.x, t.y, t.gen_level, t.d, f.building_id, f.geom, g.height, g.total_error_m,
            ST_Area(f.geom) AS area
@@ -106,9 +109,9 @@ WITH t AS (
 )
 SELECT level, x, y, gen_level, d, members, height, hmax, err,
        ST_AsBinary(CASE WHEN closed IS NULL OR ST_IsEmpty(closed) THEN joined ELSE closed END),
-       ST_AsBinary(joined), hmin
+       ST_AsBinary(joined), hmin, n_in
 FROM (
-    SELECT level, x, y, gen_level, d, cid, array_agg(building_id ORDER BY building_id) AS members,
+    SELECT level, x, y, gen_level, d, cid, count(*) AS n_in, array_agg(building_id ORDER BY building_id) AS members,
            (sum(height * area) / nullif(sum(area), 0))::real AS height, max(height) AS hmax,
            min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
            CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
@@ -118,6 +121,59 @@ FROM (
     GROUP BY level, x, y, gen_level, d, cid
 ) a
 ORDER BY level, x, y, cid
+"""
+# Per tile of a coarser band (gen_level < 0, the tiles above height 4): what its children draw in their
+# place, i.e. their blocks and, for a child in a finer band, its unprotected buildings' simplified footprints,
+# clustered at the band's distance and merged the same way. Built band by band upwards, so the children's
+# blocks exist; a block's members are the union of its inputs' members.
+_COARSE_BLOCKS = """
+WITH t AS (
+    SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level = %(g)s
+), ch AS (
+    SELECT t.level, t.x, t.y, t.gen_level, t.d, c.level AS cl, c.x AS cx, c.y AS cy, c.gen_level AS cg
+    FROM t JOIN tiles.tile c ON c.level = t.level + 1 AND c.x BETWEEN 2 * t.x AND 2 * t.x + 1
+                           AND c.y BETWEEN 2 * t.y AND 2 * t.y + 1
+), m AS (
+    SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, k.members, k.footprint AS geom, k.height::float8 AS height,
+           k.total_error_m
+    FROM ch JOIN gen.block k ON k.level = ch.cl AND k.x = ch.cx AND k.y = ch.cy
+    WHERE ch.cg <= 1
+    UNION ALL
+    SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, ARRAY[f.building_id], f.geom, g.height, g.total_error_m
+    FROM ch
+    CROSS JOIN LATERAL (SELECT DISTINCT b.group_id FROM tiles.building_tiles_below(ch.cl, ch.cx, ch.cy) b) bt
+    JOIN osm.building o ON o.id = bt.group_id AND NOT o.protected
+    JOIN gen.footprint f ON f.building_id = bt.group_id
+    JOIN gen.building_mesh g ON g.building_id = bt.group_id AND g.gen_level = 2
+    WHERE ch.cg > 1
+), c AS MATERIALIZED (
+    SELECT m.*,
+           ST_ClusterDBSCAN(geom, eps := d, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid
+    FROM m
+), mem AS (
+    -- the height is the members' area-weighted height, as in bands 0 and 1, not the inputs' (whose outlines
+    -- were simplified and closed)
+    SELECT c.level, c.x, c.y, c.cid, array_agg(u ORDER BY u) AS members,
+           (sum(g.height * ST_Area(f.geom)) / nullif(sum(ST_Area(f.geom)), 0))::real AS height
+    FROM c CROSS JOIN LATERAL unnest(c.members) u
+    JOIN gen.footprint f ON f.building_id = u
+    JOIN gen.building_mesh g ON g.building_id = u AND g.gen_level = 2
+    GROUP BY 1, 2, 3, 4
+)
+SELECT a.level, a.x, a.y, gen_level, d, mem.members, mem.height, hmax, err,
+       ST_AsBinary(CASE WHEN closed IS NULL OR ST_IsEmpty(closed) THEN joined ELSE closed END),
+       ST_AsBinary(joined), hmin, n_in
+FROM (
+    SELECT level, x, y, gen_level, d, cid, count(*) AS n_in, max(height) AS hmax,
+           min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
+           CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
+               ST_Buffer(ST_Collect(geom), d / 2, 'join=mitre mitre_limit=3'),
+               -d / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
+    FROM c
+    GROUP BY level, x, y, gen_level, d, cid
+) a
+JOIN mem ON (mem.level, mem.x, mem.y, mem.cid) = (a.level, a.x, a.y, a.cid)
+ORDER BY a.level, a.x, a.y, a.cid
 """
 _MESH_COLUMNS = ("building_id", "gen_level", "geom", "semantics", "n_triangles", "n_triangles_in", "min_height",
                  "height", "error_m", "total_error_m", "status")
@@ -244,14 +300,20 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
     return stats
 
 
-def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress) -> dict[str, float]:
+def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
+            coarse_level: int | None = None) -> dict[str, float]:
+    """Blocks of the 10 m and 5 m bands (from the buildings), or of the coarser band ``coarse_level`` < 0 (from
+    the children's content, which must be in gen.block already)."""
     stats = {"blocks": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
     with conn.cursor(name="gen_blocks") as src, conn.cursor() as cur:
         src.itersize = BATCH
-        src.execute(_BLOCKS)
+        if coarse_level is None:
+            src.execute(_BLOCKS)
+        else:
+            src.execute(_COARSE_BLOCKS, {"g": coarse_level})
         while rows := src.fetchmany(BATCH):
             n = len(rows)
             tol = np.array([r[4] for r in rows], float)
@@ -263,9 +325,8 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             members = [list(r[5]) for r in rows]
             # prisms against prisms: the outlines' Hausdorff distance, the gaps the merge filled (at most half
             # the distance) and the largest roof height change bound the distance between the solids
-            outline = shapely.hausdorff_distance(shapely.boundary(geoms), shapely.boundary(shapely.from_wkb(
-                [r[10] for r in rows])), densify=0.1)
-            gap = np.where([len(m) > 1 for m in members], tol / 2, 0.0)
+            outline = outline_hausdorff(geoms, shapely.from_wkb([r[10] for r in rows]), tol / 4)
+            gap = np.where(np.array([r[12] for r in rows]) > 1, tol / 2, 0.0)  # only merges fill gaps
             dz = np.maximum(np.array([r[7] for r in rows], float) - top, top - np.array([r[11] for r in rows], float))
             err = np.hypot(np.maximum(outline, gap), np.maximum(dz, 0.0))
             total = err + np.array([float(r[8]) for r in rows])
@@ -283,6 +344,17 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             stats["max_error_m"] = max(stats["max_error_m"], float(err.max(initial=0.0)))
             progress.update(n)
     return stats
+
+
+def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, below: int = 0) -> dict[str, float]:
+    """The coarser bands (gen_level < ``below`` <= 0), finest first: each band is built from the one below it.
+    Returns the blocks of each band ({"coarse_blocks": {g: n}})."""
+    levels = [int(r[0]) for r in conn.execute(
+        "SELECT DISTINCT gen_level FROM tiles.tile WHERE gen_level < least(%s, 0) ORDER BY 1 DESC", (below,))]
+    out: dict[int, int] = {}
+    for g in levels:
+        out[g] = int(_blocks(conn, settings, srid, Progress("generalize", f"blocks {g}"), g)["blocks"])
+    return {"coarse_blocks": out}  # type: ignore[dict-item]
 
 
 def store_boxes(cur: psycopg.Cursor) -> None:
@@ -317,6 +389,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds["decimation"] = time.perf_counter() - step
         step = time.perf_counter()
         blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"))
+        blk.update(coarse_blocks(conn, settings, srid))
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))

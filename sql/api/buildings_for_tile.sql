@@ -5,6 +5,8 @@
 --   3  LOD2: every building and part at LOD2, decimated where that paid (gen.building_mesh, gen_level 3)
 --   2  LOD1: every building (outline with its parts) as one solid on its simplified footprint (gen_level 2)
 --   1, 0  blocks: gen.block of this tile, plus protected buildings (landmarks) at gen_level 2, never merged
+--   < 0   coarser blocks of a large city's upper tiles (20 m at -1, 40 m at -2, ...), merged from the
+--         children's content; protected buildings as above
 -- Only the tile's band runs (plpgsql, one IF per band). The features below a tile come from
 -- tiles.building_tiles_below (GiST on the anchors, then quadtree arithmetic); protected buildings in the block
 -- bands through osm.building.protected. With single_lod = 1, 2 or 3 the hierarchy

@@ -4,15 +4,17 @@
 -- refinement: starting at the root, a tile in the view frustum is refined into its children while its
 -- screen-space error  geometric_error × viewport_height / (distance × 2 tan(fov / 2))  exceeds max_sse;
 -- distance is measured to the tile's box (tiles.box_distance), culling uses the five frustum planes
--- (tiles.box_visible). The features of the tiles it stops at are api.buildings_for_tile's, so the exporter
--- and this function agree by construction.
+-- (tiles.box_visible). The features of the tiles it stops at are read from tiles.tile_content, the list of
+-- api.buildings_for_tile's rows the generalize stage stored, so the exporter and this function agree by
+-- construction and a view costs one index scan per tile, no meshes.
 --   camera           point with Z: longitude, latitude (any SRID PostGIS can take to EPSG:4326) and height
 --                    above the WGS84 ellipsoid (m), as CesiumJS's camera.positionCartographic
 --   heading, pitch   degrees: heading clockwise from north, pitch up from the horizon (-90 looks straight
 --                    down), as camera.heading / camera.pitch; no roll
 --   fov              vertical field of view (degrees); aspect = viewport width / height
 --   viewport_height  pixels (drawing buffer height); max_sse: pixels (CesiumJS maximumScreenSpaceError)
--- lod is 0 for a block, 1 for a simplified solid, 2 roofs, 3 facades.
+-- lod is 0 for a block, 1 for a simplified solid, 2 roofs, 3 facades; gen_level below 0 marks the coarser
+-- blocks of a large city's upper tiles.
 -- Example (Helsinki, 1.5 km up, looking north and down):
 --   SELECT lod, count(*), round(max(screen_space_error)::numeric, 1)
 --   FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(24.94, 60.16, 1500), 4326), 0, -45, 60, 1080) GROUP BY lod;
@@ -89,10 +91,10 @@ AS $$
         WHERE NOT w.is_leaf AND w.sse > $6
           AND tiles.box_visible(c.box, cam.px, cam.py, cam.pz, cam.planes)
     )
-    SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level, f.n_members,
+    SELECT f.feature_kind, f.feature_id, f.osm_type, f.osm_id, f.lod, f.gen_level, f.n_members,
            w.level, w.x, w.y, w.distance_m, w.sse
     FROM walk w
-    CROSS JOIN LATERAL api.buildings_for_tile(w.level, w.x, w.y) f
+    JOIN tiles.tile_content f ON f.level = w.level AND f.x = w.x AND f.y = w.y
     WHERE w.is_leaf OR w.sse <= $6
 $$;
 COMMENT ON FUNCTION api.lod_for_view(geometry, double precision, double precision, double precision, integer, double precision, double precision) IS

@@ -31,6 +31,7 @@ BEGIN
     IF v_srid IS NULL THEN
         RAISE EXCEPTION 'no dataset loaded (meta.dataset is empty): run the ingest stage first';
     END IF;
+    TRUNCATE tiles.tile_content;  -- would go with the tiles (cascade), row by row
     DELETE FROM tiles.building_tile;
     DELETE FROM tiles.tile;
     DELETE FROM tiles.grid;
@@ -124,7 +125,8 @@ BEGIN
     WHERE l.is_leaf
     GROUP BY a.level, a.x, a.y;
 
-    UPDATE tiles.tile SET gen_level = gen.level_for_height(height, (SELECT r.height FROM tiles.tile r WHERE r.level = 0));
+    UPDATE tiles.tile SET gen_level = gen.level_for_height(height, (SELECT r.height FROM tiles.tile r WHERE r.level = 0),
+                                                           v_size / 2 ^ level);
 
     INSERT INTO tiles.building_tile (building_id, level, x, y, group_id, anchor)
     SELECT m.building_id, g.lvl, g.tx, g.ty, g.group_id, ST_SetSRID(ST_MakePoint(g.ax, g.ay), v_srid)

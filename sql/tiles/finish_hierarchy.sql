@@ -1,6 +1,7 @@
 -- tiles.finish_hierarchy(base_height)
 -- Completes the tile hierarchy once the generalize stage has filled gen.*: for every tile, its own content
--- (api.buildings_for_tile, exactly what the exporter writes) gives content_features, content_triangles and
+-- (api.buildings_for_tile, exactly what the exporter writes) is listed in tiles.tile_content (for
+-- api.lod_for_view) and gives content_features, content_triangles and
 -- content_error_m (the largest error bound of its features) and widens its region to the generalized meshes
 -- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
 -- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
@@ -15,20 +16,35 @@ DECLARE
     v_level integer;
     v_bad text;
 BEGIN
+    CREATE TEMP TABLE _feature ON COMMIT DROP AS
+    SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
+           f.n_members, f.n_triangles, f.error_m, f.min_height, f.height,
+           ST_Transform(ST_Envelope(f.geom), 4326)::box2d AS ext
+    FROM tiles.tile t
+    CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f;
+
+    DELETE FROM tiles.tile_content;
+    INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
+                                    n_members, n_triangles, error_m)
+    SELECT level, x, y, feature_kind, building_id, osm_type, osm_id, lod, gen_level, n_members, n_triangles,
+           error_m
+    FROM _feature
+    ORDER BY level, x, y, feature_kind, building_id;  -- a tile's rows together on disk
+
     CREATE TEMP TABLE _content ON COMMIT DROP AS
-    SELECT t.level, t.x, t.y, t.gen_level, c.*,
+    SELECT t.level, t.x, t.y, t.gen_level, coalesce(c.nf, 0) AS nf, coalesce(c.nt, 0) AS nt,
+           coalesce(c.err, 0) AS err, c.ext, c.zmin, c.zmax, coalesce(c.represented, 0) AS represented,
            CASE WHEN t.gen_level >= 3 THEN t.n_features
                 ELSE (SELECT count(DISTINCT b.group_id) FROM tiles.building_tiles_below(t.level, t.x, t.y) b)
            END AS expected
     FROM tiles.tile t
-    CROSS JOIN LATERAL (
-        SELECT count(f.building_id)::integer AS nf, coalesce(sum(f.n_triangles), 0)::bigint AS nt,
-               coalesce(max(f.error_m), 0)::double precision AS err,
-               ST_Extent(ST_Transform(ST_Envelope(f.geom), 4326))::box2d AS ext,
+    LEFT JOIN (
+        SELECT f.level, f.x, f.y, count(*)::integer AS nf, sum(f.n_triangles)::bigint AS nt,
+               max(f.error_m)::double precision AS err, ST_Extent(f.ext)::box2d AS ext,
                min(f.min_height) AS zmin, max(f.height) AS zmax,
-               coalesce(sum(CASE WHEN f.feature_kind = 'block' THEN f.n_members ELSE 1 END), 0) AS represented
-        FROM api.buildings_for_tile(t.level, t.x, t.y) f
-    ) c;
+               sum(CASE WHEN f.feature_kind = 'block' THEN f.n_members ELSE 1 END) AS represented
+        FROM _feature f GROUP BY 1, 2, 3
+    ) c ON (c.level, c.x, c.y) = (t.level, t.x, t.y);
 
     SELECT string_agg(format('(%s, %s, %s) band %s draws %s for %s', level, x, y, gen_level, represented, expected),
                       '; ')
