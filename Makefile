@@ -16,7 +16,7 @@ HOST   ?= 127.0.0.1
 SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod tiles generalize export serve demo test \
+.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod landmarks tiles generalize export serve demo test \
         test-unit bench report-generalization lint clean distclean
 
 help: ## list the targets
@@ -69,6 +69,9 @@ ingest: migrate $(OSM) ## OSM=path: load buildings and parts into osm.building
 lod: migrate ## build LOD1 blocks, LOD2 roofs, LOD3 facades into lod.building_mesh
 	$(PY) -m etl lod
 
+landmarks: migrate ## score every building's saliency, rank landmarks (Delaunay voting hierarchy) into lm.building
+	$(PY) -m etl landmarks
+
 tiles: migrate ## build the tile quadtree into tiles.tile
 	$(PY) -m etl tiles
 
@@ -81,9 +84,9 @@ export: migrate ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb),
 serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
 	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)),--dir $(OUT)) --host $(HOST) --port $(PORT)
 
-demo: ## everything on Helsinki: install, database, ingest, lod, tiles, generalize, export, serve
+demo: ## everything on Helsinki: install, database, ingest, lod, landmarks, tiles, generalize, export, serve
 	$(MAKE) setup
-	$(MAKE) ingest lod tiles generalize export OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) ingest lod landmarks tiles generalize export OSM=$(OSM) OUT=$(OUT)
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------

@@ -95,6 +95,17 @@ def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+def cmd_landmarks(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .runs import pipeline_run
+    from .stages import landmarks
+
+    url = _url(settings)
+    with pipeline_run(url, "landmarks", settings.as_dict()) as run, connect(url) as conn:
+        run.counts = landmarks.run(conn, settings)
+    return 0
+
+
 def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
     from .db import connect
     from .runs import pipeline_run
@@ -154,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     ing.set_defaults(fn=cmd_ingest)
 
     sub.add_parser("lod", help="osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)").set_defaults(fn=cmd_lod)
+    sub.add_parser("landmarks", help="lod.building_mesh -> lm.building (saliency, voting hierarchy) and "
+                   "osm.building.protected").set_defaults(fn=cmd_landmarks)
     sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
     sub.add_parser("generalize", help="tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors"
                    ).set_defaults(fn=cmd_generalize)
@@ -193,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("CITYLOD_DEBUG") == "1":
             raise
         print(f"{args.command}: error: {e}", file=sys.stderr)
-        if args.command in ("ingest", "lod", "tiles", "generalize", "export"):
+        if args.command in ("ingest", "lod", "landmarks", "tiles", "generalize", "export"):
             print("  (recorded as failed in meta.pipeline_run; CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
 

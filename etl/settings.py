@@ -74,6 +74,24 @@ class Settings:
     #: ... by this fraction of their triangles (fast-simplification), kept only within gen.tolerance(3).
     gen_decimate_reduction: float = 0.5
 
+    # --- landmarks (saliency weights: 0 leaves a measure out; etl/stages/landmarks.py) --------------------------
+    #: Weight of the height (the thesis' proof of concept used height alone).
+    lm_w_height: float = 1.0
+    #: Weight of the volume of the building's meshes.
+    lm_w_volume: float = 0.5
+    #: Weight of the footprint area.
+    lm_w_area: float = 0.25
+    #: Weight of the height relative to the neighbours within lm_neighbour_radius_m.
+    lm_w_relative_height: float = 0.5
+    #: Weight of the footprint's shape distinctiveness against its neighbours.
+    lm_w_shape: float = 0.25
+    #: Weight of the semantic tags (place of worship, cathedral/church/tower, tourism, historic, heritage, ...).
+    lm_w_semantic: float = 1.5
+    #: Neighbourhood (m) of the relative measures.
+    lm_neighbour_radius_m: float = 150.0
+    #: At most this fraction of the buildings are landmarks: the highest voting-hierarchy levels that fit.
+    lm_max_fraction: float = 0.01
+
     # --- export ---------------------------------------------------------------------------------------------
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on
     #: CesiumJS's plain WGS84 globe.

@@ -174,6 +174,7 @@ def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
             shutil.rmtree(tiles)
         run_etl(url, "ingest", "--osm", str(osm))
         run_etl(url, "lod")
+        run_etl(url, "landmarks")
         run_etl(url, "tiles")
         run_etl(url, "generalize")
         run_etl(url, "export", "--out", str(tiles))

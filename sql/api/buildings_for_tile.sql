@@ -5,6 +5,7 @@
 --   3  LOD2: every building and part at LOD2, decimated where that paid (gen.building_mesh, gen_level 3)
 --   2  LOD1: every building (outline with its parts) as one solid on its simplified footprint (gen_level 2)
 --   1, 0  blocks: gen.block of this tile, plus protected buildings (landmarks) at gen_level 2, never merged
+--         (LOD2, gen_level 3, in the bands at or below the landmark's lm.building.lod2_band, also in band 2)
 --   < 0   coarser blocks of a large city's upper tiles (20 m at -1, 40 m at -2, ...), merged from the
 --         children's content; protected buildings as above
 -- Only the tile's band runs (plpgsql, one IF per band). The features below a tile come from
@@ -89,16 +90,40 @@ BEGIN
         ORDER BY 1, 2;
     ELSE
         -- LOD1 band: each building with its parts as one solid on its simplified footprint; in the block
-        -- bands only protected buildings (landmarks) keep it, found through their own rows
+        -- bands only protected buildings (landmarks) keep it, found through their own rows. A landmark in a
+        -- band at or below its lm.building.lod2_band keeps LOD2 instead (its building and parts, as band 3).
         RETURN QUERY
+        WITH s AS (
+            SELECT DISTINCT bt.group_id, (l.lod2_band <= t.gen_level) IS TRUE AS lod2
+            FROM tiles.building_tiles_below($1, $2, $3) bt
+            LEFT JOIN lm.building l ON l.building_id = bt.group_id AND l.is_landmark
+            WHERE t.gen_level = 2 OR bt.group_id IN (SELECT o.id FROM osm.building o WHERE o.protected)
+        )
         SELECT 'building', b.id, b.osm_type::text, b.osm_id, b.kind, b.osm_type::text, b.osm_id,
                b.name, b.building, g.height, g.min_height, b.levels, 'flat',
                b.building_colour, b.roof_colour, b.building_material, b.roof_material,
                1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom
-        FROM (SELECT DISTINCT bt.group_id FROM tiles.building_tiles_below($1, $2, $3) bt
-              WHERE t.gen_level = 2 OR bt.group_id IN (SELECT o.id FROM osm.building o WHERE o.protected)) s
+        FROM s
         JOIN gen.building_mesh g ON g.building_id = s.group_id AND g.gen_level = 2
         JOIN osm.building b ON b.id = s.group_id
+        WHERE NOT s.lod2
+        UNION ALL
+        SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
+               coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
+               coalesce(b.name, p.name), coalesce(b.building, p.building),
+               m.height, m.min_height, b.levels, m.roof_shape,
+               b.building_colour, coalesce(b.roof_colour, p.roof_colour),
+               coalesce(b.building_material, p.building_material), b.roof_material,
+               2::smallint, 3::smallint, 1, d.total_error_m,
+               coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
+               coalesce(d.geom, m.geom)
+        FROM s
+        JOIN tiles.building_tiles_below($1, $2, $3) bt ON bt.group_id = s.group_id
+        JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
+        JOIN gen.building_mesh d ON d.building_id = bt.building_id AND d.gen_level = 3
+        JOIN osm.building b ON b.id = bt.building_id
+        LEFT JOIN osm.building p ON p.id = b.parent_id
+        WHERE s.lod2
         UNION ALL
         -- block bands: the tile's aggregated blocks
         SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,

@@ -19,9 +19,11 @@ BEGIN
     CREATE TEMP TABLE _feature ON COMMIT DROP AS
     SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
            f.n_members, f.n_triangles, f.error_m, f.min_height, f.height,
-           ST_Transform(ST_Envelope(f.geom), 4326)::box2d AS ext
+           ST_Transform(ST_Envelope(f.geom), 4326)::box2d AS ext,
+           CASE WHEN f.feature_kind <> 'block' THEN coalesce(o.parent_id, o.id) END AS group_id
     FROM tiles.tile t
-    CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f;
+    CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
+    LEFT JOIN osm.building o ON f.feature_kind <> 'block' AND o.id = f.building_id;
 
     DELETE FROM tiles.tile_content;
     INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
@@ -33,7 +35,8 @@ BEGIN
 
     CREATE TEMP TABLE _content ON COMMIT DROP AS
     SELECT t.level, t.x, t.y, t.gen_level, coalesce(c.nf, 0) AS nf, coalesce(c.nt, 0) AS nt,
-           coalesce(c.err, 0) AS err, c.ext, c.zmin, c.zmax, coalesce(c.represented, 0) AS represented,
+           coalesce(c.err, 0) AS err, c.ext, c.zmin, c.zmax,
+           coalesce(CASE WHEN t.gen_level >= 3 THEN c.nf ELSE c.groups END, 0) AS represented,
            CASE WHEN t.gen_level >= 3 THEN t.n_features
                 ELSE (SELECT count(DISTINCT b.group_id) FROM tiles.building_tiles_below(t.level, t.x, t.y) b)
            END AS expected
@@ -42,7 +45,9 @@ BEGIN
         SELECT f.level, f.x, f.y, count(*)::integer AS nf, sum(f.n_triangles)::bigint AS nt,
                max(f.error_m)::double precision AS err, ST_Extent(f.ext)::box2d AS ext,
                min(f.min_height) AS zmin, max(f.height) AS zmax,
-               sum(CASE WHEN f.feature_kind = 'block' THEN f.n_members ELSE 1 END) AS represented
+               -- buildings: blocks through their members, a landmark drawn at LOD2 once for all its parts
+               coalesce(sum(f.n_members) FILTER (WHERE f.feature_kind = 'block'), 0)
+                   + count(DISTINCT f.group_id) AS groups
         FROM _feature f GROUP BY 1, 2, 3
     ) c ON (c.level, c.x, c.y) = (t.level, t.x, t.y);
 

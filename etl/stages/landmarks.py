@@ -1,0 +1,154 @@
+"""Stage landmarks: which buildings are "distinguished" (thesis section 3.4), from their saliency.
+
+Runs after lod (it measures the LOD2 meshes) and before tiles/generalize (landmarks are never aggregated):
+
+1. one set-based query gives, per drawn building (an outline with its parts, or a lone part), its point on
+   surface, footprint shape, height and volume of its meshes and its semantic tags;
+2. in numpy (etl/geom/landmarks.py): the measures (height, volume, footprint area, height relative to the
+   neighbours within lm_neighbour_radius_m, shape distinctiveness, semantic tags), each normalized, weighted
+   by the lm_w_* settings into a score in [0, 1]; the Winter et al. voting hierarchy over the Delaunay
+   triangulation of the points gives each building's landmark level;
+3. lm.building gets every measure, the score, rank and level (COPY); the highest levels holding at most
+   lm_max_fraction of the buildings are the landmarks, flagged osm.building.protected.
+
+The hierarchy needs every point at once, so the stage holds a few float arrays per building (~100 bytes each,
+100 MB at 1M buildings), never the geometries.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import psycopg
+
+from ..db import working_srid
+from ..geom import landmarks as lm
+from ..progress import summary
+from ..settings import Settings
+
+#: Semantic measure: weight of each tag flag (sum 1). A flag holds when the outline or any of its parts has it.
+SEMANTIC = {"worship": 0.2, "religious_building": 0.2, "tower": 0.15, "historic": 0.15, "wikidata": 0.15,
+            "tourism": 0.1, "name": 0.05}
+EVERY_BAND = -32768  # lm.building.lod2_band of the top landmark: LOD2 in every band
+RELIGIOUS = ["cathedral", "church", "chapel", "mosque", "temple", "synagogue", "shrine", "monastery", "basilica"]
+TOWERS = ["tower", "lighthouse", "water_tower", "communications_tower"]
+
+_UNITS = """
+WITH f AS (
+    SELECT coalesce(o.parent_id, o.id) AS gid,
+           bool_or(o.tags->>'amenity' = 'place_of_worship') AS worship,
+           bool_or(o.building = ANY(%(religious)s) OR o.tags->>'building:part' = ANY(%(religious)s)) AS religious,
+           bool_or(o.building = ANY(%(towers)s) OR o.tags->>'man_made' = ANY(%(towers)s)
+                   OR o.tags ? 'tower:type') AS tower,
+           bool_or(o.tags ? 'historic' OR o.tags ? 'heritage') AS historic,
+           bool_or(o.tags ? 'wikidata' OR o.tags ? 'wikipedia') AS wikidata,
+           bool_or(o.tags ? 'tourism') AS tourism,
+           bool_or(o.name IS NOT NULL) AS named
+    FROM osm.building o GROUP BY 1
+), g AS (
+    SELECT coalesce(o.parent_id, o.id) AS gid, max(m.height) AS height, sum(m.volume_m3) AS volume
+    FROM lod.building_mesh m JOIN osm.building o ON o.id = m.building_id
+    WHERE m.lod = 2 GROUP BY 1
+)
+SELECT b.id, ST_X(c.p), ST_Y(c.p), ST_Area(b.geom_local), ST_Perimeter(b.geom_local),
+       ST_Area(ST_OrientedEnvelope(b.geom_local)), ST_NPoints(b.geom_local), g.height, g.volume,
+       f.worship, f.religious, f.tower, f.historic, f.wikidata, f.tourism, f.named
+FROM osm.building b
+JOIN g ON g.gid = b.id
+JOIN f ON f.gid = b.id
+CROSS JOIN LATERAL (SELECT ST_PointOnSurface(b.geom_local) AS p) c
+ORDER BY b.id
+"""
+_COLUMNS = ("building_id", "x", "y", "height_m", "volume_m3", "area_m2", "relative_height",
+            "shape_distinctiveness", "semantic", "score", "rank", "level", "is_landmark", "lod2_band")
+_TYPES = ("int8", "float8", "float8", "float4", "float8", "float8", "float4", "float4", "float4", "float4",
+          "int4", "int2", "bool", "int2")
+
+
+def weights(settings: Settings) -> dict[str, float]:
+    return {"height": settings.lm_w_height, "volume": settings.lm_w_volume, "area": settings.lm_w_area,
+            "relative_height": settings.lm_w_relative_height, "shape": settings.lm_w_shape,
+            "semantic": settings.lm_w_semantic}
+
+
+def landmark_min_level(level: np.ndarray, max_fraction: float) -> int:
+    """The lowest hierarchy level L >= 1 whose buildings (level >= L) are at most max(1, max_fraction × n); the
+    top level always qualifies (it holds one building)."""
+    if len(level) < 2:
+        return 1
+    at_least = np.cumsum(np.bincount(level)[::-1])[::-1]  # at_least[L] = count(level >= L)
+    budget = max(1, int(max_fraction * len(level)))
+    ok = np.nonzero(at_least[1:] <= budget)[0]
+    return int(ok[0]) + 1
+
+
+def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
+    t0 = time.perf_counter()
+    srid = working_srid(conn)
+    cols: list[list[object]] = [[] for _ in range(16)]
+    with conn.cursor(name="lm_units") as src:
+        src.itersize = 20_000
+        src.execute(_UNITS, {"religious": RELIGIOUS, "towers": TOWERS})
+        while rows := src.fetchmany(20_000):
+            for c, vals in zip(cols, zip(*rows, strict=True), strict=True):
+                c.extend(vals)
+    ids = np.array(cols[0], dtype=np.int64)
+    n = len(ids)
+    xy = np.column_stack([np.array(cols[1], float), np.array(cols[2], float)]) if n else np.zeros((0, 2))
+    area, perimeter, mrr, nverts, height, volume = (np.array(c, dtype=float) for c in cols[3:9])
+    flags = np.array(cols[9:16], dtype=bool).T if n else np.zeros((0, len(SEMANTIC)), bool)
+
+    indptr, indices = lm.radius_neighbours(xy, settings.lm_neighbour_radius_m)
+    relative = lm.relative_height(height, indptr, indices)
+    shape = lm.shape_distinctiveness(lm.shape_descriptors(area, perimeter, mrr, nverts), indptr, indices)
+    semantic = flags.astype(float) @ np.array(list(SEMANTIC.values()))
+    # volume, area and relative height are heavy-tailed: logs, so one hangar does not squash the city to ~0
+    measures = {"height": height, "volume": np.log1p(volume), "area": np.log1p(area),
+                "relative_height": np.log(np.maximum(relative, 1e-3)), "shape": shape, "semantic": semantic}
+    w = weights(settings)
+    score = lm.saliency(measures, w) if n else np.zeros(0)
+    level = lm.voting_hierarchy(xy, score)
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.lexsort((ids, -score))] = np.arange(1, n + 1)  # ties: lower id first
+    min_level = landmark_min_level(level, settings.lm_max_fraction)
+    is_landmark = level >= min_level
+    # from the lowest landmark level LOD2 replaces the simplified solid in band 2, one band coarser per level;
+    # the top of the hierarchy, the city's landmark, in every band (the smallest band there can be)
+    lod2_band = np.where(is_landmark, 2 - (level - min_level), 0)
+    lod2_band[level == level.max(initial=0)] = EVERY_BAND
+
+    with conn.transaction(), conn.cursor() as cur:
+        cur.execute("TRUNCATE lm.building")
+        cur.execute("CREATE TEMP TABLE _lm (building_id int8, x float8, y float8, height_m float4, volume_m3 float8,"
+                    " area_m2 float8, relative_height float4, shape_distinctiveness float4, semantic float4,"
+                    " score float4, rank int4, level int2, is_landmark bool, lod2_band int2) ON COMMIT DROP")
+        with cur.copy(f"COPY _lm ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.set_types(list(_TYPES))
+            for row in zip(ids.tolist(), xy[:, 0].tolist(), xy[:, 1].tolist(), height.tolist(), volume.tolist(),
+                           area.tolist(), relative.tolist(), shape.tolist(), semantic.tolist(), score.tolist(),
+                           rank.tolist(), level.tolist(), is_landmark.tolist(), lod2_band.tolist(), strict=True):
+                copy.write_row(row)
+        cur.execute("""
+            INSERT INTO lm.building (building_id, centroid, height_m, volume_m3, area_m2, relative_height,
+                                     shape_distinctiveness, semantic, score, rank, level, is_landmark, lod2_band)
+            SELECT building_id, ST_SetSRID(ST_MakePoint(x, y), %s), height_m, volume_m3, area_m2, relative_height,
+                   shape_distinctiveness, semantic, score, rank, level, is_landmark,
+                   CASE WHEN is_landmark THEN lod2_band END
+            FROM _lm ORDER BY rank""", (srid,))
+        cur.execute("UPDATE osm.building SET protected = false WHERE protected")
+        cur.execute("""UPDATE osm.building b SET protected = true FROM lm.building l
+                       WHERE l.building_id = b.id AND l.is_landmark""")
+        drawn = cur.execute("""SELECT count(DISTINCT coalesce(o.parent_id, o.id)) FROM lod.building_mesh m
+                               JOIN osm.building o ON o.id = m.building_id WHERE m.lod = 2""").fetchone()[0]  # type: ignore[index]
+        cur.execute("ANALYZE lm.building")
+    if drawn != n:  # every drawn building is scored (the lod stage recorded the ones it could not draw)
+        raise RuntimeError(f"landmarks lost buildings: {drawn} drawn, {n} scored")
+    top = ids[np.argsort(rank)[:10]].tolist()
+    seconds = time.perf_counter() - t0
+    n_lm = int(is_landmark.sum())
+    summary("landmarks", f"{n:,} buildings scored, {int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
+            f"(level >= {min_level})", seconds, n)
+    return {"buildings": n, "levels": int(level.max(initial=0)), "landmark_min_level": min_level,
+            "landmarks": n_lm, "top10": top, "weights": w, "seconds": round(seconds, 3),
+            "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}
