@@ -472,7 +472,7 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
             GROUP BY c.x >> 1, c.y >> 1, gr.origin_x, gr.origin_y""",
                      {"lvl": lvl, "child": lvl + 1, "cs": cs, "srid": srid, "root_h": root_h})
     with conn.transaction():
-        generalize.coarse_blocks(conn, Settings(), srid, below=copy_band)
+        generalize.coarse_blocks(conn, Settings(), srid, max_level=up - 1)
     conn.execute("""
         INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
                                         n_members, n_triangles, error_m)

@@ -128,7 +128,8 @@ ORDER BY level, x, y, cid
 # blocks exist; a block's members are the union of its inputs' members.
 _COARSE_BLOCKS = """
 WITH t AS (
-    SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level = %(g)s
+    SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile
+    WHERE gen_level = %(g)s AND level = %(level)s
 ), ch AS (
     SELECT t.level, t.x, t.y, t.gen_level, t.d, c.level AS cl, c.x AS cx, c.y AS cy, c.gen_level AS cg
     FROM t JOIN tiles.tile c ON c.level = t.level + 1 AND c.x BETWEEN 2 * t.x AND 2 * t.x + 1
@@ -166,8 +167,9 @@ SELECT a.level, a.x, a.y, gen_level, d, mem.members, mem.height, hmax, err,
 FROM (
     SELECT level, x, y, gen_level, d, cid, count(*) AS n_in, max(height) AS hmax,
            min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
+           -- inputs simplified at d / 4 first: the closing's cost grows steeply with vertices and distance
            CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
-               ST_Buffer(ST_Collect(geom), d / 2, 'join=mitre mitre_limit=3'),
+               ST_Buffer(ST_Collect(ST_SimplifyPreserveTopology(geom, d / 4)), d / 2, 'join=mitre mitre_limit=3'),
                -d / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
     FROM c
     GROUP BY level, x, y, gen_level, d, cid
@@ -301,19 +303,19 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
 
 
 def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
-            coarse_level: int | None = None) -> dict[str, float]:
-    """Blocks of the 10 m and 5 m bands (from the buildings), or of the coarser band ``coarse_level`` < 0 (from
-    the children's content, which must be in gen.block already)."""
+            coarse: tuple[int, int] | None = None) -> dict[str, float]:
+    """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
+    ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already)."""
     stats = {"blocks": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
     with conn.cursor(name="gen_blocks") as src, conn.cursor() as cur:
         src.itersize = BATCH
-        if coarse_level is None:
+        if coarse is None:
             src.execute(_BLOCKS)
         else:
-            src.execute(_COARSE_BLOCKS, {"g": coarse_level})
+            src.execute(_COARSE_BLOCKS, {"g": coarse[0], "level": coarse[1]})
         while rows := src.fetchmany(BATCH):
             n = len(rows)
             tol = np.array([r[4] for r in rows], float)
@@ -346,14 +348,19 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
     return stats
 
 
-def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, below: int = 0) -> dict[str, float]:
-    """The coarser bands (gen_level < ``below`` <= 0), finest first: each band is built from the one below it.
-    Returns the blocks of each band ({"coarse_blocks": {g: n}})."""
-    levels = [int(r[0]) for r in conn.execute(
-        "SELECT DISTINCT gen_level FROM tiles.tile WHERE gen_level < least(%s, 0) ORDER BY 1 DESC", (below,))]
+def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_level: int | None = None
+                  ) -> dict[str, float]:
+    """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
+    deepest level first: each tile is built
+    from its children's content (the top tiles share band -4, so a band runs level by level). Returns the
+    blocks of each band ({"coarse_blocks": {g: n}})."""
+    pairs = [(int(g), int(lv)) for g, lv in conn.execute(
+        """SELECT DISTINCT gen_level, level FROM tiles.tile WHERE gen_level < 0 AND level <= %s
+           ORDER BY 1 DESC, 2 DESC""", (1 << 15 if max_level is None else max_level,))]
     out: dict[int, int] = {}
-    for g in levels:
-        out[g] = int(_blocks(conn, settings, srid, Progress("generalize", f"blocks {g}"), g)["blocks"])
+    for g, lv in pairs:
+        n = int(_blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))["blocks"])
+        out[g] = out.get(g, 0) + n
     return {"coarse_blocks": out}  # type: ignore[dict-item]
 
 

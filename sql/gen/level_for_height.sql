@@ -4,7 +4,10 @@
 -- coarser blocks at 20 m (-1), 40 m (-2), ... up to the root, so a coarse tile holds about as many features as
 -- a fine one however large the city. The coarser bands never go past a tolerance of 1/64 of the tile's width
 -- (m): one dense spot makes a deep branch and a tall tree, and its root, a few km wide, would otherwise merge
--- at tens of km; tolerance and width then double together going up. A tree shorter than 4 (a small city)
+-- at tens of km; tolerance and width then double together going up. The coarsest band is -4 (160 m): the
+-- closing that merges blocks costs steeply more with its distance (Liechtenstein's blocks: 2 s at 40 m, 20 s
+-- at 160 m, 430 s at 640 m), and tiles that far up are refined away by any camera close enough to see a city;
+-- the tiles above share band -4, merged level by level. A tree shorter than 4 (a small city)
 -- spreads the bands over the levels it has, so its root still holds blocks: heights 0..root_height map to
 -- 4 - round(4 × height / root_height). A parent's level is never above its children's.
 -- Example: SELECT level, x, y, height, gen.level_for_height(height, 6, 24000 / 2 ^ level) FROM tiles.tile LIMIT 5;
@@ -16,8 +19,8 @@ AS $$
                 WHEN root_height < 4 THEN 4 - round(4.0 * height / root_height)
                 WHEN height <= 4 THEN 4 - height
                 -- gen.tolerance(g) = 10 / 2^g <= width / 64
-                ELSE greatest(4 - height, least(0, ceil(log(2.0, (640.0 / greatest(width, 1e-3))::numeric))))
+                ELSE greatest(4 - height, least(0, ceil(log(2.0, (640.0 / greatest(width, 1e-3))::numeric))), -4)
            END::smallint
 $$;
 COMMENT ON FUNCTION gen.level_for_height(integer, integer, double precision) IS
-    'Generalization level (gen.tolerance) of a tile''s content from its height above the leaves, the root''s height and the tile''s width (m): leaves 4 (LOD3), then 3, 2, 1, 0 (blocks), -1, -2, .. (coarser blocks, tolerance at most width / 64) upwards; the root of a tree of any height > 0 holds blocks. Example: SELECT gen.level_for_height(1, 2, 500); -- 2';
+    'Generalization level (gen.tolerance) of a tile''s content from its height above the leaves, the root''s height and the tile''s width (m): leaves 4 (LOD3), then 3, 2, 1, 0 (blocks), -1, -2, .. (coarser blocks, tolerance at most width / 64, at most 160 m) upwards; the root of a tree of any height > 0 holds blocks. Example: SELECT gen.level_for_height(1, 2, 500); -- 2';
