@@ -72,22 +72,7 @@ BEGIN
         ORDER BY 1, 2;
     ELSIF t.gen_level = 3 THEN
         -- LOD2 band: roofs, decimated where it paid
-        RETURN QUERY
-        SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
-               coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
-               coalesce(b.name, p.name), coalesce(b.building, p.building),
-               m.height, m.min_height, b.levels, m.roof_shape,
-               b.building_colour, coalesce(b.roof_colour, p.roof_colour),
-               coalesce(b.building_material, p.building_material), b.roof_material,
-               2::smallint, 3::smallint, 1, d.total_error_m,
-               coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
-               coalesce(d.geom, m.geom)
-        FROM tiles.building_tiles_below($1, $2, $3) bt
-        JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
-        JOIN gen.building_mesh d ON d.building_id = bt.building_id AND d.gen_level = 3
-        JOIN osm.building b ON b.id = bt.building_id
-        LEFT JOIN osm.building p ON p.id = b.parent_id
-        ORDER BY 1, 2;
+        RETURN QUERY SELECT * FROM tiles.lod2_features($1, $2, $3) ORDER BY 1, 2;
     ELSE
         -- LOD1 band: each building with its parts as one solid on its simplified footprint; in the block
         -- bands only protected buildings (landmarks) keep it, found through their own rows. A landmark in a
@@ -108,22 +93,8 @@ BEGIN
         JOIN osm.building b ON b.id = s.group_id
         WHERE NOT s.lod2
         UNION ALL
-        SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,
-               coalesce(p.osm_type, b.osm_type)::text, coalesce(p.osm_id, b.osm_id),
-               coalesce(b.name, p.name), coalesce(b.building, p.building),
-               m.height, m.min_height, b.levels, m.roof_shape,
-               b.building_colour, coalesce(b.roof_colour, p.roof_colour),
-               coalesce(b.building_material, p.building_material), b.roof_material,
-               2::smallint, 3::smallint, 1, d.total_error_m,
-               coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
-               coalesce(d.geom, m.geom)
-        FROM s
-        JOIN tiles.building_tiles_below($1, $2, $3) bt ON bt.group_id = s.group_id
-        JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
-        JOIN gen.building_mesh d ON d.building_id = bt.building_id AND d.gen_level = 3
-        JOIN osm.building b ON b.id = bt.building_id
-        LEFT JOIN osm.building p ON p.id = b.parent_id
-        WHERE s.lod2
+        SELECT * FROM tiles.lod2_features($1, $2, $3, (SELECT array_agg(s.group_id) FROM s WHERE s.lod2))
+        WHERE EXISTS (SELECT FROM s WHERE s.lod2)
         UNION ALL
         -- block bands: the tile's aggregated blocks
         SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,
