@@ -685,6 +685,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--files", nargs="+", type=Path, help="OSM extracts (default: ../shared/data/osm + demo)")
     p.add_argument("--keep", action="store_true", help=f"keep {BENCH_DB} and {O2P_DB} afterwards")
     p.add_argument("--no-server", action="store_true", help="skip the serve --db load test")
+    p.add_argument("--scale-json", type=Path,
+                   help="take the latency at scale from this output of `python -m benchmarks.view_bench scale` "
+                        "(a run on a quiet machine) instead of measuring it here")
     p.add_argument("--no-scale", action="store_true",
                    help="skip api.lod_for_view at ~100k/~1M buildings (its cached databases take ~15 min to build)")
     args = p.parse_args(argv)
@@ -706,6 +709,8 @@ def main(argv: list[str] | None = None) -> int:
     for flag in ("no_server", "no_scale"):
         if getattr(args, flag):
             command += " --" + flag.replace("_", "-")
+    if args.scale_json:
+        command += f" --scale-json {args.scale_json}  # from: python -m benchmarks.view_bench scale > {args.scale_json}"
 
     results: list[ExtractResult] = []
     scale: dict[str, Any] | None = None
@@ -715,7 +720,9 @@ def main(argv: list[str] | None = None) -> int:
             results.append(bench_extract(f, args.repeat, admin_url, server=not args.no_server))
         mach = machine(cluster.database_url(BENCH_DB))
         head = next((f for f in files if extract_name(f) == HEADLINE), None)
-        if head is not None and not args.no_scale:
+        if args.scale_json:
+            scale = json.loads(args.scale_json.read_text())
+        elif head is not None and not args.no_scale:
             from benchmarks import view_bench
 
             scale = view_bench.scale(admin_url, head)

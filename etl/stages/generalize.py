@@ -359,6 +359,7 @@ def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_l
            ORDER BY 1 DESC, 2 DESC""", (1 << 15 if max_level is None else max_level,))]
     out: dict[int, int] = {}
     for g, lv in pairs:
+        conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
         n = int(_blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))["blocks"])
         out[g] = out.get(g, 0) + n
     return {"coarse_blocks": out}  # type: ignore[dict-item]
@@ -395,6 +396,10 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         dec = _decimation(conn, reader, settings, srid, tol[3])
         seconds["decimation"] = time.perf_counter() - step
         step = time.perf_counter()
+        # the blocks join the footprints and meshes just written: without statistics the planner takes the
+        # TRUNCATEd tables for empty and scans them once per member (minutes at 100k buildings)
+        cur.execute("ANALYZE gen.footprint")
+        cur.execute("ANALYZE gen.building_mesh")
         blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"))
         blk.update(coarse_blocks(conn, settings, srid))
         seconds["blocks"] = time.perf_counter() - step
