@@ -13,9 +13,9 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it closer than
    gen.tolerance(level) are clustered (ST_ClusterDBSCAN), merged by buffer-union-unbuffer, simplified at the
    same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members.
-   Tiles above those (levels -1, -2, ... of a large city) merge their children's blocks and buildings the
-   same way at 20 m, 40 m, ..., band by band upwards, so a coarse tile's content stays about as large as a
-   fine tile's instead of repeating every 10 m block of the city.
+   Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
+   same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
+   large as a fine tile's instead of repeating every 10 m block of the city.
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
 
@@ -351,9 +351,8 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
 def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_level: int | None = None
                   ) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
-    deepest level first: each tile is built
-    from its children's content (the top tiles share band -4, so a band runs level by level). Returns the
-    blocks of each band ({"coarse_blocks": {g: n}})."""
+    deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
+    band runs level by level). Returns the blocks of each band ({"coarse_blocks": {g: n}})."""
     pairs = [(int(g), int(lv)) for g, lv in conn.execute(
         """SELECT DISTINCT gen_level, level FROM tiles.tile WHERE gen_level < 0 AND level <= %s
            ORDER BY 1 DESC, 2 DESC""", (1 << 15 if max_level is None else max_level,))]

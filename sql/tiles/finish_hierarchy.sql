@@ -25,7 +25,7 @@ BEGIN
     CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
     LEFT JOIN osm.building o ON f.feature_kind <> 'block' AND o.id = f.building_id;
 
-    DELETE FROM tiles.tile_content;
+    TRUNCATE tiles.tile_content;
     INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
                                     n_members, n_triangles, error_m)
     SELECT level, x, y, feature_kind, building_id, osm_type, osm_id, lod, gen_level, n_members, n_triangles,
