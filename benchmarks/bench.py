@@ -422,15 +422,15 @@ SCALE_NOTE = (
     "(benchmarks/view_bench.py explains both): *~100k* = 6 copies of the extract side by side (osm.building "
     "replicated with ids offset and geometries translated), then lod, tiles and generalize run for real; "
     "*~1M* = 10 copies of the ~100k database at the tile level (tile tree, buildings, meshes, blocks copied "
-    "with ids offset and geometries, regions and boxes translated/recomputed) under 2 new upper levels whose "
-    "content is the union of their children's blocks band and whose geometric error is the largest child's. "
+    "with ids offset and geometries, regions and boxes translated/recomputed) under 2 new upper levels built "
+    "as the pipeline builds them (their blocks merged from their children's by generalize.coarse_blocks, "
+    "their content in tiles.tile_content, geometric error from content and children). "
     "{n} seeded navigation cameras (seed {seed}): positioned in leaf tiles drawn by their feature count, "
     "height 50–3000 m log-uniform, heading uniform, pitch −15° to −90°, fov 60°, 1080 px, max_sse 16. Each "
     "figure is the *client wall time* of one call (prepared statement, warm connection on the Unix socket, "
     "execute and fetch all rows: planning + execution + transfer), after one untimed warm-up pass over every "
-    "camera (at ~1M: over the first 20 cameras only). A call over the time limit (30 s; 5 s at ~1M, where a "
-    "high oblique view stops at the root and its ~380k blocks take 20-30 s) is cancelled and counted at the "
-    "limit, so a figure marked ≥ is a lower bound. Target: p95 ≤ 10 ms at ~1M buildings."
+    "camera. A call over the time limit (30 s) is cancelled and counted at the limit, so a figure marked ≥ "
+    "is a lower bound. Target: p95 ≤ 10 ms at ~1M buildings."
 )
 
 

@@ -18,8 +18,8 @@ Three measurements, each usable alone (``--help`` of each subcommand) and called
     statement on one warm connection (Unix socket), timed as *client wall time* of execute + fetch all rows,
     i.e. planning + execution + transferring the result, after one untimed warm-up pass over every camera. For
     the p95 and the slowest camera EXPLAIN (ANALYZE, TIMING OFF) splits that into planning and execution. A
-    call over the timeout (30 s; 5 s at ~1M, where the warm-up pass covers the first 20 cameras only) is
-    cancelled and counted at the timeout, so a percentile equal to it means "at least".
+    call over the timeout (30 s) is cancelled and counted at the timeout, so a percentile equal to it means
+    "at least".
 
 ``scale`` — the latency at ~100k and ~1M buildings, on two bench-only databases built from one extract
     (Liechtenstein, 17.8k buildings) and cached between runs:
@@ -79,11 +79,6 @@ MAX_SSE = 16.0
 SEED = 4
 N_CAMERAS = 200
 TIMEOUT_S = 30.0  # a call slower than this is cancelled and counted at this value
-# At ~1M a high oblique camera stops at the root, whose blocks band holds ~380k features: such a call takes
-# 20-30 s, so there the calls are capped at 5 s and only the first 20 cameras warm up (the whole database is
-# in the OS cache after that); otherwise one run would take an hour.
-TIMEOUT_1M_S = 5.0
-WARMUP_1M = 20
 HEIGHTS = (50.0, 3000.0)
 PITCHES = (-90.0, -15.0)
 EARTH_R = 6_371_008.8
@@ -509,8 +504,7 @@ def scale(admin_url: str, osm: Path, n: int = N_CAMERAS, seed: int = SEED, rebui
         if url is None or key not in only:
             continue
         t = time.perf_counter()
-        out[key] = (measure_latency(url, n, seed, warmup=WARMUP_1M, timeout_s=TIMEOUT_1M_S) if key == "1m"
-                    else measure_latency(url, n, seed))
+        out[key] = measure_latency(url, n, seed)
         out[key]["measure_s"] = round(time.perf_counter() - t, 1)
         log(f"{key}: p50 {out[key]['p50_ms']} ms, p95 {out[key]['p95_ms']} ms, max {out[key]['max_ms']} ms, "
             f"{out[key]['mean_features']} features per view ({out[key]['buildings']:,} buildings)")
