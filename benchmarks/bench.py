@@ -624,7 +624,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     header = ["extract", "buildings (ingest in)", f"seconds (median of {repeat})", "buildings/s",
               "slowest stage (share)"]
     lines += _generalize_section(results, head)
-    lines += ["### end to end (ingest + lod + tiles + generalize + export)", "", *_table(header, rows, "lrrrl")]
+    lines += ["### end to end (" + " + ".join(STAGES) + ")", "", *_table(header, rows, "lrrrl")]
 
     rows = []
     for r in results:
