@@ -16,6 +16,10 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
    Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
    same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
    large as a fine tile's instead of repeating every 10 m block of the city.
+   Selection: a block (of any of these bands) that lies within its band's tolerance of a single point (the
+   centre of its members' bounding circle at ground level: sqrt(radius² + height²) <= gen.tolerance) is marked
+   omitted and its tile does not draw it, as OpenMapTiles drops small blocks and PLATEAU small features per
+   level; its members are drawn again in the tiles below, and the coarser bands still merge it.
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
 
@@ -25,7 +29,8 @@ LOD2-to-LOD3 step (the openings stand FacadeParams.depth out of the walls, by co
 buildings and decimated meshes are measured on the meshes (etl/geom/hausdorff.py, sampled surfaces, exact
 point-triangle distances). A block and its members are flat prisms, so their distance is bounded by
 sqrt(h² + dz²): h the larger of the outlines' Hausdorff distance (GEOS) and half the merge distance (the
-gaps the merge filled are at most that far from a member), dz the largest change of roof height.
+gaps the merge filled are at most that far from a member), dz the largest change of roof height. An omitted
+block's error is that of the omission, sqrt(radius² + height²).
 """
 
 from __future__ import annotations
@@ -183,7 +188,7 @@ _MESH_TYPES = ("int8", "int2", "bytea", "bytea", "int4", "int4", "float4", "floa
 _FOOTPRINT_COLUMNS = ("building_id", "geom", "tolerance_m", "n_vertices_in", "n_vertices_out", "area_in_m2",
                       "area_out_m2", "error_m", "status")
 _BLOCK_COLUMNS = ("level", "x", "y", "gen_level", "members", "n_members", "footprint", "geom", "semantics",
-                  "n_triangles", "height", "error_m", "total_error_m")
+                  "n_triangles", "height", "error_m", "total_error_m", "omitted")
 
 
 def _ewkb(geoms: np.ndarray, srid: int) -> list[bytes]:
@@ -306,7 +311,7 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             coarse: tuple[int, int] | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
     ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already)."""
-    stats = {"blocks": 0, "members": 0, "max_error_m": 0.0}
+    stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
@@ -327,10 +332,17 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             members = [list(r[5]) for r in rows]
             # prisms against prisms: the outlines' Hausdorff distance, the gaps the merge filled (at most half
             # the distance) and the largest roof height change bound the distance between the solids
-            outline = outline_hausdorff(geoms, shapely.from_wkb([r[10] for r in rows]), tol / 4)
+            joined = shapely.from_wkb([r[10] for r in rows])
+            hmax = np.array([r[7] for r in rows], float)
+            outline = outline_hausdorff(geoms, joined, tol / 4)
             gap = np.where(np.array([r[12] for r in rows]) > 1, tol / 2, 0.0)  # only merges fill gaps
-            dz = np.maximum(np.array([r[7] for r in rows], float) - top, top - np.array([r[11] for r in rows], float))
+            dz = np.maximum(hmax - top, top - np.array([r[11] for r in rows], float))
             err = np.hypot(np.maximum(outline, gap), np.maximum(dz, 0.0))
+            # selection: a block that fits within the band's tolerance of one point (the centre of its members'
+            # bounding circle, at ground level) is omitted from its tile; that collapse is then its error
+            collapse = np.hypot(shapely.minimum_bounding_radius(joined), hmax)
+            omitted = collapse <= tol
+            err = np.where(omitted, collapse, err)
             total = err + np.array([float(r[8]) for r in rows])
             wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
             fps = _ewkb(geoms, srid)
@@ -340,8 +352,9 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                 for j, r in enumerate(rows):
                     copy.write_row((r[0], r[1], r[2], r[3], members[j], len(members[j]), fps[j].hex(),
                                     wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]), float(top[j]),
-                                    float(err[j]), float(total[j])))
+                                    float(err[j]), float(total[j]), bool(omitted[j])))
             stats["blocks"] += n
+            stats["omitted"] += int(omitted.sum())
             stats["members"] += sum(len(m) for m in members)
             stats["max_error_m"] = max(stats["max_error_m"], float(err.max(initial=0.0)))
             progress.update(n)
@@ -352,16 +365,19 @@ def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_l
                   ) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
-    band runs level by level). Returns the blocks of each band ({"coarse_blocks": {g: n}})."""
+    band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
+    "coarse_omitted": {g: n}})."""
     pairs = [(int(g), int(lv)) for g, lv in conn.execute(
         """SELECT DISTINCT gen_level, level FROM tiles.tile WHERE gen_level < 0 AND level <= %s
            ORDER BY 1 DESC, 2 DESC""", (1 << 15 if max_level is None else max_level,))]
     out: dict[int, int] = {}
+    omitted: dict[int, int] = {}
     for g, lv in pairs:
         conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
-        n = int(_blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))["blocks"])
-        out[g] = out.get(g, 0) + n
-    return {"coarse_blocks": out}  # type: ignore[dict-item]
+        st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))
+        out[g] = out.get(g, 0) + int(st["blocks"])
+        omitted[g] = omitted.get(g, 0) + int(st["omitted"])
+    return {"coarse_blocks": out, "coarse_omitted": omitted}  # type: ignore[dict-item]
 
 
 def store_boxes(cur: psycopg.Cursor) -> None:

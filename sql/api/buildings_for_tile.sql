@@ -96,12 +96,12 @@ BEGIN
         SELECT * FROM tiles.lod2_features($1, $2, $3, (SELECT array_agg(s.group_id) FROM s WHERE s.lod2))
         WHERE EXISTS (SELECT FROM s WHERE s.lod2)
         UNION ALL
-        -- block bands: the tile's aggregated blocks
+        -- block bands: the tile's aggregated blocks, but for those too small for the band (selection)
         SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,
                NULL, NULL, k.height, 0::real, NULL, 'flat', NULL, NULL, NULL, NULL,
                0::smallint, k.gen_level, k.n_members, k.total_error_m, k.n_triangles, 0::real, k.semantics, k.geom
         FROM gen.block k
-        WHERE t.gen_level <= 1 AND k.level = t.level AND k.x = t.x AND k.y = t.y
+        WHERE t.gen_level <= 1 AND k.level = t.level AND k.x = t.x AND k.y = t.y AND NOT k.omitted
         ORDER BY 1, 2;
     END IF;
 END

@@ -5,9 +5,10 @@
 CREATE OR REPLACE FUNCTION tiles.box_distance(box double precision[], px double precision, py double precision,
                                               pz double precision)
 RETURNS double precision
-LANGUAGE sql IMMUTABLE PARALLEL SAFE STRICT
+LANGUAGE sql IMMUTABLE PARALLEL SAFE
 AS $$
-    -- written out (no FROM, no aggregate) so the planner inlines it into api.lod_for_view
+    -- written out (no FROM, no aggregate) and not STRICT, so the planner inlines it into api.lod_for_view:
+    -- a STRICT function is inlined only if its body is provably strict, which greatest() and AND are not
     SELECT sqrt(
         greatest(abs(((px - box[1]) * box[4] + (py - box[2]) * box[5] + (pz - box[3]) * box[6])) / greatest(sqrt(box[4] ^ 2 + box[5] ^ 2 + box[6] ^ 2), 1e-9) - greatest(sqrt(box[4] ^ 2 + box[5] ^ 2 + box[6] ^ 2), 1e-9), 0) ^ 2
       + greatest(abs(((px - box[1]) * box[7] + (py - box[2]) * box[8] + (pz - box[3]) * box[9])) / greatest(sqrt(box[7] ^ 2 + box[8] ^ 2 + box[9] ^ 2), 1e-9) - greatest(sqrt(box[7] ^ 2 + box[8] ^ 2 + box[9] ^ 2), 1e-9), 0) ^ 2

@@ -6,9 +6,10 @@
 CREATE OR REPLACE FUNCTION tiles.box_visible(box double precision[], px double precision, py double precision,
                                              pz double precision, planes double precision[])
 RETURNS boolean
-LANGUAGE sql IMMUTABLE PARALLEL SAFE STRICT
+LANGUAGE sql IMMUTABLE PARALLEL SAFE
 AS $$
-    -- written out (no FROM, no aggregate) so the planner inlines it into api.lod_for_view
+    -- written out (no FROM, no aggregate) and not STRICT, so the planner inlines it into api.lod_for_view:
+    -- a STRICT function is inlined only if its body is provably strict, which greatest() and AND are not
     SELECT (planes[1] * (box[1] - px) + planes[2] * (box[2] - py) + planes[3] * (box[3] - pz)
           + abs(planes[1] * box[4] + planes[2] * box[5] + planes[3] * box[6])
           + abs(planes[1] * box[7] + planes[2] * box[8] + planes[3] * box[9])

@@ -1,13 +1,13 @@
 -- tiles.finish_hierarchy(base_height)
 -- Completes the tile hierarchy once the generalize stage has filled gen.*: for every tile, its own content
 -- (api.buildings_for_tile, exactly what the exporter writes) is listed in tiles.tile_content (for
--- api.lod_for_view) and gives content_features, content_triangles and
--- content_error_m (the largest error bound of its features) and widens its region to the generalized meshes
+-- api.lod_for_view) and gives content_features, content_triangles and content_error_m (the largest error
+-- bound of its features and of the blocks it omits) and widens its region to the generalized meshes
 -- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
 -- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
 -- (so it never grows downwards) and its region the union with its children's. It refuses a tile whose content
--- does not stand for the buildings below it (blocks through their members): as many features as below it in
--- the LOD2/LOD3 bands, as many buildings (outlines with their parts) in the others.
+-- does not stand for the buildings below it (blocks, drawn or omitted, through their members): as many
+-- features as below it in the LOD2/LOD3 bands, as many buildings (outlines with their parts) in the others.
 -- Example: CALL tiles.finish_hierarchy(0);
 CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision)
 LANGUAGE plpgsql
@@ -35,8 +35,9 @@ BEGIN
 
     CREATE TEMP TABLE _content ON COMMIT DROP AS
     SELECT t.level, t.x, t.y, t.gen_level, coalesce(c.nf, 0) AS nf, coalesce(c.nt, 0) AS nt,
-           coalesce(c.err, 0) AS err, c.ext, c.zmin, c.zmax,
-           coalesce(CASE WHEN t.gen_level >= 3 THEN c.nf ELSE c.groups END, 0) AS represented,
+           greatest(coalesce(c.err, 0), coalesce(om.err, 0)) AS err, c.ext, c.zmin, c.zmax,
+           coalesce(CASE WHEN t.gen_level >= 3 THEN c.nf ELSE c.groups + coalesce(om.members, 0) END, 0)
+               AS represented,
            CASE WHEN t.gen_level >= 3 THEN t.n_features
                 ELSE (SELECT count(DISTINCT b.group_id) FROM tiles.building_tiles_below(t.level, t.x, t.y) b)
            END AS expected
@@ -49,7 +50,12 @@ BEGIN
                coalesce(sum(f.n_members) FILTER (WHERE f.feature_kind = 'block'), 0)
                    + count(DISTINCT f.group_id) AS groups
         FROM _feature f GROUP BY 1, 2, 3
-    ) c ON (c.level, c.x, c.y) = (t.level, t.x, t.y);
+    ) c ON (c.level, c.x, c.y) = (t.level, t.x, t.y)
+    LEFT JOIN (
+        -- blocks the tile omits (selection) stand for their members too, with the omission's error
+        SELECT k.level, k.x, k.y, sum(k.n_members)::bigint AS members, max(k.total_error_m)::double precision AS err
+        FROM gen.block k WHERE k.omitted GROUP BY 1, 2, 3
+    ) om ON (om.level, om.x, om.y) = (t.level, t.x, t.y);
 
     SELECT string_agg(format('(%s, %s, %s) band %s draws %s for %s', level, x, y, gen_level, represented, expected),
                       '; ')

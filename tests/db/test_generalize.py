@@ -50,7 +50,8 @@ def test_every_band_is_present(deep, conn_of) -> None:
 
 def test_each_tile_draws_each_building_below_it_once(deep, conn_of) -> None:
     conn = conn_of(deep[0])
-    # the osm outline ids a tile stands for (blocks through their members) = the buildings below it
+    # the osm outline ids a tile stands for (blocks, drawn or omitted, through their members) = the buildings
+    # below it
     bad = conn.execute(
         """WITH drawn AS (
                SELECT t.level, t.x, t.y, coalesce(m.member, b.id) AS group_id
@@ -59,6 +60,9 @@ def test_each_tile_draws_each_building_below_it_once(deep, conn_of) -> None:
                LEFT JOIN gen.block k ON f.feature_kind = 'block' AND k.block_id = f.building_id
                LEFT JOIN LATERAL unnest(k.members) m(member) ON true
                LEFT JOIN osm.building b ON f.feature_kind <> 'block' AND b.id = f.building_id
+               UNION ALL
+               SELECT k.level, k.x, k.y, m.member FROM gen.block k CROSS JOIN LATERAL unnest(k.members) m(member)
+               WHERE k.omitted
            ), want AS (
                SELECT DISTINCT t.level, t.x, t.y, bt.group_id
                FROM tiles.tile t JOIN tiles.building_tile bt
@@ -110,11 +114,14 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
            LIMIT 3""").fetchall()
     assert uncovered == []
     # a coarser band merges further: each of its tiles has fewer blocks than its children hold in their place
+    # (drawn or omitted)
     grew = conn.execute(
         """SELECT t.level, t.x, t.y FROM tiles.tile t
            WHERE t.gen_level < 0 AND (SELECT count(*) FROM gen.block k WHERE (k.level, k.x, k.y) = (t.level, t.x, t.y))
              > (SELECT count(*) FROM tiles.tile_content c
-                WHERE c.level = t.level + 1 AND c.x >> 1 = t.x AND c.y >> 1 = t.y)""").fetchall()
+                WHERE c.level = t.level + 1 AND c.x >> 1 = t.x AND c.y >> 1 = t.y)
+             + (SELECT count(*) FROM gen.block k
+                WHERE k.omitted AND k.level = t.level + 1 AND k.x >> 1 = t.x AND k.y >> 1 = t.y)""").fetchall()
     assert grew == []
     assert conn.execute("SELECT count(*) FROM gen.block WHERE gen_level < 0 AND n_members > 1").fetchone()[0] > 0
     # height is the members' area-weighted height
@@ -125,6 +132,41 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
            GROUP BY k.block_id, k.height
            HAVING abs(k.height - sum(g.height * ST_Area(f.geom)) / sum(ST_Area(f.geom))) > 0.01""").fetchall()
     assert off == []
+
+
+def test_blocks_too_small_for_their_band_are_omitted_with_their_error(deep, conn_of) -> None:
+    conn = conn_of(deep[0])
+    # the rule: omitted exactly when the members fit within the band's tolerance of one ground point
+    by_rule = conn.execute(
+        """WITH k AS (
+               SELECT k.block_id, k.omitted, k.gen_level, k.error_m,
+                      sqrt((ST_MinimumBoundingRadius(ST_Collect(f.geom))).radius ^ 2 + max(g.height) ^ 2) AS collapse
+               FROM gen.block k JOIN gen.footprint f ON f.building_id = ANY(k.members)
+               JOIN gen.building_mesh g ON g.building_id = f.building_id AND g.gen_level = 2
+               WHERE k.gen_level >= 0  -- the coarser bands measure their inputs' simplified outlines
+               GROUP BY k.block_id)
+           SELECT count(*) FILTER (WHERE omitted), count(*) FILTER (WHERE NOT omitted),
+                  count(*) FILTER (WHERE omitted <> (collapse <= gen.tolerance(gen_level) + 1e-3)
+                                   AND abs(collapse - gen.tolerance(gen_level)) > 1e-3),
+                  count(*) FILTER (WHERE omitted AND abs(error_m - collapse) > 1e-3)
+           FROM k""").fetchone()
+    assert by_rule[0] > 0 and by_rule[1] > 0, by_rule
+    assert by_rule[2:] == (0, 0), by_rule
+    # never drawn, and the tile's geometric error covers the omission
+    drawn = conn.execute(
+        """SELECT count(*) FROM gen.block k JOIN tiles.tile_content c
+             ON c.feature_kind = 'block' AND c.feature_id = k.block_id WHERE k.omitted""").fetchone()[0]
+    assert drawn == 0
+    under = conn.execute(
+        """SELECT count(*) FROM gen.block k JOIN tiles.tile t USING (level, x, y)
+           WHERE k.omitted AND t.geometric_error < k.total_error_m - 1e-3""").fetchone()[0]
+    assert under == 0
+    # the coarser bands still merge omitted blocks: some block of a band < 0 has an omitted child block's members
+    merged = conn.execute(
+        """SELECT count(*) FROM gen.block p JOIN gen.block c
+             ON c.level = p.level + 1 AND c.x >> 1 = p.x AND c.y >> 1 = p.y AND c.omitted AND c.members <@ p.members
+           WHERE p.gen_level < 0 AND p.n_members > c.n_members""").fetchone()[0]
+    assert merged > 0
 
 
 def test_footprints_are_valid_close_and_smaller(deep, conn_of) -> None:
@@ -242,6 +284,18 @@ def test_lod_for_view_agrees_with_the_tileset_traversal(deep, conn_of, cam) -> N
     assert set(got) == set(want)
     for uri, sse in want.items():
         assert got[uri] == pytest.approx(sse, rel=1e-6, abs=1e-9)
+
+
+def test_the_walk_inlines_its_box_tests(deep, conn_of) -> None:
+    # tiles.box_visible / box_distance are SQL functions meant to be inlined into api.lod_for_view's walk: called
+    # as functions they cost the walk several times over (a STRICT one stops being inlined)
+    plan = conn_of(deep[0]).execute(
+        """EXPLAIN (VERBOSE, FORMAT JSON)
+           SELECT tiles.box_visible(box, 1, 2, 3, ARRAY[1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1, 0, 0, 0, 1]),
+                  tiles.box_distance(box, 1, 2, 3)
+           FROM tiles.tile""").fetchone()[0]
+    text = json.dumps(plan)
+    assert "box_visible" not in text and "box_distance" not in text and "box[12]" in text
 
 
 def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:

@@ -1,0 +1,3 @@
+-- 0016: selection (omission) of blocks too small for their band: kept in gen.block with their error, not drawn.
+ALTER TABLE gen.block ADD COLUMN omitted boolean NOT NULL DEFAULT false;
+COMMENT ON COLUMN gen.block.omitted IS 'Selection: the block is too small for its band (collapsing it to the centre of its members'' bounding circle at ground level moves no point further than gen.tolerance(gen_level)), so its tile does not draw it; its members are drawn again in the finer tiles below. Kept for the coarser bands, which merge it with its neighbours, and for its error. error_m and total_error_m of an omitted block are those of the omission.';
