@@ -91,6 +91,13 @@ class Settings:
     lm_neighbour_radius_m: float = 150.0
     #: At most this fraction of the buildings are landmarks: the highest voting-hierarchy levels that fit.
     lm_max_fraction: float = 0.01
+    #: Exaggeration (api.landmark_scale): a landmark starts to grow where its height would drop below this many
+    #: pixels of a 1080 px high, 60° view ...
+    lm_min_screen_px: float = 48.0
+    #: ... by this factor each time the distance grows by it (the predefined intervals) ...
+    lm_scale_step: float = 1.5
+    #: ... up to this scale for the top of the hierarchy (the lowest landmark level gets a share of it).
+    lm_max_scale: float = 3.0
 
     # --- export ---------------------------------------------------------------------------------------------
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on

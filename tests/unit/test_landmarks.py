@@ -2,13 +2,17 @@
 Winter et al. voting hierarchy (known answers, invariants, degenerate inputs, a brute-force reference round),
 view-dependent exaggeration and the displacement of the buildings an enlarged landmark would cover."""
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
 from etl.geom.landmarks import (
     displacement,
+    exaggeration_intervals,
     exaggeration_scale,
+    interval_arrays,
     normalize,
     promote,
     radius_neighbours,
@@ -279,6 +283,22 @@ def test_hierarchy_rejects_bad_input() -> None:
 
 
 # --- exaggeration and displacement ----------------------------------------------------------------------------
+
+
+def test_exaggeration_intervals_start_where_the_landmark_gets_small() -> None:
+    from_m, top = exaggeration_intervals(np.array([60.0, 30.0, 30.0]), np.array([5, 3, 4]), 3,
+                                         min_screen_px=48, step=1.5, max_scale=3.0)
+    # 60 m fill 48 px of 1080 px / 60° at 60 * 1080 / (2 tan 30° * 48) = 1169 m
+    assert from_m[0] == pytest.approx(60 * 1080 / (2 * math.tan(math.radians(30)) * 48))
+    assert from_m[1] == pytest.approx(from_m[0] / 2)
+    # the top level gets the full scale, each level below a third less of the growth (3 landmark levels)
+    assert top.tolist() == pytest.approx([3.0, 1 + 2 / 3, 1 + 4 / 3])
+    b, s = interval_arrays(1000.0, 1.5, 3.0)
+    assert b.tolist() == pytest.approx([1000, 1500, 2250]) and s.tolist() == pytest.approx([1.5, 2.25, 3.0])
+    assert exaggeration_scale([999, 1000, 2000, 1e9], b, s).tolist() == pytest.approx([1, 1.5, 2.25, 3.0])
+    assert [len(a) for a in interval_arrays(1000.0, 1.5, 1.0)] == [0, 0]
+    with pytest.raises(ValueError):
+        exaggeration_intervals(np.ones(1), np.ones(1), 1, min_screen_px=48, step=1.0, max_scale=3)
 
 
 def test_exaggeration_scale_steps() -> None:
