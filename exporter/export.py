@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import psycopg
+import shapely
 from psycopg.rows import dict_row
 
 from etl.db import connect
@@ -30,6 +31,7 @@ from etl.progress import Progress, summary
 from etl.settings import Settings
 
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, hex_rgba, tile_arrays
+from .geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
 from .gltf import Primitive, Property, write_glb
 from .tileset import TileRecord, build_tileset, region_centre
 
@@ -37,8 +39,18 @@ _FEATURES = """
 SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name, f.building, f.height,
        f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour, f.building_material,
        f.roof_material, f.lod, f.gen_level, f.n_members, f.error_m, f.semantics,
-       ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %s), 4978)) AS ecef_wkb
-FROM api.buildings_for_tile(%s, %s, %s, %s) f
+       ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %(base)s), 4978)) AS ecef_wkb,
+       l.rank AS lm_rank, coalesce(x.role, 0) AS lm_role, lo.osm_id AS lm_landmark_osm_id,
+       coalesce(x.scale_from_m, 0) AS lm_scale_from_m, coalesce(x.scale_step, 0) AS lm_scale_step,
+       coalesce(x.max_scale, 1) AS lm_max_scale, coalesce(x.landmark_radius_m, 0) AS lm_radius_m,
+       coalesce(x.gap_m, 0) AS lm_gap_m,
+       ST_AsBinary(ST_Transform(ST_Translate(ST_Force3D(x.landmark_centroid), 0, 0, %(base)s), 4978)) AS lm_centre_wkb,
+       ST_AsBinary(ST_Transform(ST_Translate(ST_Force3D(x.centroid), 0, 0, %(base)s), 4978)) AS lm_own_wkb
+FROM api.buildings_for_tile(%(level)s, %(x)s, %(y)s, %(lod)s) f
+LEFT JOIN osm.building o ON f.kind <> 'block' AND o.id = f.building_id
+LEFT JOIN lm.building l ON l.building_id = coalesce(o.parent_id, o.id)
+LEFT JOIN LATERAL lm.exaggeration_role(l.building_id) x ON true
+LEFT JOIN osm.building lo ON lo.id = x.landmark_id
 """
 
 OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
@@ -66,6 +78,28 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
      True, None),
     ("n_members", "UINT32", "buildings merged into this feature (1 unless a block)", True, None),
     ("error_m", "FLOAT32", "bound on the distance to the full-detail model (m)", True, None),
+    ("lm_rank", "UINT32", "saliency rank of the building (lm.building.rank, 1 = most salient)", False, 0),
+    # landmark exaggeration (api.landmark_scale / api.landmark_exaggeration, done by the client per frame)
+    ("lm_role", "UINT8", "landmark exaggeration: 1 a landmark, 2 a building its scaled footprint would cover, "
+     "0 neither", True, None),
+    ("lm_landmark_osm_id", "INT64", "the landmark (itself for role 1, the one that pushes it for role 2)", False, 0),
+    ("lm_scale_from_m", "FLOAT32", "the landmark's intervals: from camera distance lm_scale_from_m * "
+     "lm_scale_step^i on, scale min(lm_scale_step^(i+1), lm_max_scale); 1 before the first (0 unless role > 0)",
+     True, None),
+    ("lm_scale_step", "FLOAT32", "see lm_scale_from_m (0 unless role > 0)", True, None),
+    ("lm_max_scale", "FLOAT32", "see lm_scale_from_m (1 unless role > 0)", True, None),
+    ("lm_centre_x", "FLOAT32", "the landmark's footprint centre at ground level in this glTF's frame (y up)",
+     True, None),
+    ("lm_centre_y", "FLOAT32", "see lm_centre_x", True, None),
+    ("lm_centre_z", "FLOAT32", "see lm_centre_x", True, None),
+    ("lm_radius_m", "FLOAT32", "radius of the landmark's footprint circle (m)", True, None),
+    ("lm_gap_m", "FLOAT32", "role 2: gap between this building's footprint circle and the landmark's at scale 1 "
+     "(m, negative when they overlap); at scale s it moves max(0, (s - 1) * lm_radius_m - max(gap, 0)) away "
+     "along lm_dir", True, None),
+    ("lm_dir_x", "FLOAT32", "role 2: horizontal unit vector from the landmark's centre to this building's, in "
+     "this glTF's frame", True, None),
+    ("lm_dir_y", "FLOAT32", "see lm_dir_x (0: horizontal)", True, None),
+    ("lm_dir_z", "FLOAT32", "see lm_dir_x", True, None),
 ]
 
 
@@ -85,6 +119,7 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
     if len(sem) != len(triangles):
         raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem)
+    rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat), strict=True)]
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
         values = [r[name] for r in rows]
@@ -96,6 +131,33 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
         indices=arr.indices, properties=props, feature_count=len(rows),
     )
     return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
+
+
+def _landmark_frame(rows: list[dict], lon: float, lat: float) -> list[dict[str, float]]:
+    """lm_centre_* and lm_dir_* of each row in the content's frame (tile_arrays': ENU at (lon, lat), y up)."""
+    out = [dict.fromkeys(("lm_centre_x", "lm_centre_y", "lm_centre_z", "lm_dir_x", "lm_dir_y", "lm_dir_z"), 0.0)
+           for _ in rows]
+    idx = [i for i, r in enumerate(rows) if r.get("lm_centre_wkb") is not None]
+    if not idx:
+        return out
+    origin = geodetic_to_ecef(lon, lat, 0.0)
+    to_gl = enu_rotation(lon, lat) @ Z_UP_TO_Y_UP.T
+
+    def local(key: str) -> np.ndarray:
+        pts = shapely.get_coordinates(shapely.from_wkb([bytes(rows[i][key]) for i in idx]), include_z=True)
+        return (pts - origin) @ to_gl
+
+    centre, own = local("lm_centre_wkb"), local("lm_own_wkb")
+    d = own - centre
+    d[:, 1] = 0.0  # horizontal: y is up in the glTF frame
+    norm = np.linalg.norm(d, axis=1)
+    d = np.where(norm[:, None] > 1e-9, d / np.where(norm > 1e-9, norm, 1.0)[:, None], [1.0, 0.0, 0.0])
+    for k, i in enumerate(idx):
+        out[i].update(lm_centre_x=float(centre[k, 0]), lm_centre_y=float(centre[k, 1]),
+                      lm_centre_z=float(centre[k, 2]))
+        if rows[i]["lm_role"] == 2:
+            out[i].update(lm_dir_x=float(d[k, 0]), lm_dir_y=0.0, lm_dir_z=float(d[k, 2]))
+    return out
 
 
 def load_records(conn: psycopg.Connection) -> list[TileRecord]:
@@ -120,7 +182,8 @@ def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int 
 def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None) -> tuple[bytes, int, int]:
     """(glb bytes, features, triangles) of one tile's content."""
     with conn.cursor(row_factory=dict_row) as cur:
-        rows = cur.execute(_FEATURES, (base_height, rec.level, rec.x, rec.y, lod)).fetchall()
+        rows = cur.execute(_FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y,
+                                       "lod": lod}).fetchall()
     glb, tri = build_tile_glb(rows, rec.region)
     return glb, len(rows), tri
 

@@ -144,6 +144,53 @@ def test_feature_metadata(city, conn_of) -> None:
     assert (court["osm_type"], court["building"]) == ("relation", "apartments")
 
 
+def test_landmark_exaggeration_metadata(city, conn_of) -> None:
+    """Every feature carries what a client needs to exaggerate landmarks per frame: the landmark's intervals and
+    footprint circle in the glTF's frame, and a covered neighbour's gap and direction; the glbs stay valid."""
+    c = city("helsinki")
+    conn = conn_of(c.url)
+    want = {r[0]: r[1:] for r in conn.execute(
+        """SELECT lo.osm_id, l.scale_distances_m[1], l.scale_factors[1],
+                  l.scale_factors[cardinality(l.scale_factors)], l.radius_m
+           FROM lm.building l JOIN osm.building lo ON lo.id = l.building_id WHERE l.is_landmark""")}
+    gaps = {r[0]: (r[1], r[2]) for r in conn.execute(
+        """SELECT b.osm_id, lo.osm_id, x.gap_m FROM lm.building l JOIN osm.building b ON b.id = l.building_id
+           CROSS JOIN LATERAL lm.exaggeration_role(l.building_id) x JOIN osm.building lo ON lo.id = x.landmark_id
+           WHERE x.role = 2""")}
+    seen = {1: 0, 2: 0}
+    for path in sorted(c.tiles.rglob("*.glb")):
+        gltf, binary = read_glb(path.read_bytes())
+        t = property_table(gltf, binary)
+        pos = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
+        fid = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["_FEATURE_ID_0"])
+        for i, role in enumerate(t["lm_role"]):
+            if role == 0:
+                assert t["lm_landmark_osm_id"][i] == 0 and t["lm_scale_step"][i] == 0
+                continue
+            seen[int(role)] += 1
+            lmk = int(t["lm_landmark_osm_id"][i])
+            frm, step, top, radius = want[lmk]
+            got = (t["lm_scale_from_m"][i], t["lm_scale_step"][i], t["lm_max_scale"][i], t["lm_radius_m"][i])
+            assert got == pytest.approx((frm, step, top, radius), rel=1e-5)
+            centre = np.array([t["lm_centre_x"][i], t["lm_centre_y"][i], t["lm_centre_z"][i]])
+            mine = pos[fid == i]
+            if role == 1:  # a landmark's own vertices lie in its footprint circle around the centre, above ground
+                assert t["building_osm_id"][i] == lmk
+                horiz = np.hypot(mine[:, 0] - centre[0], mine[:, 2] - centre[2])
+                assert horiz.max() <= radius + 0.5 and mine[:, 1].min() >= centre[1] - 0.5
+            else:  # a neighbour lies on its side of the landmark, at its gap
+                osm = int(t["building_osm_id"][i])
+                assert gaps[osm][0] == lmk and t["lm_gap_m"][i] == pytest.approx(gaps[osm][1], abs=1e-3)
+                d = np.array([t["lm_dir_x"][i], t["lm_dir_y"][i], t["lm_dir_z"][i]])
+                assert np.linalg.norm(d) == pytest.approx(1, abs=1e-5) and d[1] == 0
+                assert ((mine - centre) @ d).mean() > 0
+    assert seen[1] >= len(want) and seen[2] > 0, seen
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(c.tiles)],
+                          capture_output=True, text=True)
+    report = json.loads(proc.stdout)
+    assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
+
+
 def test_triangle_counts_and_run_record(city, conn_of) -> None:
     c = city("munich")
     conn = conn_of(c.url)
