@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 import psycopg
+from psycopg import sql
 
 from ..db import working_srid
 from ..geom import landmarks as lm
@@ -132,10 +133,8 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
 
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE lm.building")
-        cur.execute("CREATE TEMP TABLE _lm (building_id int8, x float8, y float8, height_m float4, volume_m3 float8,"
-                    " area_m2 float8, relative_height float4, shape_distinctiveness float4, semantic float4,"
-                    " score float4, rank int4, level int2, is_landmark bool, lod2_band int2, radius_m float4,"
-                    " scale_distances_m float4[], scale_factors float4[]) ON COMMIT DROP")
+        cur.execute(sql.SQL("CREATE TEMP TABLE _lm ({}) ON COMMIT DROP").format(sql.SQL(", ").join(
+            sql.SQL("{} {}").format(sql.Identifier(c), sql.SQL(t)) for c, t in zip(_COLUMNS, _TYPES, strict=True))))
         with cur.copy(f"COPY _lm ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
             for row in zip(ids.tolist(), xy[:, 0].tolist(), xy[:, 1].tolist(), height.tolist(), volume.tolist(),

@@ -5,7 +5,8 @@
 -- radius_m); a building is pushed radially away from the landmark centre by the overlap the scaling adds
 -- (an overlap that already existed at scale 1, between adjacent buildings, is kept, so neighbours move
 -- continuously from 0 as the landmark grows); pushed by several landmarks, it takes the largest push. Landmarks
--- stay where they are. The same rule as etl.geom.landmarks.displacement(combine="max", only_growth=True).
+-- stay where they are. lm.clearing_push is the rule (etl.geom.landmarks.displacement(combine="max",
+-- only_growth=True) in numpy).
 --   camera  point with Z: longitude, latitude (any SRID PostGIS can take to EPSG:4326) and height above the
 --           ellipsoid (m), as api.lod_for_view; ground is the bottom of the root tile's region (0 before tiles)
 --   ramp_m  as api.landmark_scale
@@ -48,8 +49,7 @@ AS $$
                           AND ST_DWithin(o.centroid, k.centroid, k.scale * k.radius_m + reach.r)
         CROSS JOIN LATERAL (SELECT ST_Distance(o.centroid, k.centroid) AS dist) dd
         CROSS JOIN LATERAL (
-            SELECT dd.dist, k.scale * k.radius_m + o.radius_m - dd.dist
-                            - greatest(k.radius_m + o.radius_m - dd.dist, 0) AS push) v
+            SELECT dd.dist, lm.clearing_push(k.scale, k.radius_m, o.radius_m, dd.dist) AS push) v
         WHERE k.scale > 1 AND v.push > 0
         ORDER BY o.building_id, v.push DESC
     )

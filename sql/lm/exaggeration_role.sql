@@ -27,7 +27,7 @@ AS $$
     FROM lm.building b
     CROSS JOIN LATERAL (
         SELECT l.building_id, l.scale_distances_m, l.scale_factors, l.centroid, l.radius_m, t.top, d.dist,
-               t.top * l.radius_m + b.radius_m - d.dist - greatest(l.radius_m + b.radius_m - d.dist, 0) AS push
+               lm.clearing_push(t.top, l.radius_m, b.radius_m, d.dist) AS push
         FROM lm.building l
         CROSS JOIN LATERAL (SELECT l.scale_factors[cardinality(l.scale_factors)] AS top) t
         CROSS JOIN LATERAL (SELECT ST_Distance(b.centroid, l.centroid) AS dist) d
