@@ -8,7 +8,8 @@ Three measurements, each usable alone (``--help`` of each subcommand) and called
     extract fills a 60° / 1080 px / 16:9 view, max_sse 16) against the LOD3 triangles of every building (what a
     client without the hierarchy would draw). A *street* camera (50 m above the densest leaf tile, pitch -15°)
     is reported for context. lod_for_view returns every feature of each tile it stops at, so the sum is taken
-    over api.buildings_for_tile of the distinct tiles it returns (the same features, counted once).
+    over api.buildings_for_tile of the distinct tiles it returns (the same features, counted once), with
+    ``cull_features => false``: a client draws whole tiles, their features outside the frustum too.
 
 ``latency`` — api.lod_for_view p50/p95/max on a database. A fixed, seeded set of navigation cameras (default
     200, seed 4): the position is uniform inside a leaf tile drawn with probability proportional to its
@@ -93,6 +94,9 @@ GAP_M = 500.0  # between the side-by-side copies of the 100k step
 
 _VIEW = """SELECT feature_kind, feature_id, lod, level, x, y
 FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, %s, %s)"""
+# what a client loads and draws: whole tiles, their features outside the frustum included
+_VIEW_TILES = """SELECT feature_kind, feature_id, lod, level, x, y
+FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, %s, %s, cull_features => false)"""
 
 
 def log(msg: str) -> None:
@@ -154,11 +158,11 @@ def navigation_cameras(conn: psycopg.Connection, n: int = N_CAMERAS, seed: int =
 def view_triangles(conn: psycopg.Connection, cam: Camera, max_sse: float = MAX_SSE) -> dict[str, Any]:
     """Tiles, features and triangles api.lod_for_view draws for ``cam``, with the split by LOD."""
     rows = conn.execute(
-        f"""WITH v AS (SELECT DISTINCT level, x, y FROM ({_VIEW}) q)
+        f"""WITH v AS (SELECT DISTINCT level, x, y FROM ({_VIEW_TILES}) q)
             SELECT f.lod, count(DISTINCT (v.level, v.x, v.y)), count(*), sum(f.n_triangles)
             FROM v CROSS JOIN LATERAL api.buildings_for_tile(v.level, v.x, v.y) f GROUP BY f.lod ORDER BY 1""",
         _params(cam, max_sse)).fetchall()
-    n_rows = conn.execute(f"SELECT count(*), count(DISTINCT (level, x, y)) FROM ({_VIEW}) q",
+    n_rows = conn.execute(f"SELECT count(*), count(DISTINCT (level, x, y)) FROM ({_VIEW_TILES}) q",
                           _params(cam, max_sse)).fetchone()
     out = {"camera": _cam_dict(cam), "tiles": int(n_rows[1]) if n_rows else 0,
            "features": sum(int(r[2]) for r in rows), "triangles": sum(int(r[3] or 0) for r in rows),
@@ -299,15 +303,16 @@ def _columns(conn: psycopg.Connection, table: str) -> list[str]:
 
 
 def _copy_sql(conn: psycopg.Connection, table: str, src: str, exprs: dict[str, str], grid: str,
-              where: str = "true", overriding: bool = False) -> sql.Composed:
-    """INSERT INTO table SELECT <every column, or its expression> FROM src CROSS JOIN (grid) g WHERE ...; the
-    expressions may use the grid's k (copy), dx, dy (metres), i, j (cell)."""
+              where: str = "true", overriding: bool = False, order: str = "") -> sql.Composed:
+    """INSERT INTO table SELECT <every column, or its expression> FROM src CROSS JOIN (grid) g WHERE ...
+    [ORDER BY order]; the expressions may use the grid's k (copy), dx, dy (metres), i, j (cell)."""
     cols = _columns(conn, table)
     select = [sql.SQL(exprs[c]) if c in exprs else sql.SQL("s.") + sql.Identifier(c) for c in cols]
-    return sql.SQL("INSERT INTO {} ({}) {} SELECT {} FROM {} s CROSS JOIN ({}) g WHERE {}").format(
+    return sql.SQL("INSERT INTO {} ({}) {} SELECT {} FROM {} s CROSS JOIN ({}) g WHERE {} {}").format(
         sql.SQL(table), sql.SQL(", ").join(map(sql.Identifier, cols)),
         sql.SQL("OVERRIDING SYSTEM VALUE" if overriding else ""),
-        sql.SQL(", ").join(select), sql.SQL(src), sql.SQL(grid), sql.SQL(where))
+        sql.SQL(", ").join(select), sql.SQL(src), sql.SQL(grid), sql.SQL(where),
+        sql.SQL("ORDER BY " + order if order else ""))
 
 
 def _grid_table(conn: psycopg.Connection, name: str, cells: Sequence[tuple[int, int, int, float, float]],
@@ -428,8 +433,13 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
             "members": f"(SELECT array_agg(m + {off} ORDER BY m) FROM unnest(s.members) m)",
             "footprint": "ST_Translate(s.footprint, g.dx, g.dy)", "geom": "ST_Translate(s.geom, g.dx, g.dy, 0)"},
             grid_all, overriding=True))
+        # bounding spheres: the centre through the working CRS, translated there, and back to ECEF
+        moved = "ST_Transform(ST_Translate(ST_Transform(ST_SetSRID(ST_MakePoint(s.cx, s.cy, s.cz), 4978), g.srid), " \
+                "g.dx, g.dy, 0), 4978)"
         step("tiles.tile_content", _copy_sql(conn, "tiles.tile_content", "src_tile_content", {
-            **shift, "feature_id": f"s.feature_id + {off}", "osm_id": f"s.osm_id + {off}"}, grid_all))
+            **shift, "feature_id": f"s.feature_id + {off}", "osm_id": f"s.osm_id + {off}",
+            "cx": f"ST_X({moved})", "cy": f"ST_Y({moved})", "cz": f"ST_Z({moved})"}, grid_all,
+            order="1, 2, 3"))  # a tile's rows together on disk, as tiles.finish_hierarchy writes them
         t = time.perf_counter()
         _stack_levels(conn, up, size, int(srid))
         log(f"{DB_1M}: upper levels {time.perf_counter() - t:.0f} s")
@@ -444,7 +454,8 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
     """``up`` new levels above the copies' roots, built as the pipeline builds them: each tile's band from its
     height and width (gen.level_for_height), its blocks merged from its children's by the generalize stage's
     own code (generalize.coarse_blocks), its content listed in tiles.tile_content, its geometric error the
-    larger of its content's and its children's; then every tile's box from its region."""
+    larger of its content's and its children's, the blocks within it omitted (tiles.omit_within_error); then
+    every tile's box from its region."""
     copy_band = conn.execute("SELECT min(gen_level) FROM tiles.tile WHERE level = %s", (up,)).fetchone()[0]  # type: ignore[index]
     if copy_band > 1:
         raise RuntimeError("the copies' roots are not in a block band: too few levels to stack")
@@ -470,11 +481,12 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
         generalize.coarse_blocks(conn, Settings(), srid, max_level=up - 1)
     conn.execute("""
         INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
-                                        n_members, n_triangles, error_m)
+                                        n_members, n_triangles, error_m, cx, cy, cz, radius)
         SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
-               f.n_members, f.n_triangles, f.error_m
+               f.n_members, f.n_triangles, f.error_m, b[1], b[2], b[3], b[4]
         FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
-        WHERE t.level < %s""", (up,))
+        CROSS JOIN LATERAL (SELECT tiles.feature_sphere(f.geom, %s) AS b) sp
+        WHERE t.level < %s""", (Settings().base_height_m, up))
     for lvl in range(up - 1, -1, -1):
         conn.execute("""
             UPDATE tiles.tile t SET content_features = k.n, content_triangles = k.tri, content_error_m = k.err,
@@ -487,8 +499,9 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
             FROM (SELECT x >> 1 AS x, y >> 1 AS y, max(geometric_error) AS ge FROM tiles.tile
                   WHERE level = %s GROUP BY 1, 2) k
             WHERE p.level = %s AND (p.x, p.y) = (k.x, k.y)""", (lvl + 1, lvl))
-    # boxes from the regions, as the generalize stage computes them
+    # the selection on tile error, then boxes from the regions, as the generalize stage does
     with conn.transaction(), conn.cursor() as cur:
+        cur.execute("CALL tiles.omit_within_error(%s, NULL)", (up - 1,))
         store_boxes(cur)
 
 

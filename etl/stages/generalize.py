@@ -19,7 +19,10 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
    Selection: a block (of any of these bands) that lies within its band's tolerance of a single point (the
    centre of its members' bounding circle at ground level: sqrt(radius² + height²) <= gen.tolerance) is marked
    omitted and its tile does not draw it, as OpenMapTiles drops small blocks and PLATEAU small features per
-   level; its members are drawn again in the tiles below, and the coarser bands still merge it.
+   level; its members are drawn again in the tiles below, and the coarser bands still merge it. Once the
+   hierarchy has its errors (4.), a block whose omission error is within its tile's geometric error is omitted
+   too (tiles.omit_within_error): the tile already claims that error, so it stays true, and a coarse tile
+   shown from kilometres away no longer draws thousands of blocks a few pixels big.
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
 
@@ -188,7 +191,7 @@ _MESH_TYPES = ("int8", "int2", "bytea", "bytea", "int4", "int4", "float4", "floa
 _FOOTPRINT_COLUMNS = ("building_id", "geom", "tolerance_m", "n_vertices_in", "n_vertices_out", "area_in_m2",
                       "area_out_m2", "error_m", "status")
 _BLOCK_COLUMNS = ("level", "x", "y", "gen_level", "members", "n_members", "footprint", "geom", "semantics",
-                  "n_triangles", "height", "error_m", "total_error_m", "omitted")
+                  "n_triangles", "height", "error_m", "total_error_m", "omitted", "collapse_m")
 
 
 def _ewkb(geoms: np.ndarray, srid: int) -> list[bytes]:
@@ -352,7 +355,7 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                 for j, r in enumerate(rows):
                     copy.write_row((r[0], r[1], r[2], r[3], members[j], len(members[j]), fps[j].hex(),
                                     wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]), float(top[j]),
-                                    float(err[j]), float(total[j]), bool(omitted[j])))
+                                    float(err[j]), float(total[j]), bool(omitted[j]), float(collapse[j])))
             stats["blocks"] += n
             stats["omitted"] += int(omitted.sum())
             stats["members"] += sum(len(m) for m in members)
@@ -420,6 +423,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))
+        blk["omitted_within_tile_error"] = cur.execute("CALL tiles.omit_within_error(NULL, NULL)").fetchone()[0]
         store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = cur.execute(

@@ -1,18 +1,24 @@
--- api.lod_for_view(camera, heading, pitch, fov, viewport_height, max_sse, aspect) -> what a client draws
--- For a perspective camera, every building, part or block a 3D Tiles client draws, at which LOD, from which
--- tile and with which screen-space error. It walks tiles.tile as a client walks tileset.json with REPLACE
+-- api.lod_for_view(camera, heading, pitch, fov, viewport_height, max_sse, aspect, cull_features)
+--   -> what a client draws
+-- For a perspective camera, every building, part or block in the view frustum a 3D Tiles client draws, at
+-- which LOD, from which tile and with which screen-space error. It walks tiles.tile as a client walks tileset.json with REPLACE
 -- refinement: starting at the root, a tile in the view frustum is refined into its children while its
 -- screen-space error  geometric_error × viewport_height / (distance × 2 tan(fov / 2))  exceeds max_sse;
 -- distance is measured to the tile's box (tiles.box_distance), culling uses the five frustum planes
 -- (tiles.box_visible). The features of the tiles it stops at are read from tiles.tile_content, the list of
 -- api.buildings_for_tile's rows the generalize stage stored, so the exporter and this function agree by
--- construction and a view costs one index scan per tile, no meshes.
+-- construction and a view costs one index scan per tile, no meshes. Of a drawn tile only the features whose
+-- bounding sphere meets the frustum are returned (tiles.sphere_visible on tiles.tile_content's spheres): a
+-- coarse tile kilometres wide is mostly outside the view of a low camera, and its hidden features are half of
+-- what such a view would return. cull_features => false returns every feature of every drawn tile, what a
+-- client loads.
 --   camera           point with Z: longitude, latitude (any SRID PostGIS can take to EPSG:4326) and height
 --                    above the WGS84 ellipsoid (m), as CesiumJS's camera.positionCartographic
 --   heading, pitch   degrees: heading clockwise from north, pitch up from the horizon (-90 looks straight
 --                    down), as camera.heading / camera.pitch; no roll
 --   fov              vertical field of view (degrees); aspect = viewport width / height
 --   viewport_height  pixels (drawing buffer height); max_sse: pixels (CesiumJS maximumScreenSpaceError)
+--   cull_features    false: every feature of the drawn tiles, in the frustum or not
 -- lod is 0 for a block, 1 for a simplified solid, 2 roofs, 3 facades; gen_level below 0 marks the coarser
 -- blocks of a large city's upper tiles.
 -- Example (Helsinki, 1.5 km up, looking north and down):
@@ -25,7 +31,8 @@ CREATE OR REPLACE FUNCTION api.lod_for_view(
     fov double precision DEFAULT 60,
     viewport_height integer DEFAULT 1080,
     max_sse double precision DEFAULT 16,
-    aspect double precision DEFAULT 16.0 / 9.0
+    aspect double precision DEFAULT 16.0 / 9.0,
+    cull_features boolean DEFAULT true
 )
 RETURNS TABLE (
     feature_kind       text,
@@ -103,9 +110,11 @@ BEGIN
     SELECT f.feature_kind, f.feature_id, f.osm_type, f.osm_id, f.lod, f.gen_level, f.n_members,
            w.level, w.x, w.y, w.distance_m, w.sse
     FROM walk w
+    CROSS JOIN cam
     JOIN tiles.tile_content f ON f.level = w.level AND f.x = w.x AND f.y = w.y
-    WHERE w.is_leaf OR w.sse <= $6;
+    WHERE (w.is_leaf OR w.sse <= $6)
+      AND (NOT $8 OR tiles.sphere_visible(f.cx, f.cy, f.cz, f.radius, cam.px, cam.py, cam.pz, cam.planes));
 END
 $$;
-COMMENT ON FUNCTION api.lod_for_view(geometry, double precision, double precision, double precision, integer, double precision, double precision) IS
-    'Every feature a 3D Tiles client draws for a perspective camera (REPLACE refinement over tiles.tile, the same tiles and content as the exported tileset): LOD (0 block .. 3 facades), tile, distance and screen-space error. Example: SELECT lod, count(*) FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(24.94, 60.16, 1500), 4326), 0, -45, 60, 1080) GROUP BY lod;';
+COMMENT ON FUNCTION api.lod_for_view(geometry, double precision, double precision, double precision, integer, double precision, double precision, boolean) IS
+    'Every feature in the view frustum a 3D Tiles client draws for a perspective camera (REPLACE refinement over tiles.tile, the same tiles and content as the exported tileset; cull_features => false: every feature of the drawn tiles): LOD (0 block .. 3 facades), tile, distance and screen-space error. Example: SELECT lod, count(*) FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(24.94, 60.16, 1500), 4326), 0, -45, 60, 1080) GROUP BY lod;';

@@ -10,7 +10,8 @@
 --   3  LOD2: roofs; meshes decimated where the measured error stays within 1.25 m
 --   4  LOD3: facades (windows, doors), no generalization
 -- In every block band (<= 1) a block within the tolerance of one point (sqrt(radius² + height²)) is omitted from
--- its tile (selection; gen.block.omitted).
+-- its tile (selection; gen.block.omitted), and so is one within its tile's geometric error
+-- (tiles.omit_within_error).
 -- Example: SELECT g, gen.tolerance(g) FROM generate_series(-2, 4) g;
 CREATE OR REPLACE FUNCTION gen.tolerance(gen_level integer)
 RETURNS double precision

@@ -5,6 +5,7 @@ chooses exactly what a 3D Tiles client traversing the exported tileset.json choo
 
 import json
 
+import numpy as np
 import psycopg
 import pytest
 
@@ -140,18 +141,28 @@ def test_blocks_too_small_for_their_band_are_omitted_with_their_error(deep, conn
     by_rule = conn.execute(
         """WITH k AS (
                SELECT k.block_id, k.omitted, k.gen_level, k.error_m,
-                      sqrt((ST_MinimumBoundingRadius(ST_Collect(f.geom))).radius ^ 2 + max(g.height) ^ 2) AS collapse
+                      sqrt((ST_MinimumBoundingRadius(ST_Collect(f.geom))).radius ^ 2 + max(g.height) ^ 2) AS collapse,
+                      -- the selection on tile error (tiles.omit_within_error)
+                      bool_or(k.omitted AND k.total_error_m <= t.geometric_error) AS within_tile_error
                FROM gen.block k JOIN gen.footprint f ON f.building_id = ANY(k.members)
                JOIN gen.building_mesh g ON g.building_id = f.building_id AND g.gen_level = 2
+               JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
                WHERE k.gen_level >= 0  -- the coarser bands measure their inputs' simplified outlines
                GROUP BY k.block_id)
            SELECT count(*) FILTER (WHERE omitted), count(*) FILTER (WHERE NOT omitted),
-                  count(*) FILTER (WHERE omitted <> (collapse <= gen.tolerance(gen_level) + 1e-3)
+                  count(*) FILTER (WHERE omitted <> (collapse <= gen.tolerance(gen_level) + 1e-3 OR within_tile_error)
                                    AND abs(collapse - gen.tolerance(gen_level)) > 1e-3),
-                  count(*) FILTER (WHERE omitted AND abs(error_m - collapse) > 1e-3)
+                  count(*) FILTER (WHERE omitted AND abs(error_m - collapse) > 1e-3),
+                  count(*) FILTER (WHERE within_tile_error AND collapse > gen.tolerance(gen_level) + 1e-3)
            FROM k""").fetchone()
     assert by_rule[0] > 0 and by_rule[1] > 0, by_rule
-    assert by_rule[2:] == (0, 0), by_rule
+    assert by_rule[2:4] == (0, 0), by_rule
+    assert by_rule[4] > 0, "no block omitted on its tile's error alone"
+    # the selection on tile error: no drawn block fits within its tile's error
+    drawn_within = conn.execute(
+        """SELECT count(*) FROM gen.block k JOIN tiles.tile t USING (level, x, y)
+           WHERE NOT k.omitted AND k.collapse_m + (k.total_error_m - k.error_m) <= t.geometric_error""").fetchone()[0]
+    assert drawn_within == 0
     # never drawn, and the tile's geometric error covers the omission
     drawn = conn.execute(
         """SELECT count(*) FROM gen.block k JOIN tiles.tile_content c
@@ -274,9 +285,11 @@ def test_lod_for_view_agrees_with_the_tileset_traversal(deep, conn_of, cam) -> N
     conn = conn_of(deep[0])
     ts = json.loads((deep[1] / "tileset.json").read_text())
     want = {d.uri: d.sse for d in select(ts, cam)}
+    # every feature of the drawn tiles, as a client loads them (the default culls by feature, tested below)
     rows = conn.execute(
         """SELECT DISTINCT format('content/%%s/%%s/%%s.glb', level, x, y), screen_space_error
-           FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, 16, %s)""",
+           FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, 16, %s,
+                                 cull_features => false)""",
         (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov, cam.viewport_height, cam.aspect),
     ).fetchall()
     got = dict(rows)
@@ -284,6 +297,56 @@ def test_lod_for_view_agrees_with_the_tileset_traversal(deep, conn_of, cam) -> N
     assert set(got) == set(want)
     for uri, sse in want.items():
         assert got[uri] == pytest.approx(sse, rel=1e-6, abs=1e-9)
+
+
+def _view(conn: psycopg.Connection, cam: Camera, cull: bool) -> list[tuple]:
+    return conn.execute(
+        """SELECT v.level, v.x, v.y, v.feature_kind, v.feature_id, c.cx, c.cy, c.cz, c.radius
+           FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, 16, %s, %s) v
+           JOIN tiles.tile_content c ON (c.level, c.x, c.y, c.feature_kind, c.feature_id)
+                                      = (v.level, v.x, v.y, v.feature_kind, v.feature_id)""",
+        (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov, cam.viewport_height, cam.aspect, cull),
+    ).fetchall()
+
+
+@pytest.mark.parametrize("cam", CAMERAS, ids=lambda c: f"{c.height:g}m{c.heading:g}h{c.pitch:g}p")
+def test_lod_for_view_returns_the_drawn_features_in_the_frustum(deep, conn_of, cam) -> None:
+    # of the drawn tiles' features exactly those whose bounding sphere meets the frustum, by the same plane
+    # test written in numpy
+    conn = conn_of(deep[0])
+    every = _view(conn, cam, cull=False)
+    centre = np.array([r[5:8] for r in every], float)
+    radius = np.array([r[8] for r in every], float)
+    dist = (centre - cam.position()) @ cam.planes().T
+    inside = (dist >= -radius[:, None]).all(axis=1)
+    # knife-edge spheres (within a millimetre of a plane) may go either way in float4/float8
+    edge = (np.abs(dist + radius[:, None]) < 1e-3).any(axis=1)
+    got = {r[:5] for r in _view(conn, cam, cull=True)}
+    want = {r[:5] for r, keep in zip(every, inside, strict=True) if keep}
+    sure = {r[:5] for r, e in zip(every, edge, strict=True) if not e}
+    assert got & sure == want & sure and got <= {r[:5] for r in every}
+    assert got, "the camera sees nothing: a useless test camera"
+
+
+def test_feature_spheres_bound_their_meshes(deep, conn_of) -> None:
+    # every vertex of every feature's mesh (its tile's content, as exported) inside the stored sphere: a sphere
+    # too small would drop a visible feature from api.lod_for_view
+    conn = conn_of(deep[0])
+    rows = conn.execute(
+        """SELECT c.level, c.feature_kind, max(sqrt((ST_X(p) - c.cx) ^ 2 + (ST_Y(p) - c.cy) ^ 2
+                                                   + (ST_Z(p) - c.cz) ^ 2) / c.radius) AS worst, count(*)
+           FROM tiles.tile_content c
+           CROSS JOIN LATERAL (SELECT f.geom FROM api.buildings_for_tile(c.level, c.x, c.y) f
+                               WHERE f.feature_kind = c.feature_kind AND f.building_id = c.feature_id) g
+           CROSS JOIN LATERAL ST_DumpPoints(g.geom) d
+           CROSS JOIN LATERAL (SELECT ST_Transform(d.geom, 4978) AS p) q  -- base height 0
+           WHERE c.x % 3 = 0
+           GROUP BY 1, 2""").fetchall()
+    assert {k for _, k, _, _ in rows} >= {"block", "building"}
+    for level, kind, worst, n in rows:
+        # never outside; the farthest vertex of a group near the sphere (at most radius / 1.002 at a box corner,
+        # less when no vertex is at one: a roof apex)
+        assert 0.5 < worst <= 1.0, (level, kind, worst, n)
 
 
 def test_the_walk_inlines_its_box_tests(deep, conn_of) -> None:
@@ -296,6 +359,13 @@ def test_the_walk_inlines_its_box_tests(deep, conn_of) -> None:
            FROM tiles.tile""").fetchone()[0]
     text = json.dumps(plan)
     assert "box_visible" not in text and "box_distance" not in text and "box[12]" in text
+    # and the per-feature sphere test, evaluated on every row of a drawn tile
+    plan = conn_of(deep[0]).execute(
+        """EXPLAIN (VERBOSE, FORMAT JSON)
+           SELECT tiles.sphere_visible(cx, cy, cz, radius, 1, 2, 3,
+                                       ARRAY[1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1, 0, 0, 0, 1])
+           FROM tiles.tile_content""").fetchone()[0]
+    assert "sphere_visible" not in json.dumps(plan)
 
 
 def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:
@@ -305,7 +375,7 @@ def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:
     def view(cam):
         return conn.execute(
             """SELECT v.lod, count(*), sum(f.n_triangles) FROM api.lod_for_view(
-                   ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s) v
+                   ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, cull_features => false) v
                CROSS JOIN LATERAL (SELECT n_triangles FROM api.buildings_for_tile(v.level, v.x, v.y) b
                                    WHERE b.feature_kind = v.feature_kind AND b.building_id = v.feature_id) f
                GROUP BY v.lod""", (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov,

@@ -239,7 +239,8 @@ def lod_for_view(conn: psycopg.Connection, cam: Camera) -> dict[str, tuple[float
     """api.lod_for_view for ``cam``: content uri -> (the tile's screen-space error, the LODs of its features)."""
     rows = conn.execute(
         """SELECT format('content/%%s/%%s/%%s.glb', level, x, y), screen_space_error, array_agg(DISTINCT lod)
-           FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, %s, %s)
+           FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, %s, %s,
+                                 cull_features => false)  -- CesiumJS draws whole tiles
            GROUP BY 1, 2""",
         (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov, cam.viewport_height, MAX_SSE, cam.aspect),
     ).fetchall()
