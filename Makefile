@@ -17,7 +17,7 @@ SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
 .PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod landmarks tiles generalize export serve demo test \
-        test-unit bench report-generalization lint clean distclean
+        test-unit bench report-generalization report-saliency lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -106,6 +106,9 @@ bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsq
 
 report-generalization: $(SETUP_PY) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
 	$(PY) -m benchmarks.report_generalization --out build/reports $(if $(EXTRACTS),--extracts $(EXTRACTS))
+
+report-saliency: $(SETUP_PY) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*
+	$(PY) -m benchmarks.report_saliency --out build/reports
 
 clean: ## remove build outputs (keeps the database, venv and downloads)
 	rm -rf build .pytest_cache .ruff_cache

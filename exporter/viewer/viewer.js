@@ -21,8 +21,10 @@
     picks: 0, // clicks handled, so a test can tell "picked nothing" from "not clicked yet"
     lastPicked: null, // properties of the selected feature, or null
     error: null,
+    exaggeration: false, // landmark exaggeration on (setExaggeration, the checkbox or ?exaggerate=1)
     lookAt,
     stats,
+    setExaggeration,
   });
 
   const viewer = window.citylodCommon.makeViewer('cesium', citylod, '[citylod]');
@@ -58,6 +60,7 @@
         `${s.features} features`);
     });
 
+    tileset.customShader = citylod.exaggeration ? landmarkShader() : undefined;
     scene.primitives.add(tileset);
     // Oblique overview of the whole tileset; range 0 lets CesiumJS fit the bounding sphere.
     await viewer.zoomTo(tileset, new Cesium.HeadingPitchRange(0, Cesium.Math.toRadians(-40), 0));
@@ -70,6 +73,66 @@
     statusEl.textContent = `could not load ${tilesetUrl}: ${citylod.error}`;
     console.error('[citylod] tileset load failed:', citylod.error);
   });
+
+  // --- landmark exaggeration ---------------------------------------------------------------------------------
+  // The thesis' view-dependent landmark enhancement, done per vertex from the feature metadata the exporter writes
+  // (exporter/export.py PROPERTIES; the rule of api.landmark_scale and lm.clearing_push): a landmark (lm_role 1)
+  // is scaled uniformly about its footprint centre at ground level, so it grows wider and taller from its base;
+  // a building its scaled footprint circle would cover (lm_role 2) moves away from that landmark by the overlap
+  // the scaling adds. Both read the landmark's scale for the camera's distance to that centre, so the parts of a
+  // landmark and its neighbours, in whatever tiles they are, agree on one scale. (api.landmark_exaggeration
+  // measures to the middle of the landmark's height, which the metadata does not carry; the two distances differ
+  // by at most half that height, so they pick different intervals only that close to a boundary.)
+  // positionMC and lm_centre_* are both in the glTF's frame (y up, origin at the tile's east-north-up centre);
+  // czm_modelView adds the tile transform. Primitives without these properties (older tilesets) get no custom
+  // vertex shader from CesiumJS (a console warning), so nothing moves. Bounding volumes are not enlarged: a scaled
+  // landmark whose tile is culled is not drawn.
+  const LANDMARK_VS = `
+    void vertexMain(VertexInput vsInput, inout czm_modelVertexOutput vsOutput) {
+      uint role = vsInput.metadata.lm_role;
+      float scaleFrom = vsInput.metadata.lm_scale_from_m;
+      float scaleStep = vsInput.metadata.lm_scale_step; // not 'step': that would hide the GLSL built-in
+      float maxScale = vsInput.metadata.lm_max_scale;
+      if (role == 0u || !(scaleFrom > 0.0 && scaleStep > 1.0 && maxScale > 1.0)) return;
+      vec3 centre = vec3(vsInput.metadata.lm_centre_x, vsInput.metadata.lm_centre_y, vsInput.metadata.lm_centre_z);
+      float d = length((czm_modelView * vec4(centre, 1.0)).xyz);
+      if (d < scaleFrom) return;
+      // interval i, from scaleFrom * scaleStep^i on, scales by min(scaleStep^(i + 1), maxScale)
+      float s = min(pow(scaleStep, floor(log(d / scaleFrom) / log(scaleStep)) + 1.0), maxScale);
+      if (role == 1u) {
+        vsOutput.positionMC = centre + (vsOutput.positionMC - centre) * s;
+      } else if (role == 2u) {
+        float push = max(0.0, (s - 1.0) * vsInput.metadata.lm_radius_m - max(vsInput.metadata.lm_gap_m, 0.0));
+        vsOutput.positionMC += push * vec3(vsInput.metadata.lm_dir_x, vsInput.metadata.lm_dir_y,
+          vsInput.metadata.lm_dir_z);
+      }
+    }`;
+  let shader = null; // one instance: every tile shares its compiled programs
+
+  function landmarkShader() {
+    if (!shader) shader = new Cesium.CustomShader({ vertexShaderText: LANDMARK_VS });
+    return shader;
+  }
+
+  const toggleEl = document.getElementById('exaggerate');
+
+  // Property tables reach custom shaders through a texture fetch, which CesiumJS only does in WebGL 2;
+  // in WebGL 1 the metadata fields would be missing and the shader would not compile, so it stays off.
+  function setExaggeration(on) {
+    on = Boolean(on);
+    if (on && !scene.context.webgl2) {
+      console.warn('[citylod] landmark exaggeration needs WebGL 2; left off');
+      on = false;
+    }
+    citylod.exaggeration = on;
+    toggleEl.checked = on;
+    if (citylod.tileset) citylod.tileset.customShader = on ? landmarkShader() : undefined;
+    log('landmark exaggeration', on ? 'on' : 'off');
+    return on;
+  }
+
+  toggleEl.addEventListener('change', () => setExaggeration(toggleEl.checked));
+  setExaggeration(new URLSearchParams(window.location.search).get('exaggerate') === '1');
 
   // --- status line -----------------------------------------------------------------------------------------
   // Statistics are not public API in CesiumJS, hence the defensive reads.

@@ -13,7 +13,7 @@
 -- Rows: role 'landmark' (dx = dy = 0) or 'displaced' (landmark_id the landmark that pushes it, distance_m and
 -- scale that landmark's); dx, dy metres along the working CRS's x (east) and y (north) axes.
 -- Example (Helsinki, 3 km up over the centre):
---   SELECT role, count(*), max(scale), max(hypot(dx, dy))
+--   SELECT role, count(*), max(scale), max(sqrt(dx ^ 2 + dy ^ 2))
 --   FROM api.landmark_exaggeration(ST_SetSRID(ST_MakePoint(24.94, 60.17, 3000), 4326)) GROUP BY role;
 CREATE OR REPLACE FUNCTION api.landmark_exaggeration(camera geometry, ramp_m double precision DEFAULT 0)
 RETURNS TABLE (
