@@ -117,6 +117,17 @@ def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+def cmd_textures(args: argparse.Namespace, settings: Settings) -> int:
+    from .db import connect
+    from .runs import pipeline_run
+    from .stages import textures
+
+    url = _url(settings)
+    with pipeline_run(url, "textures", settings.as_dict()) as run, connect(url) as conn:
+        run.counts = textures.run(conn, url, settings)
+    return 0
+
+
 def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
     from exporter.export import export_tileset
 
@@ -170,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
     sub.add_parser("generalize", help="tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors"
                    ).set_defaults(fn=cmd_generalize)
+    sub.add_parser("textures", help="tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv"
+                   ).set_defaults(fn=cmd_textures)
 
     exp = sub.add_parser("export", help="tiles -> 3D Tiles 1.1 (tileset.json + glb)")
     exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
@@ -206,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("CITYLOD_DEBUG") == "1":
             raise
         print(f"{args.command}: error: {e}", file=sys.stderr)
-        if args.command in ("ingest", "lod", "landmarks", "tiles", "generalize", "export"):
+        if args.command in ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export"):
             print("  (recorded as failed in meta.pipeline_run; CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
 

@@ -99,6 +99,37 @@ class Settings:
     #: ... up to this scale for the top of the hierarchy (the lowest landmark level gets a share of it).
     lm_max_scale: float = 3.0
 
+    # --- textures (etl/stages/textures.py; the resolution rule is etl/geom/atlas.py texels_per_metre) -------
+    #: Largest atlas page side in texels (the thesis' 512; a multiple of 4 up to 4096). Pages are cropped to
+    #: what they hold, and a tile gets as many pages as its charts need.
+    tex_page_size: int = 512
+    #: Screen pixels per texel at the nearest distance a tile is drawn from (1 = no magnification there).
+    tex_px_per_texel: float = 1.0
+    #: Vertical field of view (degrees) and ...
+    tex_fov_deg: float = 60.0
+    #: ... screen height (pixels) of the view the resolution rule assumes (CesiumJS' default view, full HD).
+    tex_screen_height: int = 1080
+    #: The client's maximum screen-space error (CesiumJS' default 16): a tile with geometric error e is drawn
+    #: from e × screen_height / (2 tan(fov/2) × max_sse) on, so it needs max_sse / (e × px_per_texel) texels/m.
+    tex_max_sse: float = 16.0
+    #: Cap on texels per metre, the resolution of the leaves (geometric error 0: seen from any distance) and of
+    #: every tile whose rule asks for more. 2 texels/m (50 cm) shows storeys and windows; each doubling
+    #: quadruples the stage's time and bytes.
+    tex_max_texels_per_metre: float = 2.0
+    #: Gutter texels around each chart (bilinear filtering and the first mip levels never mix in a
+    #: neighbour) at the cap; coarser tiles get less (etl/stages/textures.py padding_for).
+    tex_padding: int = 2
+    #: Charts with fewer texels than this (or thinner than 2) are drawn in their flat tagged colour.
+    tex_min_chart_texels: int = 16
+    #: Roofs with more planar faces than this get xatlas charts instead of one chart per face.
+    tex_xatlas_min_planes: int = 24
+    #: Atlas packer: shelf (measured better on rectangles: benchmarks/atlas_compare.py) or xatlas.
+    tex_packer: str = "shelf"
+    #: WebP quality (0-100) of the atlas pages.
+    tex_quality: int = 90
+    #: Worker processes (0: one per CPU core, at most 4; 1 runs in the stage's own process).
+    tex_workers: int = 0
+
     # --- export ---------------------------------------------------------------------------------------------
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on
     #: CesiumJS's plain WGS84 globe.

@@ -188,6 +188,10 @@ def check_glb(data: bytes) -> list[str]:
                     need = count * (np.dtype(SCALAR_DTYPES[comp]).itemsize if comp in SCALAR_DTYPES else 0)
                     if views[col["values"]]["byteLength"] < need:
                         problems.append(f"{where}: values need {need} bytes, bufferView has fewer")
+    # feature ids per property table over all primitives: a textured tile spreads its features over one
+    # primitive per atlas page, so each primitive's featureCount is the number of distinct ids it holds
+    # (EXT_mesh_features), and together they must draw every row of the table
+    drawn: dict[int, list[np.ndarray]] = {}
     for m_index, mesh in enumerate(gltf.get("meshes", [])):
         for p_index, prim in enumerate(mesh.get("primitives", [])):
             feats = prim.get("extensions", {}).get("EXT_mesh_features")
@@ -201,12 +205,15 @@ def check_glb(data: bytes) -> list[str]:
                 if not isinstance(n, int) or n < 1:
                     problems.append(f"{where}: featureCount must be a positive integer")
                     continue
-                if "propertyTable" in f:
-                    if not 0 <= f["propertyTable"] < len(tables):
-                        problems.append(f"{where}: propertyTable {f['propertyTable']} does not exist")
-                    elif tables[f["propertyTable"]].get("count") != n:
-                        problems.append(f"{where}: featureCount {n} != property table count "
-                                        f"{tables[f['propertyTable']].get('count')}")
+                limit = n
+                table = f.get("propertyTable")
+                if table is not None:
+                    if not isinstance(table, int) or not 0 <= table < len(tables):
+                        problems.append(f"{where}: propertyTable {table} does not exist")
+                        continue
+                    limit = tables[table].get("count", 0)
+                    if n > limit:
+                        problems.append(f"{where}: featureCount {n} exceeds the property table count {limit}")
                 if "attribute" in f:
                     acc_i = prim.get("attributes", {}).get(f"_FEATURE_ID_{f['attribute']}")
                     if acc_i is None:
@@ -217,10 +224,19 @@ def check_glb(data: bytes) -> list[str]:
                         problems.append(f"{where}: feature ids must be a SCALAR, non-normalized accessor")
                         continue
                     ids = accessor_array(gltf, binary, acc_i)
-                    if np.any(ids != np.round(ids)) or np.any(ids < 0) or np.any(ids >= n):
-                        problems.append(f"{where}: feature ids must be integers in [0, {n})")
-                    elif len(np.unique(ids)) != n:
-                        problems.append(f"{where}: {n - len(np.unique(ids))} of {n} features have no vertex")
+                    if np.any(ids != np.round(ids)) or np.any(ids < 0) or np.any(ids >= limit):
+                        problems.append(f"{where}: feature ids must be integers in [0, {limit})")
+                        continue
+                    distinct = np.unique(ids)
+                    if len(distinct) != n:
+                        problems.append(f"{where}: featureCount {n} != {len(distinct)} distinct feature ids")
+                    if table is not None:
+                        drawn.setdefault(table, []).append(distinct)
+    for table, parts in drawn.items():
+        count = tables[table].get("count", 0)
+        missing = count - len(np.unique(np.concatenate(parts)))
+        if missing:
+            problems.append(f"propertyTables[{table}]: {missing} of {count} features have no vertex")
     return problems
 
 

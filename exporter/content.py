@@ -5,6 +5,8 @@ few km, so float32 keeps millimetres) -> glTF y-up. Triangles are flat shaded: a
 triangles with the same normal, colour and feature (np.unique over those keys), which keeps walls sharp.
 Roof (up-facing) triangles take roof:colour, the others building:colour, else neutral defaults. Tag colours
 are sRGB; glTF vertex colours are linear, so they are converted (16-bit, so dark colours keep their steps).
+With the textures stage's per-corner UVs (tex.feature_uv), the page and UV join the key: corners share a vertex
+only where they also share their atlas page and texture coordinate; export.py then splits the arrays by page.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ class ContentArrays:
     feature_ids: np.ndarray  # (n,) uint32
     indices: np.ndarray  # (3m,) uint32
     dropped_degenerate: int
+    uvs: np.ndarray | None = None  # (n, 2) float32 atlas page UV (textured tiles only)
+    pages: np.ndarray | None = None  # (n,) int16 atlas page of the vertex, -1 = vertex colour only
 
 
 WINDOW_RGBA = np.array([58, 74, 92, 255], dtype=np.uint8)  # dark blue-grey glass
@@ -62,11 +66,15 @@ def tile_arrays(
     origin_lon: float,
     origin_lat: float,
     semantics: np.ndarray | None = None,
+    tri_page: np.ndarray | None = None,
+    tri_uv: np.ndarray | None = None,
 ) -> ContentArrays:
     """triangles_ecef (m, 3, 3); feature_of_triangle (m,); wall/roof_rgba (features, 4) sRGB uint8.
     The local frame's origin is on the ellipsoid at (origin_lon, origin_lat): the tile transform's.
     ``semantics`` (m,) lod.surface_type codes colour roofs, windows and doors; where it is missing (None, or
-    SEM_UNKNOWN for a triangle) up-facing triangles take the roof colour."""
+    SEM_UNKNOWN for a triangle) up-facing triangles take the roof colour.
+    ``tri_page`` (m,) atlas page per triangle (-1: none) and ``tri_uv`` (m, 3, 2) its corners' page UVs
+    (tex.feature_uv): a vertex is then also shared only by corners with the same page and UV."""
     origin = geodetic_to_ecef(origin_lon, origin_lat, 0.0)
     rot = enu_rotation(origin_lon, origin_lat)  # columns: E, N, U in ECEF
     enu = (np.asarray(triangles_ecef, dtype=np.float64) - origin) @ rot
@@ -90,15 +98,23 @@ def tile_arrays(
     m = len(gl)
     pos = gl.reshape(-1, 3).astype(np.float32)
     normals = np.repeat(nrm_gl.astype(np.float32), 3, axis=0)
+    textured = tri_page is not None and tri_uv is not None
+    if textured:
+        page = np.asarray(tri_page, np.int16)[keep]
+        colour = np.where((page >= 0)[:, None], np.uint16(0), colour)  # unused where a texture is: more sharing
+        pages = np.repeat(page, 3)
+        uvs = np.asarray(tri_uv, np.float32)[keep].reshape(-1, 2)
     colors = np.repeat(colour, 3, axis=0)
     fids = np.repeat(feat.astype(np.uint32), 3)
     if m == 0:
-        return ContentArrays(pos, normals, colors, fids, np.zeros(0, np.uint32), int((~keep).sum()))
+        return ContentArrays(pos, normals, colors, fids, np.zeros(0, np.uint32), int((~keep).sum()),
+                             uvs if textured else None, pages if textured else None)
     # Coplanar triangles get normals equal up to rounding noise; round them for the key so they share vertices.
     nkey = np.round(normals, 4).astype(np.float32) + np.float32(0.0)  # + 0.0 folds -0.0 into 0.0
-    key = np.concatenate([
-        pos.view(np.uint32), nkey.view(np.uint32), np.ascontiguousarray(colors).view(np.uint32), fids[:, None]
-    ], axis=1)
+    parts = [pos.view(np.uint32), nkey.view(np.uint32), np.ascontiguousarray(colors).view(np.uint32), fids[:, None]]
+    if textured:
+        parts += [(uvs + np.float32(0.0)).view(np.uint32), pages.astype(np.uint32)[:, None]]
+    key = np.concatenate(parts, axis=1)
     # Rows as opaque 36-byte records: sorting those is ~2.5x faster than np.unique(axis=0), same result.
     rows = np.ascontiguousarray(key).view(np.dtype((np.void, key.shape[1] * 4))).ravel()
     _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
@@ -110,4 +126,5 @@ def tile_arrays(
     return ContentArrays(
         positions=pos[sel], normals=normals[sel], colors=colors[sel], feature_ids=fids[sel],
         indices=rank[inverse.reshape(-1)].astype(np.uint32), dropped_degenerate=int((~keep).sum()),
+        uvs=uvs[sel] if textured else None, pages=pages[sel] if textured else None,
     )

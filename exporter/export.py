@@ -5,8 +5,10 @@ api.buildings_for_tile(level, x, y) gives the features of its band (blocks at th
 leaves; REPLACE refinement), or with ``lod`` every building of each leaf at that one LOD (ADD), lifted by the
 base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid);
 content.py turns them into glTF arrays in the tile's local frame and gltf.py writes the glb with EXT_mesh_features +
-EXT_structural_metadata. The tileset is written into ``<out>.partial`` and swapped in at the end, so a failed
-export never leaves a half-written tileset behind.
+EXT_structural_metadata. Where the textures stage made atlas pages for a tile (tex.page, tex.feature_uv; the
+hierarchy only, not ``lod`` tilesets), its features are drawn with one material per page (TEXCOORD_0, WebP);
+a tile without texture rows is written exactly as before. The tileset is written into ``<out>.partial`` and
+swapped in at the end, so a failed export never leaves a half-written tileset behind.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,15 +33,15 @@ from etl.geom.wkb import decode_triangles
 from etl.progress import Progress, summary
 from etl.settings import Settings
 
-from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, hex_rgba, tile_arrays
+from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
 from .geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
-from .gltf import Primitive, Property, write_glb
+from .gltf import Image, Primitive, Property, write_glb
 from .tileset import TileRecord, build_tileset, region_centre
 
 _FEATURES = """
-SELECT f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name, f.building, f.height,
-       f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour, f.building_material,
-       f.roof_material, f.lod, f.gen_level, f.n_members, f.error_m, f.semantics,
+SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name,
+       f.building, f.height, f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour,
+       f.building_material, f.roof_material, f.lod, f.gen_level, f.n_members, f.error_m, f.semantics,
        ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %(base)s), 4978)) AS ecef_wkb,
        l.rank AS lm_rank, coalesce(x.role, 0) AS lm_role, lo.osm_id AS lm_landmark_osm_id,
        coalesce(x.scale_from_m, 0) AS lm_scale_from_m, coalesce(x.scale_step, 0) AS lm_scale_step,
@@ -52,6 +55,11 @@ LEFT JOIN lm.building l ON l.building_id = coalesce(o.parent_id, o.id)
 LEFT JOIN LATERAL lm.exaggeration_role(l.building_id) x ON true
 LEFT JOIN osm.building lo ON lo.id = x.landmark_id
 """
+
+# the textures stage's atlas pages and per-corner UVs of a tile (tex.page, tex.feature_uv)
+_PAGES = "SELECT page_no, mime, bytes FROM tex.page WHERE level = %s AND x = %s AND y = %s ORDER BY page_no"
+_UVS = """SELECT feature_kind, feature_id, n_triangles, page, uv FROM tex.feature_uv
+WHERE level = %s AND x = %s AND y = %s"""
 
 OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
 
@@ -103,8 +111,49 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
 ]
 
 
-def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, int]:
-    """glb bytes and triangle count for the feature rows (dicts with the columns of _FEATURES) of one tile."""
+@dataclass(frozen=True)
+class TileTextures:
+    """A tile's atlas pages and, per feature (feature_kind, building_id), its triangles' pages and corner UVs."""
+
+    images: list[Image]
+    uvs: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]  # (m,) int16 page, (m, 3, 2) float32 uv
+
+
+def load_textures(conn: psycopg.Connection, level: int, x: int, y: int) -> TileTextures | None:
+    """The tile's textures (tex.page, tex.feature_uv), None when the textures stage has not textured it."""
+    pages = conn.execute(_PAGES, (level, x, y)).fetchall()
+    if not pages:
+        return None
+    if [p[0] for p in pages] != list(range(len(pages))):
+        raise RuntimeError(f"tex.page of tile {level}/{x}/{y} is not numbered 0..{len(pages) - 1}")
+    uvs = {}
+    for kind, fid, n, page, uv in conn.execute(_UVS, (level, x, y)):
+        uvs[(kind, int(fid))] = (np.frombuffer(bytes(page), "<i2").copy(),
+                                 np.frombuffer(bytes(uv), "<f4").reshape(n, 3, 2))
+    return TileTextures([Image(bytes(p[2]), p[1]) for p in pages], uvs)
+
+
+def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[int, ContentArrays]]]:
+    """The vertex-coloured part and one part per atlas page (a triangle's corners share their page)."""
+    assert arr.pages is not None
+    tri_page = arr.pages[arr.indices[0::3]] if len(arr.indices) else np.zeros(0, np.int16)
+
+    def part(p: int) -> ContentArrays:
+        keep_v = arr.pages == p
+        new = np.cumsum(keep_v) - 1
+        tris = arr.indices.reshape(-1, 3)[tri_page == p]
+        return replace(arr, positions=arr.positions[keep_v], normals=arr.normals[keep_v],
+                       colors=arr.colors[keep_v], feature_ids=arr.feature_ids[keep_v],
+                       indices=new[tris].reshape(-1).astype(np.uint32), uvs=arr.uvs[keep_v],  # type: ignore[index]
+                       pages=arr.pages[keep_v])
+
+    return part(-1), [(p, part(p)) for p in range(n_pages) if np.any(tri_page == p)]
+
+
+def build_tile_glb(rows: list[dict], region: tuple[float, ...],
+                   textures: TileTextures | None = None) -> tuple[bytes, int]:
+    """glb bytes and triangle count for the feature rows (dicts with the columns of _FEATURES) of one tile;
+    with ``textures``, the features that have UVs are drawn with their atlas pages."""
     tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
     counts = np.array([len(t) for t in tris])
     triangles = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
@@ -118,7 +167,24 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
         else np.frombuffer(bytes(r["semantics"]), dtype=np.uint8) for r, t in zip(rows, tris, strict=True)])
     if len(sem) != len(triangles):
         raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
-    arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem)
+    tri_page = tri_uv = None
+    if textures is not None:
+        tri_page = np.full(len(triangles), -1, np.int16)
+        tri_uv = np.zeros((len(triangles), 3, 2), np.float32)
+        off = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        for i, r in enumerate(rows):
+            got = textures.uvs.get((r["feature_kind"], int(r["building_id"])))
+            if got is None:
+                continue  # not textured (tex.failure): vertex colours
+            if len(got[0]) != counts[i]:
+                raise RuntimeError(
+                    f"the textures are stale: {r['feature_kind']} {r['building_id']} has {counts[i]} triangles, "
+                    f"its UVs {len(got[0])}; run the textures stage again (make textures)")
+            tri_page[off[i]:off[i + 1]] = got[0]
+            tri_uv[off[i]:off[i + 1]] = got[1]
+        if tri_page.max(initial=-1) >= len(textures.images):
+            raise RuntimeError("tex.feature_uv refers to a page the tile does not have")
+    arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem, tri_page=tri_page, tri_uv=tri_uv)
     rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat), strict=True)]
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
@@ -126,11 +192,24 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...]) -> tuple[bytes, 
         if name in ("osm_type", "building_osm_type"):
             values = [OSM_TYPE[v] for v in values]
         props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
-    prim = Primitive(
-        positions=arr.positions, normals=arr.normals, colors=arr.colors, feature_ids=arr.feature_ids,
-        indices=arr.indices, properties=props, feature_count=len(rows),
-    )
-    return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
+    if textures is None or arr.pages is None or not np.any(arr.pages >= 0):
+        prim = Primitive(
+            positions=arr.positions, normals=arr.normals, colors=arr.colors, feature_ids=arr.feature_ids,
+            indices=arr.indices, properties=props, feature_count=len(rows),
+        )
+        return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
+    plain, parts = _split(arr, len(textures.images))
+    prim = Primitive(positions=plain.positions, normals=plain.normals, colors=plain.colors,
+                     feature_ids=plain.feature_ids, indices=plain.indices, properties=props, feature_count=len(rows))
+    textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
+                          indices=a.indices, uvs=a.uvs, image=p) for p, a in parts]
+    # only the pages some triangle uses, renumbered (a page whose triangles were all degenerate goes)
+    used = [p for p, _ in parts]
+    for k, t in enumerate(textured):
+        t.image = k
+    images = [textures.images[p] for p in used]
+    glb = write_glb(prim, "building", "An OSM building or building:part", textured=textured, images=images)
+    return glb, len(arr.indices) // 3
 
 
 def _landmark_frame(rows: list[dict], lon: float, lat: float) -> list[dict[str, float]]:
@@ -180,11 +259,13 @@ def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int 
 
 
 def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None) -> tuple[bytes, int, int]:
-    """(glb bytes, features, triangles) of one tile's content."""
+    """(glb bytes, features, triangles) of one tile's content; textured when the textures stage made pages for
+    it (the generalized hierarchy only: ``lod`` tilesets hold other meshes than the stage textured)."""
     with conn.cursor(row_factory=dict_row) as cur:
         rows = cur.execute(_FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y,
                                        "lod": lod}).fetchall()
-    glb, tri = build_tile_glb(rows, rec.region)
+    textures = load_textures(conn, rec.level, rec.x, rec.y) if lod is None else None
+    glb, tri = build_tile_glb(rows, rec.region, textures)
     return glb, len(rows), tri
 
 
@@ -233,6 +314,16 @@ def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int 
             "(make lod tiles generalize)")
     if any(r.geometric_error is None or r.content_features is None for r in records):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
+    if lod is None:
+        # textures are made from the generalized content: a later lod, tiles or generalize run may have changed it
+        textured, tex_run, gen_run = conn.execute(
+            """SELECT EXISTS (SELECT 1 FROM tex.page),
+                      (SELECT max(run_id) FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok'),
+                      (SELECT max(run_id) FROM meta.pipeline_run
+                       WHERE stage IN ('lod', 'tiles', 'generalize') AND status = 'ok')""").fetchone()  # type: ignore[misc]
+        if textured and (tex_run is None or (gen_run is not None and tex_run < gen_run)):
+            raise RuntimeError("the textures are stale: the tiles were generalized again after the textures stage "
+                               "ran; run it again (make textures)")
 
 
 PARTIAL_MARKER = ".citylod-partial"  # marks an export in progress (or one that crashed): ours to delete

@@ -1,8 +1,12 @@
-"""GLB writer for building tiles: one triangle primitive with per-feature ids and a property table.
+"""GLB writer for building tiles: triangle primitives with per-feature ids and a property table.
 
-Pure: arrays in, bytes out. The primitive has POSITION, NORMAL, COLOR_0 and ``_FEATURE_ID_0``; the feature
-ids index an ``EXT_structural_metadata`` property table (one row per building or part) through
-``EXT_mesh_features``, which is what CesiumJS reads when a feature is picked or styled.
+Pure: arrays in, bytes out. An untextured tile is one primitive with POSITION, NORMAL, COLOR_0 and
+``_FEATURE_ID_0``; the feature ids index an ``EXT_structural_metadata`` property table (one row per building
+or part) through ``EXT_mesh_features``, which is what CesiumJS reads when a feature is picked or styled.
+A textured tile (the textures stage's atlas pages) has one primitive per page, with TEXCOORD_0 instead of
+COLOR_0 and one material whose baseColorTexture is the page (WebP through EXT_texture_webp, required: no
+fallback image), plus the vertex-coloured primitive for what has no texture; every primitive carries the
+feature ids of its own vertices against the one property table.
 Spec notes honoured here: bufferViews start on 8-byte boundaries (metadata requirement), vertex attributes are
 4-byte aligned (feature ids as FLOAT, exact up to 2^24), POSITION carries min/max, normals are unit length.
 """
@@ -49,6 +53,19 @@ class Primitive:
     indices: np.ndarray  # (m * 3,) uint32
     properties: list[Property] = field(default_factory=list)
     feature_count: int = 0
+    uvs: np.ndarray | None = None  # (n, 2) float32 TEXCOORD_0 ((0, 0) top left of the image): textured
+    image: int | None = None  # with uvs: index into write_glb's images, shown as the base colour
+
+
+@dataclass(frozen=True)
+class Image:
+    """An encoded texture image stored in the glb's buffer (an atlas page)."""
+
+    data: bytes
+    mime: str  # image/webp, image/png or image/jpeg
+
+
+NEAREST, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9728, 9729, 9987, 33071
 
 
 class _Builder:
@@ -88,29 +105,70 @@ def _string_column(values: Sequence[object], no_data: str) -> tuple[bytes, bytes
     return b"".join(encoded), offsets.tobytes()
 
 
-def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "") -> bytes:
+def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) -> dict[str, object]:
     n = len(prim.positions)
-    if not (len(prim.normals) == len(prim.colors) == len(prim.feature_ids) == n):
+    textured = prim.uvs is not None
+    if not (len(prim.normals) == len(prim.feature_ids) == n) or (len(prim.colors) != n and not textured) \
+            or (textured and len(prim.uvs) != n):  # type: ignore[arg-type]
         raise ValueError("vertex attribute arrays must have the same length")
     if len(prim.indices) % 3:
         raise ValueError("indices must describe whole triangles")
-    b = _Builder()
     pos = np.asarray(prim.positions, dtype=np.float32)
-    colors = np.asarray(prim.colors)
     attrs = {
         "POSITION": b.accessor(pos, FLOAT, "VEC3", ARRAY_BUFFER, minmax=True),
         "NORMAL": b.accessor(np.asarray(prim.normals, dtype=np.float32), FLOAT, "VEC3", ARRAY_BUFFER),
-        # 16-bit linear colours as they come; anything else is 8-bit
-        "COLOR_0": b.accessor(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
-                              UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4", ARRAY_BUFFER,
-                              normalized=True),
-        "_FEATURE_ID_0": b.accessor(np.asarray(prim.feature_ids, dtype=np.float32), FLOAT, "SCALAR",
-                                    ARRAY_BUFFER),
     }
+    if textured:
+        attrs["TEXCOORD_0"] = b.accessor(np.asarray(prim.uvs, dtype=np.float32), FLOAT, "VEC2", ARRAY_BUFFER)
+    else:
+        colors = np.asarray(prim.colors)
+        # 16-bit linear colours as they come; anything else is 8-bit
+        attrs["COLOR_0"] = b.accessor(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
+                                      UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4",
+                                      ARRAY_BUFFER, normalized=True)
+    attrs["_FEATURE_ID_0"] = b.accessor(np.asarray(prim.feature_ids, dtype=np.float32), FLOAT, "SCALAR",
+                                        ARRAY_BUFFER)
     # 16-bit indices whenever the vertices fit: half the index bytes for almost every tile
     small = n <= 0xFFFF
     idx = b.accessor(np.asarray(prim.indices, dtype=np.uint16 if small else np.uint32),
                      UNSIGNED_SHORT if small else UNSIGNED_INT, "SCALAR", ELEMENT_ARRAY_BUFFER)
+    return {
+        "attributes": attrs,
+        "indices": idx,
+        "material": material,
+        "mode": 4,
+        "extensions": {"EXT_mesh_features": {"featureIds": [
+            {"featureCount": int(feature_count), "attribute": 0, "propertyTable": 0}
+        ]}},
+    }
+
+
+def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "",
+              textured: Sequence[Primitive] = (), images: Sequence[Image] = ()) -> bytes:
+    """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
+    primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
+    vertex-coloured primitive; with them an empty ``prim`` is left out."""
+    b = _Builder()
+    materials: list[dict[str, object]] = []
+    primitives: list[dict[str, object]] = []
+    if not textured or len(prim.indices):
+        materials.append({
+            "name": "building",
+            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0.0, "roughnessFactor": 1.0},
+        })
+        # one primitive: every feature has vertices in it (featureCount = the table's); with textured ones
+        # next to it, featureCount counts the features of its own vertices (EXT_mesh_features)
+        count = prim.feature_count if not textured else len(np.unique(np.asarray(prim.feature_ids)))
+        primitives.append(_primitive(b, prim, 0, count))
+    for tp in textured:
+        if tp.uvs is None or tp.image is None or not 0 <= tp.image < len(images):
+            raise ValueError("a textured primitive needs uvs and the index of one of the images")
+        materials.append({
+            "name": f"atlas page {tp.image}",
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": tp.image}, "metallicFactor": 0.0,
+                                     "roughnessFactor": 1.0},
+        })
+        primitives.append(_primitive(b, tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids)))))
 
     class_props: dict[str, object] = {}
     table_props: dict[str, object] = {}
@@ -148,19 +206,8 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0}],
-        "materials": [{
-            "name": "building",
-            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0.0, "roughnessFactor": 1.0},
-        }],
-        "meshes": [{"primitives": [{
-            "attributes": attrs,
-            "indices": idx,
-            "material": 0,
-            "mode": 4,
-            "extensions": {"EXT_mesh_features": {"featureIds": [
-                {"featureCount": int(prim.feature_count), "attribute": 0, "propertyTable": 0}
-            ]}},
-        }]}],
+        "materials": materials,
+        "meshes": [{"primitives": primitives}],
         "extensions": {"EXT_structural_metadata": {
             "schema": {"id": "citylod", "classes": {class_name: {
                 "name": class_name.capitalize(), "description": class_description, "properties": class_props}}},
@@ -170,6 +217,18 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "bufferViews": b.views,
         "buffers": [{"byteLength": len(b.bin)}],
     }
+    if textured:
+        # WebP only through EXT_texture_webp, required: the pages exist in no other format (no fallback)
+        webp = [im.mime == "image/webp" for im in images]
+        gltf["images"] = [{"bufferView": b.view(im.data), "mimeType": im.mime} for im in images]
+        gltf["samplers"] = [{"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE,
+                             "wrapT": CLAMP_TO_EDGE}]
+        gltf["textures"] = [{"sampler": 0, "extensions": {"EXT_texture_webp": {"source": i}}} if w
+                            else {"sampler": 0, "source": i} for i, w in enumerate(webp)]
+        if any(webp):
+            gltf["extensionsUsed"] = [*gltf["extensionsUsed"], "EXT_texture_webp"]  # type: ignore[misc]
+            gltf["extensionsRequired"] = ["EXT_texture_webp"]
+        gltf["buffers"] = [{"byteLength": len(b.bin)}]  # the images were added to the buffer
     return _pack(gltf, bytes(b.bin))
 
 

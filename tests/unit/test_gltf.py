@@ -129,7 +129,7 @@ def _string_offsets_view(g):
 @pytest.mark.parametrize(
     ("mutate", "needle"),
     [
-        (lambda g, b: _ext(g).update(featureCount=1), "!= property table count"),
+        (lambda g, b: _ext(g).update(featureCount=1), "!= 2 distinct feature ids"),
         (lambda g, b: _table(g).update(count=3) or _ext(g).update(featureCount=3), "have no vertex"),
         (lambda g, b: _table(g)["properties"].pop("osm_id"), "required property osm_id missing"),
         (lambda g, b: _table(g).update({"class": "nope"}), "not in the schema"),
@@ -156,3 +156,54 @@ def test_metadata_checks_catch_out_of_range_feature_ids() -> None:
     p = cube_primitive()
     p.feature_ids = np.array([0, 0, 0, 0, 1, 1, 1, 7])
     assert any("integers in [0, 2)" in x for x in check_glb(write_glb(p)))
+
+
+def textured_glb() -> bytes:
+    """The cube with its top (feature 0) textured from a WebP page and its bottom (feature 1) vertex-coloured."""
+    from etl.geom.atlas import encode_image
+    from exporter.gltf import Image
+
+    c = cube_primitive()
+    page = np.zeros((8, 12, 3), np.uint8)
+    page[:, :6] = (200, 40, 30)
+    data, mime = encode_image(page, "webp")
+    top = Primitive(c.positions[:4], c.normals[:4], np.zeros((0, 4), np.uint8), c.feature_ids[:4],
+                    np.array([0, 1, 2, 0, 2, 3], np.uint32), uvs=np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1]],
+                                                                            np.float32), image=0)
+    plain = Primitive(c.positions[4:], c.normals[4:], c.colors[4:], c.feature_ids[4:],
+                      np.array([0, 2, 1, 0, 3, 2], np.uint32), c.properties, feature_count=2)
+    return write_glb(plain, textured=[top], images=[Image(data, mime)])
+
+
+def test_textured_glb_validates_with_one_material_per_page(tmp_path) -> None:
+    from exporter.checks import check_glb
+
+    glb = textured_glb()
+    gltf, binary = read_glb(glb)
+    assert gltf["extensionsRequired"] == ["EXT_texture_webp"] and "EXT_texture_webp" in gltf["extensionsUsed"]
+    plain, top = gltf["meshes"][0]["primitives"]
+    assert "COLOR_0" in plain["attributes"] and "TEXCOORD_0" not in plain["attributes"]
+    assert "TEXCOORD_0" in top["attributes"] and "COLOR_0" not in top["attributes"]
+    # each primitive counts the features of its own vertices; together they draw the whole table
+    assert [p["extensions"]["EXT_mesh_features"]["featureIds"][0]["featureCount"] for p in (plain, top)] == [1, 1]
+    texture = gltf["textures"][gltf["materials"][top["material"]]["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
+    assert "source" not in texture and gltf["images"][texture["extensions"]["EXT_texture_webp"]["source"]][
+        "mimeType"] == "image/webp"
+    assert gltf["samplers"] == [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]
+    np.testing.assert_allclose(accessor_array(gltf, binary, top["attributes"]["TEXCOORD_0"])[2], [0.5, 1])
+    assert check_glb(glb) == []
+    f = tmp_path / "textured.glb"
+    f.write_bytes(glb)
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(f)], capture_output=True, text=True)
+    report = json.loads(proc.stdout)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+
+
+def test_feature_checks_span_primitives() -> None:
+    from exporter.checks import check_glb
+
+    gltf, binary = read_glb(textured_glb())
+    gltf["meshes"][0]["primitives"].pop(0)  # feature 1 is drawn nowhere now
+    from exporter.gltf import _pack
+
+    assert any("1 of 2 features have no vertex" in p for p in check_glb(_pack(gltf, binary)))

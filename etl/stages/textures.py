@@ -1,0 +1,362 @@
+"""Stage textures: procedural facade and roof textures packed into per-tile atlas pages, and a UV per triangle
+corner of every feature -> tex.page, tex.feature_uv (tex.failure for what could not be textured).
+
+Runs after generalize (it needs each tile's content and measured geometric error) and before export, which
+reads the pages and UVs (exporter/export.py). Per tile, with api.buildings_for_tile's features (the same
+meshes, in the same triangle order, as the exporter writes):
+
+* resolution: a tile of geometric error e is drawn until its screen-space error e × H / (2 d tan(fov/2))
+  exceeds max_sse, i.e. from d >= e × H / (2 tan(fov/2) max_sse) on; atlas.texels_per_metre(d) gives the
+  texels per metre that are never magnified there (= max_sse / (e × px_per_texel)), capped by
+  tex_max_texels_per_metre, which is also what the leaves (e = 0, seen from any distance) get. Coarser tiles
+  have larger errors and so get coarser textures: the multi-resolution atlases of the thesis.
+* charts, pages and UVs: etl/geom/texturing.py (walls with the LOD3 openings painted where the panels are,
+  roof faces, xatlas for curved roofs, a flat-colour palette for what is too small to show a pattern),
+  pages <= tex_page_size, WebP (OpenImageIO has no KTX2 writer).
+* a LOD2 tile and the leaves below it are one unit of work sharing a chart cache: the leaves' walls and
+  roofs are the LOD2 tile's, at the same resolution wherever the LOD2 tile's rule reaches the cap (on
+  Liechtenstein, all of them), so they are copied, and downsampled through OpenImageIO when the parent
+  needs fewer texels. Units are independent and run on a few threads, each with its own connection.
+
+One broken feature never stops the run: a tile that fails is textured again without the features that fail
+alone, and those are listed in tex.failure (they keep their vertex colours). Features in = textured + failed.
+"""
+
+from __future__ import annotations
+
+import atexit
+import math
+import multiprocessing
+import os
+import time
+import traceback
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+import psycopg
+
+from ..db import connect
+from ..geom import atlas as A
+from ..geom import texturing as X
+from ..geom.semantics import SEM_DOOR, SEM_WINDOW
+from ..geom.wkb import decode_triangles
+from ..progress import Progress, summary
+from ..settings import Settings
+
+FORMAT = "webp"
+WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these pages (measured)
+BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.building ids
+
+_TILES = """
+SELECT level, x, y, gen_level, geometric_error, is_leaf, content_features FROM tiles.tile
+WHERE content_features > 0 ORDER BY level, x, y
+"""
+_FEATURES = """
+SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.levels, f.building_colour, f.roof_colour,
+       f.building_material, f.roof_material, f.gen_level, f.n_triangles, f.semantics, ST_AsBinary(f.geom)
+FROM api.buildings_for_tile(%s, %s, %s) f
+ORDER BY f.feature_kind, f.building_id
+"""
+# the LOD3 window and door panels of LOD2 features, to paint them where the leaves have them
+_LOD3 = """
+SELECT building_id, semantics, ST_AsBinary(geom) FROM lod.building_mesh
+WHERE lod = 3 AND building_id = ANY(%s) AND n_windows + n_doors > 0
+"""
+_PAGE_COLUMNS = ("level", "x", "y", "page_no", "format", "mime", "width", "height", "n_bytes", "bytes",
+                 "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects")
+_PAGE_TYPES = ("int2", "int4", "int4", "int2", "text", "text", "int4", "int4", "int4", "bytea", "float4", "float4",
+               "float4", "int4", "int4", "int2", "bytea")
+_UV_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "n_triangles", "page", "uv")
+_UV_TYPES = ("int2", "int4", "int4", "text", "int8", "int4", "bytea", "bytea")
+_FAIL_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "osm_type", "osm_id", "reason", "detail")
+_FAIL_TYPES = ("int2", "int4", "int4", "text", "int8", "text", "int8", "text", "text")
+
+
+@dataclass(frozen=True)
+class Tile:
+    level: int
+    x: int
+    y: int
+    gen_level: int
+    geometric_error: float
+    is_leaf: bool
+    features: int
+
+
+@dataclass
+class Result:
+    tile: Tile
+    rho: float
+    distance: float
+    padding: int
+    pages: list[tuple] = field(default_factory=list)
+    uvs: list[tuple] = field(default_factory=list)
+    failures: list[tuple] = field(default_factory=list)
+    features: int = 0
+    stats: dict[str, int] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def resolution(geometric_error: float, settings: Settings) -> tuple[float, float]:
+    """(texels per metre, view distance m) of a tile: the thesis' rule at the nearest distance the tile is
+    drawn from, capped by tex_max_texels_per_metre; the distance is where that resolution is exactly right."""
+    fov = math.radians(settings.tex_fov_deg)
+    cap = settings.tex_max_texels_per_metre
+    rho = cap
+    if geometric_error > 0:
+        d = geometric_error * settings.tex_screen_height / (2 * math.tan(fov / 2) * settings.tex_max_sse)
+        rho = min(cap, float(A.texels_per_metre(d, fov, settings.tex_screen_height, settings.tex_px_per_texel)))
+    distance = settings.tex_screen_height / (2 * math.tan(fov / 2) * rho * settings.tex_px_per_texel)
+    return rho, distance
+
+
+def padding_for(rho: float, settings: Settings) -> int:
+    """Gutter texels at rho texels/m: about half a metre of texels, at most tex_padding. A 2-texel gutter
+    around charts a few texels wide would cost more texels than they hold (utilization below 60 % at 1 texel/m
+    against 98 % without, on Liechtenstein); without gutters the charts' edge texels are centred on their
+    edges (texturing._insets), so full-resolution sampling never reads a neighbour."""
+    return max(0, min(settings.tex_padding, int(rho // 2)))
+
+
+def units(tiles: list[Tile]) -> list[list[Tile]]:
+    """Units of work: each LOD2-band tile with the leaves below it (leaves first, so they fill the chart cache
+    it reads), every other tile alone. Deterministic order."""
+    lod2 = {(t.level, t.x, t.y): [] for t in tiles if t.gen_level == 3}  # type: dict[tuple[int, int, int], list[Tile]]
+    alone: list[list[Tile]] = []
+    for t in tiles:
+        if t.gen_level == 4:
+            for up in range(1, t.level + 1):
+                key = (t.level - up, t.x >> up, t.y >> up)
+                if key in lod2:
+                    lod2[key].append(t)
+                    break
+            else:
+                alone.append([t])
+        elif t.gen_level != 3:
+            alone.append([t])
+    by_key = {(t.level, t.x, t.y): t for t in tiles}
+    out = [leaves + [by_key[k]] for k, leaves in lod2.items()] + alone
+    # biggest units first, so the last worker does not start a long one at the end
+    return sorted(out, key=lambda u: -sum(t.features for t in u))
+
+
+def _style(r: tuple) -> X.Style:
+    kind, bid, levels, bcol, rcol, bmat, rmat, gen_level = r[0], r[1], r[4], r[5], r[6], r[7], r[8], r[9]
+    key = BLOCK_KEY + int(bid) if kind == "block" else int(bid)
+    return X.Style.from_tags(key, bmat, bcol, rmat, rcol, levels, generic_openings=gen_level <= 2)
+
+
+def _arrays(rows: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
+    tris, sems, counts = [], [], []
+    for r in rows:
+        t = decode_triangles(r[12])
+        s = np.full(len(t), X.SEM_UNKNOWN, np.uint8) if r[11] is None else np.frombuffer(bytes(r[11]), np.uint8)
+        if len(s) != len(t):
+            raise ValueError(f"{len(s)} semantics bytes for {len(t)} triangles")
+        tris.append(t)
+        sems.append(s)
+        counts.append(len(t))
+    feat = np.repeat(np.arange(len(rows)), counts)
+    return (np.concatenate(tris) if tris else np.zeros((0, 3, 3)), feat,
+            np.concatenate(sems) if sems else np.zeros(0, np.uint8), counts)
+
+
+def _texture(rows: list[tuple], conn: psycopg.Connection, rho: float, params: X.Params,
+             cache: X.ChartCache | None, store: bool) -> tuple[X.TileTexture, list[int]]:
+    tri, feat, sem, counts = _arrays(rows)
+    styles = [_style(r) for r in rows]
+    # LOD2 features whose leaves were not textured in this unit: their openings from the LOD3 meshes
+    need = sorted({int(r[1]) for r, s in zip(rows, styles, strict=True)
+                   if r[9] == 3 and r[0] != "block" and (cache is None or s.key not in cache.buildings)})
+    extra = None
+    if need:
+        index = {int(r[1]): i for i, r in enumerate(rows) if r[9] == 3 and r[0] != "block"}
+        ot, of, os_ = [], [], []
+        for bid, s3, g3 in conn.execute(_LOD3, (need,)).fetchall():
+            t3 = decode_triangles(g3)
+            s = np.frombuffer(bytes(s3), np.uint8) if s3 is not None else np.zeros(0, np.uint8)
+            if len(s) != len(t3):
+                continue  # no usable semantics: the wall stays without openings
+            keep = (s == SEM_WINDOW) | (s == SEM_DOOR)
+            ot.append(t3[keep])
+            of.append(np.full(int(keep.sum()), index[int(bid)]))
+            os_.append(s[keep])
+        if ot:
+            extra = (np.concatenate(ot), np.concatenate(of), np.concatenate(os_))
+    tt = X.texture_tile(tri, feat, sem, styles, rho, params, extra, cache, store)
+    return tt, counts
+
+
+def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
+              store: bool) -> Result:
+    t0 = time.perf_counter()
+    rho, distance = resolution(tile.geometric_error, settings)
+    pad = padding_for(rho, settings)
+    res = Result(tile, rho, distance, pad)
+    params = X.Params(page_size=settings.tex_page_size, padding=pad, packer=settings.tex_packer,
+                      min_chart_texels=settings.tex_min_chart_texels,
+                      xatlas_min_planes=settings.tex_xatlas_min_planes)
+    rows = conn.execute(_FEATURES, (tile.level, tile.x, tile.y)).fetchall()
+    res.features = len(rows)
+    key = (tile.level, tile.x, tile.y)
+
+    def fail(r: tuple, reason: str, detail: str) -> tuple:
+        return (*key, r[0], int(r[1]), r[2], int(r[3]), reason, detail[:2000])
+
+    good = list(range(len(rows)))
+    tt: X.TileTexture | None = None
+    try:
+        tt, counts = _texture(rows, conn, rho, params, cache, store)
+    except Exception:  # noqa: BLE001 -- one broken building never stops the run: find it below
+        # which features fail on their own? (texturing is pure and per tile, so this is exact and rare)
+        bad = []
+        for i, r in enumerate(rows):
+            try:
+                _texture([r], conn, rho, params, None, False)
+            except Exception as e:  # noqa: BLE001
+                bad.append(i)
+                res.failures.append(fail(r, "texturing_failed", f"{type(e).__name__}: {e}"))
+        good = [i for i in range(len(rows)) if i not in set(bad)]
+        try:
+            tt, counts = _texture([rows[i] for i in good], conn, rho, params, cache, store)
+        except Exception as e:  # noqa: BLE001
+            detail = "".join(traceback.format_exception_only(type(e), e)).strip()
+            res.failures += [fail(rows[i], "tile_texturing_failed", detail) for i in good]
+            good, tt = [], None
+    if tt is not None:
+        rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
+        util = tt.layout.utilization
+        for p, img in enumerate(tt.pages):
+            data, mime = A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD)
+            h, w = img.shape[:2]
+            res.pages.append((*key, p, FORMAT, mime, w, h, len(data), data, float(util[p]), rho, distance,
+                              len(rects[p]), int(tt.layout.scaled[tt.layout.page == p].sum()), pad,
+                              rects[p].astype("<i4").tobytes()))
+        off = np.concatenate([[0], np.cumsum(counts)])
+        for j, i in enumerate(good):
+            r = rows[i]
+            sl = slice(off[j], off[j + 1])
+            res.uvs.append((*key, r[0], int(r[1]), int(counts[j]), tt.tri_page[sl].astype("<i2").tobytes(),
+                            tt.tri_uv[sl].astype("<f4").tobytes()))
+        res.stats = tt.stats
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def _write(cur: psycopg.Cursor, res: Result) -> None:
+    for table, cols, types, rows in (("page", _PAGE_COLUMNS, _PAGE_TYPES, res.pages),
+                                     ("feature_uv", _UV_COLUMNS, _UV_TYPES, res.uvs),
+                                     ("failure", _FAIL_COLUMNS, _FAIL_TYPES, res.failures)):
+        if not rows:
+            continue
+        with cur.copy(f"COPY tex.{table} ({', '.join(cols)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.set_types(list(types))
+            for row in rows:
+                copy.write_row(row)
+
+
+_WORKER: dict[str, psycopg.Connection] = {}
+
+
+def _init_worker(url: str) -> None:
+    _WORKER["conn"] = connect(url, autocommit=True)  # reads only: no transaction left open between tiles
+    atexit.register(_WORKER["conn"].close)
+
+
+def _do_unit(unit: list[Tile], settings: Settings) -> list[Result]:
+    """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache."""
+    shared = any(t.gen_level == 3 for t in unit)
+    cache = X.ChartCache() if shared else None
+    return [_one_tile(t, _WORKER["conn"], settings, cache, store=shared and t.gen_level == 4) for t in unit]
+
+
+def _map_units(work: list[list[Tile]], url: str, settings: Settings, workers: int) -> Iterator[list[Result]]:
+    """Results of every unit, in order. Worker processes, not threads: most of the time is numpy on arrays of a
+    few thousand elements and Python between them, which threads serialise on the GIL (2 threads were no
+    faster than 1, measured); each process reads its tiles through its own connection."""
+    if workers <= 1:
+        _init_worker(url)
+        try:
+            yield from (_do_unit(u, settings) for u in work)
+        finally:
+            _WORKER.pop("conn").close()
+        return
+    ctx = multiprocessing.get_context("spawn")  # never fork a process that holds open connections
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                             initargs=(url,)) as pool:
+        yield from pool.map(_do_unit, work, [settings] * len(work))
+
+
+def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
+    t0 = time.perf_counter()
+    if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size % 4:
+        raise ValueError(f"tex_page_size must be a multiple of 4 in 16..{A.MAX_PAGE_SIZE}")
+    if settings.tex_max_texels_per_metre <= 0:
+        raise ValueError("tex_max_texels_per_metre must be > 0")
+    rows = conn.execute(_TILES).fetchall()
+    if not rows:
+        raise RuntimeError("no tiles: run the tiles and generalize stages first (make tiles generalize)")
+    if any(r[4] is None for r in rows):
+        raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
+    tiles = [Tile(int(r[0]), int(r[1]), int(r[2]), int(r[3]), float(r[4]), bool(r[5]), int(r[6])) for r in rows]
+    expected = sum(t.features for t in tiles)
+    work = units(tiles)
+    workers = settings.tex_workers or min(4, os.cpu_count() or 1)
+    progress = Progress("textures", "features", total=expected)
+    by_band: dict[int, dict[str, float]] = {}
+    totals = dict.fromkeys(("features", "textured", "failed", "pages", "bytes", "page_texels", "content_texels",
+                            "rendered_texels", "copied", "resized", "flat", "sheets", "scaled", "panels_mapped"), 0)
+    with conn.transaction(), conn.cursor() as cur:
+        cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure")
+        for results in _map_units(work, url, settings, workers):
+            for res in results:
+                _write(cur, res)
+                page_texels = sum(p[6] * p[7] for p in res.pages)
+                n_bytes = sum(p[8] for p in res.pages)
+                b = by_band.setdefault(res.tile.gen_level, dict.fromkeys(
+                    ("tiles", "features", "pages", "bytes", "page_texels", "content_texels", "seconds"), 0.0))
+                b.update(min_texels_per_metre=min(b.get("min_texels_per_metre", math.inf), res.rho),
+                         max_texels_per_metre=max(b.get("max_texels_per_metre", 0.0), res.rho))
+                for k, v in (("tiles", 1), ("features", res.features), ("pages", len(res.pages)), ("bytes", n_bytes),
+                             ("page_texels", page_texels), ("content_texels", res.stats.get("content_texels", 0)),
+                             ("seconds", res.seconds)):
+                    b[k] += v
+                totals["features"] += res.features
+                totals["textured"] += len(res.uvs)
+                totals["failed"] += len(res.failures)
+                totals["pages"] += len(res.pages)
+                totals["bytes"] += n_bytes
+                totals["page_texels"] += page_texels
+                for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
+                          "panels_mapped"):
+                    totals[k] += res.stats.get(k, 0)
+                progress.update(res.features)
+        if totals["features"] != expected:
+            raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
+        if totals["textured"] + totals["failed"] != totals["features"]:
+            raise RuntimeError(f"features in {totals['features']} != textured {totals['textured']} + failed "
+                               f"{totals['failed']}")
+        cur.execute("ANALYZE tex.page")
+        cur.execute("ANALYZE tex.feature_uv")
+    seconds = time.perf_counter() - t0
+    buildings = sum(t.features for t in tiles if t.is_leaf)
+    util = totals["content_texels"] / totals["page_texels"] if totals["page_texels"] else 0.0
+    bands = [{"gen_level": g, "tiles": int(b["tiles"]), "features": int(b["features"]), "pages": int(b["pages"]),
+              "bytes": int(b["bytes"]), "utilization": round(b["content_texels"] / b["page_texels"], 4)
+              if b["page_texels"] else None, "texels_per_metre": [round(b["min_texels_per_metre"], 3),
+                                                                   round(b["max_texels_per_metre"], 3)],
+              "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
+    summary(
+        "textures",
+        f"{totals['textured']:,} features textured ({totals['failed']:,} failed) in {len(tiles):,} tiles: "
+        f"{totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB, utilization {100 * util:.1f} %, "
+        f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
+        f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)",
+        seconds,
+        buildings,
+    )
+    return {**totals, "tiles": len(tiles), "units": len(work), "workers": workers, "utilization": round(util, 4),
+            "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
+            "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

@@ -1,0 +1,227 @@
+"""Stage textures on a real city (Munich Altstadt): bounded pages, a UV for every corner of every textured
+feature inside its chart, utilization as stored, coarser tiles with fewer texels per metre, the same bytes on
+a second run, features in = textured + failed; and the export: glTF-Validator 0 errors, one material per
+atlas page (not per building), the DB server's bytes the file's, windows where the LOD3 panels are."""
+
+from __future__ import annotations
+
+import hashlib
+import http.client
+import json
+import subprocess
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import numpy as np
+import psycopg
+import pytest
+
+from etl.geom import atlas as A
+from etl.geom.semantics import SEM_WALL, SEM_WINDOW
+from etl.geom.wkb import decode_triangles
+from etl.settings import Settings
+from exporter.checks import check_tileset
+from exporter.gltf import read_glb
+from exporter.serve import make_db_server, reader_url, server_url
+from tests.conftest import REPO, SHARED, node_bin, run_etl
+
+S = Settings()
+
+
+@pytest.fixture(scope="module")
+def textured(new_db: Callable[[str], str], tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Path, dict]:
+    """Munich through every stage, textures included, exported: (url, tileset dir, the textures run's counts)."""
+    url = new_db("textures")
+    run_etl(url, "ingest", "--osm", str(SHARED / "munich_altstadt.osm.pbf"))
+    for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
+        run_etl(url, stage)
+    out = tmp_path_factory.mktemp("textures") / "munich"
+    run_etl(url, "export", "--out", str(out))
+    with psycopg.connect(url) as conn:
+        counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
+                              "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    return url, out, counts
+
+
+def pages(conn: psycopg.Connection) -> list[tuple]:
+    return conn.execute("""SELECT level, x, y, page_no, width, height, utilization, rects, n_charts, padding,
+                                  texels_per_metre FROM tex.page ORDER BY 1, 2, 3, 4""").fetchall()
+
+
+def test_pages_are_bounded_and_their_utilization_is_what_they_hold(textured, conn_of) -> None:
+    url, _, counts = textured
+    conn = conn_of(url)
+    rows = pages(conn)
+    assert rows and all(0 < w <= S.tex_page_size and 0 < h <= S.tex_page_size for _, _, _, _, w, h, *_ in rows)
+    content = total = 0
+    for level, x, y, p, w, h, util, rects, n, pad, _ in rows:
+        r = np.frombuffer(rects, "<i4").reshape(-1, 4)
+        assert len(r) == n > 0
+        # chart boxes (with their gutters) inside the page and apart from each other
+        x0, y0, x1, y1 = r[:, 0] - pad, r[:, 1] - pad, r[:, 0] + r[:, 2] + pad, r[:, 1] + r[:, 3] + pad
+        assert (x0 >= 0).all() and (y0 >= 0).all() and (x1 <= w).all() and (y1 <= h).all(), (level, x, y, p)
+        cover = np.zeros((h, w), np.int32)
+        for a, b, c, d in zip(x0, y0, x1, y1, strict=True):
+            cover[b:d, a:c] += 1
+        assert cover.max() == 1, (level, x, y, p)
+        assert util == pytest.approx((r[:, 2] * r[:, 3]).sum() / (w * h), rel=1e-6)
+        content += int((r[:, 2] * r[:, 3]).sum())
+        total += w * h
+    # the issue's target, measured: >= 80 % of the atlas texels hold chart texels
+    assert content / total >= 0.8
+    assert counts["utilization"] == pytest.approx(content / total, abs=1e-4)
+
+
+def test_every_textured_feature_has_a_uv_in_its_chart_for_every_corner(textured, conn_of) -> None:
+    url, _, counts = textured
+    conn = conn_of(url)
+    feats = {(r[0], r[1], r[2], r[3], r[4]): r[5] for r in conn.execute(
+        """SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.n_triangles
+           FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f""")}
+    uvs = conn.execute("""SELECT level, x, y, feature_kind, feature_id, n_triangles, page, uv FROM tex.feature_uv
+                          ORDER BY 1, 2, 3, 4, 5""").fetchall()
+    failed = conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0]
+    # count in = count out + rejects
+    assert len(feats) == len(uvs) + failed == counts["features"] == counts["textured"] + counts["failed"]
+    dims = {(r[0], r[1], r[2], r[3]): (r[4], r[5], np.frombuffer(r[7], "<i4").reshape(-1, 4), r[9])
+            for r in pages(conn)}
+    for level, x, y, kind, fid, n, page, uv in uvs:
+        assert feats[(level, x, y, kind, fid)] == n  # the mesh the exporter writes has n triangles
+        pg = np.frombuffer(page, "<i2")
+        corner = np.frombuffer(uv, "<f4").reshape(n, 3, 2)
+        assert len(pg) == n and (pg >= 0).all()
+        assert (corner >= 0).all() and (corner <= 1).all()
+        for p in np.unique(pg).tolist():
+            w, h, rects, _ = dims[(level, x, y, p)]
+            px = corner[pg == p] * [w, h]
+            lo, hi = px.min(axis=1), px.max(axis=1)
+            inside = ((lo[:, None, :] >= rects[None, :, :2] - 1e-3)
+                      & (hi[:, None, :] <= rects[None, :, :2] + rects[None, :, 2:] + 1e-3)).all(axis=2)
+            assert inside.any(axis=1).all(), (level, x, y, kind, fid)  # every triangle inside one chart
+
+
+def test_coarser_tiles_get_fewer_texels_per_metre(textured, conn_of) -> None:
+    conn = conn_of(textured[0])
+    rho = {(r[0], r[1], r[2]): (r[3], r[4], r[5]) for r in conn.execute(
+        """SELECT DISTINCT t.level, t.x, t.y, p.texels_per_metre, t.geometric_error, p.view_distance_m
+           FROM tex.page p JOIN tiles.tile t USING (level, x, y)""")}
+    for (level, x, y), (r, err, d) in rho.items():
+        # the thesis' rule at the distance the tile is first drawn from, capped
+        want = min(S.tex_max_texels_per_metre, S.tex_max_sse / (err * S.tex_px_per_texel)) if err > 0 \
+            else S.tex_max_texels_per_metre
+        assert r == pytest.approx(want, rel=1e-5)
+        assert float(A.texels_per_metre(d, np.radians(S.tex_fov_deg), S.tex_screen_height)) == pytest.approx(r, 1e-5)
+        parent = rho.get((level - 1, x // 2, y // 2))
+        if parent is not None:
+            assert parent[0] <= r + 1e-6
+    leaves = [v[0] for v in rho.values() if v[1] == 0]
+    root = rho[min(rho)]
+    assert root[0] < min(leaves) / 4  # the root's blocks at a fraction of the leaves' resolution
+
+
+def test_a_second_run_gives_the_same_bytes(textured, conn_of) -> None:
+    url = textured[0]
+    conn = conn_of(url)
+
+    def digest() -> tuple[str, str]:
+        a = hashlib.sha256()
+        for row in conn.execute("SELECT level, x, y, page_no, bytes FROM tex.page ORDER BY 1, 2, 3, 4"):
+            a.update(repr(row[:4]).encode() + bytes(row[4]))
+        b = hashlib.sha256()
+        for row in conn.execute("SELECT level, x, y, feature_kind, feature_id, page, uv FROM tex.feature_uv "
+                                "ORDER BY 1, 2, 3, 4, 5"):
+            b.update(repr(row[:5]).encode() + bytes(row[5]) + bytes(row[6]))
+        return a.hexdigest(), b.hexdigest()
+
+    before = digest()
+    run_etl(url, "textures", env={"CITYLOD_TEX_WORKERS": "1"})  # another process layout, same bytes
+    assert digest() == before
+
+
+def test_export_validates_with_one_material_per_page(textured, conn_of) -> None:
+    url, out, _ = textured
+    conn = conn_of(url)
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,
+                          text=True)
+    report = json.loads(proc.stdout)
+    assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
+    assert check_tileset(out / "tileset.json") == []
+    n_pages = dict(((r[0], r[1], r[2]), r[3]) for r in conn.execute(
+        "SELECT level, x, y, count(*) FROM tex.page GROUP BY 1, 2, 3"))
+    features = textured_tiles = 0
+    for glb in sorted(out.rglob("*.glb")):
+        level, x, y = (int(p) for p in glb.relative_to(out / "content").with_suffix("").parts)
+        gltf, _ = read_glb(glb.read_bytes())
+        prims = gltf["meshes"][0]["primitives"]
+        with_texture = [p for p in prims if "TEXCOORD_0" in p["attributes"]]
+        assert len(with_texture) == len(gltf.get("images", [])) <= n_pages.get((level, x, y), 0)
+        if with_texture:
+            textured_tiles += 1
+            materials = {p["material"] for p in with_texture}
+            assert len(materials) == len(with_texture)  # one material per page, never per building
+            assert gltf["extensionsRequired"] == ["EXT_texture_webp"]
+            assert all(gltf["images"][i]["mimeType"] == "image/webp" for i in range(len(gltf["images"])))
+        features += gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["count"]
+        assert len(prims) == len(gltf["materials"]) <= n_pages.get((level, x, y), 0) + 1
+    assert textured_tiles == len(n_pages)
+    assert features > 10 * sum(n_pages.values())  # materials (draw calls) per tile << buildings per tile
+
+
+def test_window_panels_show_the_painted_windows(textured, conn_of) -> None:
+    """The UV order matches the exporter's triangle order: each LOD3 window panel's UV centre samples dark
+    glass on its page, each wall triangle its (lighter) wall."""
+    url = textured[0]
+    conn = conn_of(url)
+    level, x, y = conn.execute("SELECT level, x, y FROM tiles.tile WHERE is_leaf ORDER BY content_features DESC "
+                               "LIMIT 1").fetchone()
+    imgs = {r[0]: A.decode_image(bytes(r[1]), "webp") for r in conn.execute(
+        "SELECT page_no, bytes FROM tex.page WHERE (level, x, y) = (%s, %s, %s)", (level, x, y))}
+    uv = {(r[0], r[1]): (np.frombuffer(r[2], "<i2"), np.frombuffer(r[3], "<f4").reshape(-1, 3, 2)) for r in
+          conn.execute("SELECT feature_kind, feature_id, page, uv FROM tex.feature_uv WHERE (level, x, y) = "
+                       "(%s, %s, %s)", (level, x, y))}
+    glass, wall = [], []
+    for kind, bid, sem, wkb in conn.execute(
+            "SELECT feature_kind, building_id, semantics, ST_AsBinary(geom) FROM api.buildings_for_tile(%s, %s, %s)",
+            (level, x, y)):
+        s = np.frombuffer(sem, np.uint8)
+        assert len(s) == len(decode_triangles(wkb))
+        pg, corner = uv[(kind, bid)]
+        for i in np.flatnonzero((s == SEM_WINDOW) | (s == SEM_WALL))[::7]:
+            img = imgs[int(pg[i])]
+            h, w = img.shape[:2]
+            c = corner[i].mean(axis=0)
+            rgb = img[min(int(c[1] * h), h - 1), min(int(c[0] * w), w - 1)].astype(float)
+            (glass if s[i] == SEM_WINDOW else wall).append(rgb.mean())
+    assert len(glass) > 50 and np.median(glass) < np.median(wall) - 40
+
+
+def test_the_db_server_serves_the_textured_files(textured) -> None:
+    url, out, _ = textured
+    server = make_db_server(reader_url(url, environ={}), "127.0.0.1", 0, base_height=S.base_height_m)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        u = urlsplit(server_url(server))
+        c = http.client.HTTPConnection(u.hostname, u.port, timeout=60)
+        for glb in sorted(out.rglob("*.glb")):
+            c.request("GET", "/tiles/" + glb.relative_to(out).as_posix())
+            r = c.getresponse()
+            body = r.read()
+            assert r.status == 200 and body == glb.read_bytes(), glb
+        c.close()
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+
+
+def test_generalizing_again_makes_the_textures_stale(textured, tmp_path) -> None:
+    url = textured[0]
+    # a later generalize run: export refuses the old textures until the textures stage runs again
+    run_etl(url, "generalize")
+    proc = run_etl(url, "export", "--out", str(tmp_path / "stale"), check=False)
+    assert proc.returncode != 0 and "textures are stale" in proc.stderr
+    run_etl(url, "textures")
+    run_etl(url, "export", "--out", str(tmp_path / "fresh"))
