@@ -16,8 +16,8 @@ HOST   ?= 127.0.0.1
 SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod landmarks tiles generalize export serve demo test \
-        test-unit bench report-generalization report-saliency lint clean distclean
+.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
+        test-unit bench report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -78,15 +78,18 @@ tiles: migrate ## build the tile quadtree into tiles.tile
 generalize: migrate ## simplify footprints, decimate meshes, aggregate blocks; measure each tile's error
 	$(PY) -m etl generalize
 
+textures: migrate ## procedural facade/roof textures in per-tile atlas pages at each tile's resolution into tex.*
+	$(PY) -m etl textures
+
 export: migrate ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
 	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD))
 
 serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
 	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)),--dir $(OUT)) --host $(HOST) --port $(PORT)
 
-demo: ## everything on Helsinki: install, database, ingest, lod, landmarks, tiles, generalize, export, serve
+demo: ## everything on Helsinki: install, database, ingest, lod, landmarks, tiles, generalize, textures, export, serve
 	$(MAKE) setup
-	$(MAKE) ingest lod landmarks tiles generalize export OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) ingest lod landmarks tiles generalize textures export OSM=$(OSM) OUT=$(OUT)
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------
@@ -109,6 +112,9 @@ report-generalization: $(SETUP_PY) ## [EXTRACTS=munich,london,liechtenstein,malt
 
 report-saliency: $(SETUP_PY) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*
 	$(PY) -m benchmarks.report_saliency --out build/reports
+
+report-textures: $(SETUP_PY) ## [DATABASE_URL=url] atlas utilization, pages and bytes per level, draw calls vs one texture per building, xatlas vs shelf -> build/reports/textures.*
+	$(PY) -m benchmarks.report_textures --out build/reports
 
 clean: ## remove build outputs (keeps the database, venv and downloads)
 	rm -rf build .pytest_cache .ruff_cache

@@ -1,17 +1,20 @@
 """``python -m benchmarks.bench``: time every pipeline stage on the real extracts, next to osm2pgsql.
 
 For each extract a fresh database ``citylod_bench`` is created in the same cluster the pipeline uses
-(DATABASE_URL when set, else the local cluster under var/pg) and migrated. Then ingest, lod, tiles, generalize
-and export run as separate ``python -m etl`` processes, exactly as ``make`` runs them, ``--repeat`` times. For
-each one the wall-clock seconds and the child's peak RSS (from ``os.wait4``) are measured; the building counts
-come from the ``meta.pipeline_run`` row that the stage wrote. osm2pgsql loads the same file with a flex style
-(benchmarks/osm2pgsql/buildings.lua) into ``citylod_bench_o2p`` as the reference loader.
+(DATABASE_URL when set, else the local cluster under var/pg) and migrated. Then ingest, lod, landmarks, tiles,
+generalize, textures and export run as separate ``python -m etl`` processes, exactly as ``make`` runs them,
+``--repeat`` times. For each one the wall-clock seconds and the child's peak RSS (from ``os.wait4``) are
+measured; the building counts come from the ``meta.pipeline_run`` row that the stage wrote. osm2pgsql loads
+the same file with a flex style (benchmarks/osm2pgsql/buildings.lua) into ``citylod_bench_o2p`` as the
+reference loader.
 
 On the generalized database of the last repeat: triangles per view (overview and street cameras against every
-building at LOD3, benchmarks/view_bench.py) for every extract, and for the benchmark extract the tile server
-under 64 concurrent clients, cold and warm cache (benchmarks/serve_bench.py ``measure_db``). Last, the latency
-of api.lod_for_view at ~100k and ~1M buildings on two cached bench-only databases replicated from the
-benchmark extract (``view_bench.scale``; built once, ~15 minutes, then reused while the code is unchanged).
+building at LOD3, benchmarks/view_bench.py) and the texture atlases (benchmarks/report_textures.py ``measure``:
+utilization, pages and bytes per band, draw calls against one texture per building, shelf against xatlas) for
+every extract, and for the benchmark extract the tile server under 64 concurrent clients, cold and warm cache
+(benchmarks/serve_bench.py ``measure_db``). Last, the latency of api.lod_for_view at ~100k and ~1M buildings
+on two cached bench-only databases replicated from the benchmark extract (``view_bench.scale``; built once,
+~15 minutes, then reused while the code is unchanged).
 
 ``--write BENCHMARKS.md`` regenerates that file from scratch. Progress goes to stderr; the children's output
 goes to build/bench/logs/.
@@ -58,13 +61,13 @@ STYLE = Path(__file__).resolve().parent / "osm2pgsql" / "buildings.lua"
 OUT_ROOT = REPO / "build" / "bench"
 LOG_DIR = OUT_ROOT / "logs"
 
-STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "export")
+STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export")
 # Which pipeline_run count is "the buildings this stage handled".
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
-                 "export": "buildings"}
+                 "textures": "buildings", "export": "buildings"}
 SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
-# Counts that legitimately differ between repeats of the same input.
-VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step"})
+# Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
+VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step", "buildings_per_s"})
 
 
 def log(msg: str) -> None:
@@ -162,6 +165,7 @@ class ExtractResult:
     o2p_rows: dict[str, int] = field(default_factory=dict)
     views: dict[str, Any] | None = None  # view_bench.triangles_per_view
     server: dict[str, Any] | None = None  # serve_bench.measure_db (benchmark extract only)
+    textures: dict[str, Any] | None = None  # report_textures.measure
 
     @property
     def name(self) -> str:
@@ -192,8 +196,13 @@ class ExtractResult:
     def drift(self) -> list[str]:
         """Stages whose counts changed between repeats: the pipeline code (or its input) changed while the
         benchmark ran, so the runs did not measure the same work."""
+        def stable(c: Any) -> Any:
+            if isinstance(c, dict):
+                return {k: stable(v) for k, v in c.items() if k not in VOLATILE_COUNTS}
+            return [stable(v) for v in c] if isinstance(c, list) else c
+
         def key(c: dict[str, Any]) -> str:
-            return json.dumps({k: v for k, v in c.items() if k not in VOLATILE_COUNTS}, sort_keys=True)
+            return json.dumps(stable(c), sort_keys=True)
 
         return [st for st in STAGES if len({key(s.counts) for s in self.stages[st]}) > 1]
 
@@ -250,6 +259,11 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True) 
     res.views = view_bench.triangles_per_view(url)
     log(f"{res.name} triangles per view: overview {res.views['overview']['triangles']:,} vs all LOD3 "
         f"{res.views['all_lod3']['triangles']:,} ({res.views['overview_reduction']}x fewer)")
+    from benchmarks import report_textures  # lazily, as view_bench
+
+    res.textures = report_textures.measure(url)
+    log(f"{res.name} textures: utilization {res.textures['totals']['utilization']}, overview "
+        f"{res.textures['views']['overview']['draw_call_ratio']}x fewer draw calls than one texture per building")
     if server and res.name == HEADLINE:
         res.server = measure_server(url, logs / "serve_bench.log")
         w, c = res.server["warm"], res.server["cold"]
@@ -417,6 +431,15 @@ VIEW_NOTE = (
     "extract: overview at least 5× fewer triangles than all-LOD3. A small extract's quadtree is only a few "
     "levels deep, so its root is already a fine band and a view of the whole extract refines to its leaves."
 )
+TEXTURES_NOTE = (
+    "The textures stage's atlases on the generalized database of the last repeat (benchmarks/report_textures.py "
+    "`measure`; `make report-textures` writes the same for one database). *utilization*: chart texels / page "
+    "texels over every page; *draw calls/tile*: glTF primitives the exporter writes (one per atlas page plus the "
+    "vertex-coloured one where a feature has no texture); *one texture per building*: every textured feature its "
+    "own material, texture and draw call, at the near (street) and overview cameras of *Triangles per view*, "
+    "the whole tiles a client loads. Shelf / xatlas: the stage's chart sizes of the 20 tiles with the most "
+    "charts packed again by each packer."
+)
 SCALE_NOTE = (
     "api.lod_for_view on two bench-only databases built from the benchmark extract and cached between runs "
     "(benchmarks/view_bench.py explains both): *~100k* = 6 copies of the extract side by side (osm.building "
@@ -502,6 +525,36 @@ def _views_section(results: list[ExtractResult]) -> list[str]:
         return []
     header = ["extract", "all buildings at LOD3", "overview camera", "fewer (target ≥ 5×)", "street camera"]
     return ["", "## Triangles per view", "", VIEW_NOTE, "", *_table(header, rows, "lrrrr")]
+
+
+def _textures_section(results: list[ExtractResult], head: ExtractResult | None) -> list[str]:
+    """Atlases of every extract in one table, then the benchmark extract's tables (report_textures)."""
+    from benchmarks import report_textures
+
+    rows = []
+    for r in results:
+        t = r.textures
+        if not t:
+            continue
+        tt, near, over, pk = t["totals"], t["views"]["near"], t["views"]["overview"], t["packers"]["totals"]
+        util, ratio = f"{100 * (tt['utilization'] or 0):.1f} %", f"({over['draw_call_ratio']}×)"
+        if r.name == HEADLINE:
+            util, ratio = f"{util} {_pass(t['utilization_pass'])}", f"{ratio} {_pass(t['draw_call_pass'])}"
+        rows.append([r.name, f"{tt['textured_tiles']}", f"{tt['pages']:,}", f"{tt['bytes'] / 1e6:.1f}", util,
+                     f"{tt['draw_calls_per_tile']:.1f}",
+                     f"{near['atlas']['draw_calls']:,} vs {near['per_building']['draw_calls']:,}",
+                     f"{over['atlas']['draw_calls']:,} vs {over['per_building']['draw_calls']:,} {ratio}",
+                     " / ".join(f"{100 * (pk[p]['utilization'] or 0):.1f} %" for p in ("shelf", "xatlas"))])
+    if not rows:
+        return []
+    header = ["extract", "textured tiles", "pages", "MB", "utilization (target ≥ 80 %)", "draw calls/tile",
+              "near: draw calls atlases vs one texture per building", "overview (target ≥ 10× fewer)",
+              "shelf / xatlas utilization (largest tiles)"]
+    out = ["", "## Textures", "", TEXTURES_NOTE, "", *_table(header, rows, "lrrrrrrrr")]
+    if head is not None and head.textures:
+        out += ["", f"Per band, per view and per packer on {head.name}:", ""]
+        out += report_textures.section_lines(head.textures, "###")
+    return out
 
 
 def _server_section(results: list[ExtractResult]) -> list[str]:
@@ -654,6 +707,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
               "tileset MB", "bytes/building"]
     lines += ["", "## Output", "", OUTPUT_NOTE, "", *_table(header, rows, "lrrrrrrr")]
     lines += _views_section(results)
+    lines += _textures_section(results, head)
     lines += _server_section(results)
     lines += _scale_section(scale)
 
