@@ -60,7 +60,7 @@ def run(n: int, distances: list[float], page_size: int, padding: int, seed: int,
     packers = ["shelf", "xatlas"] + (["xatlas-brute"] if brute_force else [])
     for dist in distances:
         rho = A.texels_per_metre(dist, math.radians(fov_deg), screen_px)
-        sizes = np.maximum(np.ceil(metres * rho - 1e-9), 1).astype(np.int64)
+        sizes = A.texels(metres, rho)
         for name in packers:
             packer = name.split("-")[0]
             lay = A.layout(sizes, page_size=page_size, packer=packer, padding=padding,

@@ -32,7 +32,7 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -346,11 +346,12 @@ def _postgis_short(full: str) -> str:
     return ", ".join(parts) or full
 
 
-def machine(url: str) -> dict[str, str]:
+def machine(url: str, osm2pgsql: bool = True) -> dict[str, str]:
+    """The machine a report ran on (its Machine table); ``osm2pgsql=False`` for the reports that do not run it."""
     with psycopg.connect(url) as conn:
         server = conn.execute("SHOW server_version").fetchone()
         full = conn.execute("SELECT postgis_full_version()").fetchone()
-    return {
+    out = {
         "CPU": _cpu_model(),
         "cores": str(os.cpu_count()),
         "RAM": _ram_gib(),
@@ -358,21 +359,35 @@ def machine(url: str) -> dict[str, str]:
         "Python": platform.python_version(),
         "PostgreSQL": str(server[0]) if server else "?",
         "PostGIS": _postgis_short(str(full[0])) if full else "?",
-        "osm2pgsql": _osm2pgsql_version(),
-        "git": _git(),
-        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
     }
+    if osm2pgsql:
+        out["osm2pgsql"] = _osm2pgsql_version()
+    return out | {"git": _git(), "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")}
 
 
-# --- report -------------------------------------------------------------------------------------------------
+def db_name(url: str) -> str:
+    """The database a URL names, as the reports quote it."""
+    return str(conninfo_to_dict(url).get("dbname", "?"))
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[object]], align: str) -> list[str]:
+# --- report (markdown helpers shared by benchmarks/report_*.py) ---------------------------------------------
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]], align: str) -> list[str]:
     """Markdown table; ``align`` has one l/r per column."""
-    rule = "|" + "|".join("---:" if a == "r" else "---" for a in align) + "|"
-    out = ["| " + " | ".join(header) + " |", rule]
-    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    if len(align) != len(header):
+        raise ValueError("one alignment per column")
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---:" if c == "r" else "---" for c in align) + "|"]
+    for row in rows:
+        if len(row) != len(header):
+            raise ValueError("one cell per column")
+        out.append("| " + " | ".join(str(c) for c in row) + " |")
     return out
+
+
+def machine_section(mach: dict[str, str]) -> list[str]:
+    """The ``## Machine`` heading and table of a report."""
+    return ["## Machine", "", *markdown_table(["", ""], [[k, v] for k, v in mach.items()], "ll")]
 
 
 def _rate(n: float, s: float) -> str:
@@ -493,7 +508,7 @@ def _generalize_section(results: list[ExtractResult], head: ExtractResult | None
     header = ["extract", "buildings", f"seconds (median of {len(results[0].stages['generalize'])})",
               "buildings/s", "s in footprints / decimation / blocks / hierarchy (last run)", "blocks",
               "LOD2 meshes decimated"]
-    out = ["### generalize by step", "", GEN_NOTE, "", *_table(header, rows, "lrrrrrr"), ""]
+    out = ["### generalize by step", "", GEN_NOTE, "", *markdown_table(header, rows, "lrrrrrr"), ""]
     if head is not None:
         bands = head.counts("generalize").get("bands", [])
         names = {0: "blocks 10 m", 1: "blocks 5 m", 2: "LOD1, footprints 2.5 m", 3: "LOD2, decimated ≤ 1.25 m",
@@ -504,7 +519,7 @@ def _generalize_section(results: list[ExtractResult], head: ExtractResult | None
         out += [f"### generalize bands ({head.name})", "",
                 "Per generalization band (gen_level) of the tile hierarchy: tiles, the features and triangles "
                 "of their content, and the largest measured geometric error (m) of a tile in the band.", "",
-                *_table(["band", "tiles", "features", "triangles", "max geometric error m"], rows, "lrrrr"), ""]
+                *markdown_table(["band", "tiles", "features", "triangles", "max geometric error m"], rows, "lrrrr"), ""]
     return out
 
 
@@ -524,7 +539,7 @@ def _views_section(results: list[ExtractResult]) -> list[str]:
     if not rows:
         return []
     header = ["extract", "all buildings at LOD3", "overview camera", "fewer (target ≥ 5×)", "street camera"]
-    return ["", "## Triangles per view", "", VIEW_NOTE, "", *_table(header, rows, "lrrrr")]
+    return ["", "## Triangles per view", "", VIEW_NOTE, "", *markdown_table(header, rows, "lrrrr")]
 
 
 def _textures_section(results: list[ExtractResult], head: ExtractResult | None) -> list[str]:
@@ -550,7 +565,7 @@ def _textures_section(results: list[ExtractResult], head: ExtractResult | None) 
     header = ["extract", "textured tiles", "pages", "MB", "utilization (target ≥ 80 %)", "draw calls/tile",
               "near: draw calls atlases vs one texture per building", "overview (target ≥ 10× fewer)",
               "shelf / xatlas utilization (largest tiles)"]
-    out = ["", "## Textures", "", TEXTURES_NOTE, "", *_table(header, rows, "lrrrrrrrr")]
+    out = ["", "## Textures", "", TEXTURES_NOTE, "", *markdown_table(header, rows, "lrrrrrrrr")]
     if head is not None and head.textures:
         out += ["", f"Per band, per view and per packer on {head.name}:", ""]
         out += report_textures.section_lines(head.textures, "###")
@@ -569,8 +584,8 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
     warm = r.server["warm"]["tiles_per_s"]
     return ["", f"## Server ({r.name}, {r.server['tiles']} tiles)", "",
             SERVER_NOTE.format(rounds=5, target=SERVER_TARGET), "",
-            *_table(["cache", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent", "errors"], rows,
-                    "lrrrrrrr"), "",
+            *markdown_table(["cache", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent", "errors"],
+                            rows, "lrrrrrrr"), "",
             f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: {_pass(warm >= SERVER_TARGET)}."]
 
 
@@ -600,8 +615,8 @@ def _scale_section(scale: dict[str, Any] | None) -> list[str]:
     header = ["database", "buildings (features)", "tiles", "p50 ms", "p95 ms", "max ms",
               "mean features/view (completed calls)", "max features/view", "calls over the time limit",
               "p95 ≤ 10 ms"]
-    out = ["", "## api.lod_for_view latency at scale", "",
-           SCALE_NOTE.format(n=first["cameras"], seed=first["seed"]), "", *_table(header, rows, "lrrrrrrrrl"), ""]
+    out = ["", "## api.lod_for_view latency at scale", "", SCALE_NOTE.format(n=first["cameras"], seed=first["seed"]),
+           "", *markdown_table(header, rows, "lrrrrrrrrl"), ""]
     for key, label in (("100k", "~100k"), ("1m", "~1M")):
         m = scale.get(key)
         if not m:
@@ -632,8 +647,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     head = next((r for r in results if r.name == HEADLINE), results[0] if results else None)
     if head is not None:
         lines += [_headline(head), ""]
-    lines += ["## Machine", ""]
-    lines += _table(["", ""], [[k, v] for k, v in mach.items()], "ll")
+    lines += machine_section(mach)
 
     lines += ["", "## Stages", "", STAGES_NOTE.format(n=n), ""]
     for stage in STAGES:
@@ -647,7 +661,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
             ])
         header = ["extract", "buildings", f"seconds (median of {repeat})", "in-stage s", "buildings/s",
                   "peak RSS MiB"]
-        lines += [f"### {stage}", "", *_table(header, rows, "lrrrrr"), ""]
+        lines += [f"### {stage}", "", *markdown_table(header, rows, "lrrrrr"), ""]
 
     rows = []
     for r in results:
@@ -665,8 +679,8 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     lines += ["### lod by level of detail", "",
               "The lod stage builds all three LODs in one pass; the split is its own timing of each step (COPY "
               "runs in a second thread, overlapping the others). LOD3 openings: "
-              f"{Settings.from_env().lod3_openings} (settings.lod3_openings).", "", *_table(header, rows, "lrrrrrr"),
-              ""]
+              f"{Settings.from_env().lod3_openings} (settings.lod3_openings).", "",
+              *markdown_table(header, rows, "lrrrrrr"), ""]
 
     rows = []
     for r in results:
@@ -677,7 +691,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     header = ["extract", "buildings (ingest in)", f"seconds (median of {repeat})", "buildings/s",
               "slowest stage (share)"]
     lines += _generalize_section(results, head)
-    lines += ["### end to end (" + " + ".join(STAGES) + ")", "", *_table(header, rows, "lrrrl")]
+    lines += ["### end to end (" + " + ".join(STAGES) + ")", "", *markdown_table(header, rows, "lrrrl")]
 
     rows = []
     for r in results:
@@ -692,7 +706,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
         ])
     header = ["extract", "osm2pgsql s", "citylod ingest s", "ratio", "osm2pgsql rows (buildings + parts)",
               "citylod rows (buildings + parts)"]
-    lines += ["", "## osm2pgsql side by side", "", O2P_NOTE, "", *_table(header, rows, "lrrrrr")]
+    lines += ["", "## osm2pgsql side by side", "", O2P_NOTE, "", *markdown_table(header, rows, "lrrrrr")]
 
     rows = []
     for r in results:
@@ -705,7 +719,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
         ])
     header = ["extract", "buildings", "features (all bands)", "tiles", "glb", "triangles (all bands)",
               "tileset MB", "bytes/building"]
-    lines += ["", "## Output", "", OUTPUT_NOTE, "", *_table(header, rows, "lrrrrrrr")]
+    lines += ["", "## Output", "", OUTPUT_NOTE, "", *markdown_table(header, rows, "lrrrrrrr")]
     lines += _views_section(results)
     lines += _textures_section(results, head)
     lines += _server_section(results)

@@ -39,7 +39,17 @@ import numpy as np
 import psycopg
 import shapely
 
-from benchmarks.bench import DEMO_OSM, SHARED_OSM, drop_db, extract_name, machine, recreate_db, run_child
+from benchmarks.bench import (
+    DEMO_OSM,
+    SHARED_OSM,
+    drop_db,
+    extract_name,
+    machine,
+    machine_section,
+    markdown_table,
+    recreate_db,
+    run_child,
+)
 from etl import cluster
 from etl.geom.check import weld as weld_rows
 from etl.geom.decimate import decimate
@@ -134,18 +144,6 @@ def outline_hausdorff(a: np.ndarray, b: np.ndarray, spacing: float = SPACING_FOO
     ta, oa = outline_walls(a)
     tb, ob = outline_walls(b)
     return hausdorff(ta, oa, tb, ob, len(a), spacing)
-
-
-def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]], align: str) -> list[str]:
-    """Markdown table; ``align`` has one l/r per column."""
-    if len(align) != len(header):
-        raise ValueError("one alignment per column")
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---:" if c == "r" else "---" for c in align) + "|"]
-    for row in rows:
-        if len(row) != len(header):
-            raise ValueError("one cell per column")
-        out.append("| " + " | ".join(str(c) for c in row) + " |")
-    return out
 
 
 # --- accumulating one table row -------------------------------------------------------------------------------
@@ -524,8 +522,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         notes = _status_notes(ex)
         if notes:
             lines += notes + [""]
-    lines += ["## Machine", ""]
-    lines += markdown_table(["", ""], [[k, v] for k, v in report["machine"].items()], "ll")
+    lines += machine_section(report["machine"])
     lines += ["", f"Total run time {report['seconds']:.0f} s.", "", "![reduction and error against threshold]"
               "(generalization.png)", ""]
     return "\n".join(lines)
@@ -643,7 +640,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         p.error("missing input: " + ", ".join(missing))
     keep = args.keep or args.reuse
-    out: Path = args.out if args.out.is_absolute() else REPO / args.out
+    out: Path = REPO / args.out  # an absolute --out stays as it is
     out.mkdir(parents=True, exist_ok=True)
 
     cluster.ensure()
@@ -660,8 +657,7 @@ def main(argv: list[str] | None = None) -> int:
         for k in keys:
             reports.append(report_extract(k, EXTRACTS[k], admin_url, out, settings, not args.no_pin, args.reuse))
             if not mach:
-                mach = machine(cluster.database_url(DB_PREFIX + k))
-                mach.pop("osm2pgsql", None)
+                mach = machine(cluster.database_url(DB_PREFIX + k), osm2pgsql=False)
     finally:
         if not keep:
             for k in keys:

@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 import psycopg
 
-from benchmarks.bench import machine
+from benchmarks.bench import db_name, machine, machine_section, markdown_table
 from etl import cluster
 from etl.geom import view_saliency as vs
 from etl.settings import REPO
@@ -437,7 +437,7 @@ def plot_summary(report: dict[str, Any], path_xy: np.ndarray, target_xy: np.ndar
     a = ax[1, 0]
 
     def series(key: str) -> np.ndarray:
-        return np.array([np.nan if f[key] is None else f[key] for f in frames], float)
+        return _column(frames, key)
 
     a.plot(k, series("mean_saliency_landmarks_with"), "-o", ms=3, c="tab:red", label="landmarks, with the rule")
     a.plot(k, series("mean_saliency_landmarks_without"), "--s", ms=3, c="tab:purple",
@@ -531,8 +531,9 @@ def render_markdown(report: dict[str, Any]) -> str:
                      f"{t['frames_visible_without']} ({t['fraction_without']:.2f})",
                      _f(t["mean_saliency_with"]), _f(t["mean_saliency_without"]),
                      _f(t["mean_lod_with"], 1), _f(t["mean_lod_without"], 1)])
-    lines += _table(["rank", "OSM", "name", "landmark", "level", "frames visible with rule (fraction)",
-                     "without", "mean saliency with", "without", "mean LOD with", "without"], rows, "rlllrrrrrrr")
+    lines += markdown_table(["rank", "OSM", "name", "landmark", "level", "frames visible with rule (fraction)",
+                            "without", "mean saliency with", "without", "mean LOD with", "without"], rows,
+                           "rlllrrrrrrr")
     lines += [
         "",
         "Mean saliency and LOD drawn over the frames in which it is visible with the rule; *without*: the same "
@@ -554,17 +555,10 @@ def render_markdown(report: dict[str, Any]) -> str:
         f"* api.lod_for_view + features per frame: median {s['query_ms_median']:.1f} ms; the whole report "
         f"{report['seconds']:.1f} s ({s['png_s']:.1f} s of it writing the frame PNGs).",
         "",
-        "## Machine",
-        "",
     ]
-    lines += _table(["", ""], [[k, v] for k, v in report["machine"].items()], "ll")
+    lines += machine_section(report["machine"])
     lines += ["", "![path, saliency per frame and visibility with and without the landmark rule](saliency.png)", ""]
     return "\n".join(lines)
-
-
-def _table(header: list[str], rows: list[list[Any]], align: str) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---:" if a == "r" else "---" for a in align) + "|"]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
 
 
 # --- main --------------------------------------------------------------------------------------------------------
@@ -620,11 +614,13 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
                     png_s += time.perf_counter() - t0
                 if (k + 1) % 20 == 0:
                     log(f"frame {k + 1}/{frames}")
-        mach = machine(url)
-    mach.pop("osm2pgsql", None)
+        # the scored buildings, for the map of the path
+        pts = np.array(conn.execute("SELECT ST_X(c), ST_Y(c), building_id FROM (SELECT building_id, "
+                                    "ST_Transform(centroid, 4326) AS c FROM lm.building) s").fetchall(), float)
+        mach = machine(url, osm2pgsql=False)
 
     def col(key: str) -> np.ndarray:
-        return np.array([np.nan if f[key] is None else f[key] for f in stats], float)
+        return _column(stats, key)
 
     def nanmean(a: np.ndarray) -> float | None:
         return float(np.nanmean(a)) if np.isfinite(a).any() else None
@@ -654,7 +650,7 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
     }
     report = {
         "command": command or f"python -m benchmarks.report_saliency --frames {frames}",
-        "database": _dbname(url),
+        "database": db_name(url),
         "machine": mach,
         "parameters": {"frames": frames, "fov": FOV, "viewport": [int(round(ASPECT * VIEWPORT_H)), VIEWPORT_H],
                        "max_sse": max_sse, "near_m": near_m, "far_m": round(far_m, 1), "roi_m": roi_m,
@@ -666,13 +662,8 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
         "summary": summary,
         "frames": stats,
     }
-    report["seconds"] = round(time.perf_counter() - t_start, 1)
-    (out / "saliency.json").write_text(json.dumps(report, indent=1, ensure_ascii=False) + "\n")
     cams = np.array([[p.camera.lon, p.camera.lat] for p in path])
     tgts = np.array([[p.target_lon, p.target_lat] for p in path])
-    with psycopg.connect(url, autocommit=True) as conn:
-        pts = np.array(conn.execute("SELECT ST_X(c), ST_Y(c), building_id FROM (SELECT building_id, "
-                                    "ST_Transform(centroid, 4326) AS c FROM lm.building) s").fetchall(), float)
     xy = local_xy(pts[:, 0], pts[:, 1], city) if len(pts) else np.zeros((0, 2))
     where = {int(b): i for i, b in enumerate(pts[:, 2])} if len(pts) else {}
     tops_xy = np.array([xy[where[t.building_id]] for t in tops]).reshape(-1, 2)
@@ -686,15 +677,14 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
     return report
 
 
+def _column(frames: list[dict[str, Any]], key: str) -> np.ndarray:
+    """One figure of every frame (frame_stats) as floats, None as NaN."""
+    return np.array([np.nan if f[key] is None else f[key] for f in frames], float)
+
+
 def _weighted(values: np.ndarray, weights: np.ndarray) -> float:
     ok = np.isfinite(values) & (weights > 0)
     return float(np.average(values[ok], weights=weights[ok])) if ok.any() else math.nan
-
-
-def _dbname(url: str) -> str:
-    from psycopg.conninfo import conninfo_to_dict
-
-    return str(conninfo_to_dict(url).get("dbname", "?"))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -710,10 +700,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames < 1 or args.top < 1:
         p.error("--frames and --top must be at least 1")
     url = args.db or cluster.ensure()
-    out: Path = args.out if args.out.is_absolute() else REPO / args.out
+    out: Path = REPO / args.out  # an absolute --out stays as it is
     command = f"python -m benchmarks.report_saliency --out {args.out} --frames {args.frames}"
     if args.db:
-        command += f" --db {_dbname(url)}"
+        command += f" --db {db_name(url)}"
     run(url, out, args.frames, args.top, args.roi_m, args.min_px, write_frames=not args.no_frames, command=command)
     return 0
 

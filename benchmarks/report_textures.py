@@ -45,7 +45,7 @@ import json
 import random
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 import psycopg
 
+from benchmarks.bench import _pass, db_name, machine, machine_section, markdown_table
 from etl import cluster
 from etl.geom import atlas as A
 from etl.settings import REPO, Settings
@@ -81,7 +82,6 @@ _TILE_PAGES = """
 SELECT page_no, format, width, height, padding, rects, bytes FROM tex.page
 WHERE level = %s AND x = %s AND y = %s ORDER BY page_no
 """
-_TILE_RECTS = "SELECT padding, rects FROM tex.page WHERE level = %s AND x = %s AND y = %s ORDER BY page_no"
 _TILE_UVS = """
 SELECT feature_kind, feature_id, n_triangles, page, uv FROM tex.feature_uv
 WHERE level = %s AND x = %s AND y = %s ORDER BY feature_kind, feature_id
@@ -116,6 +116,8 @@ class TileStats:
     page_bytes: list[int] = field(default_factory=list)
     page_util: list[float] = field(default_factory=list)
     used_pages: set[int] = field(default_factory=set)  # pages some triangle uses (the exporter drops the others)
+    chart_sizes: list[np.ndarray] = field(default_factory=list)  # per page, (w, h) of its charts (tex.page.rects)
+    padding: int = 0  # the gutter (tex.page.padding of its first page)
     charts: int = 0
     scaled: int = 0
     content_texels: int = 0
@@ -177,13 +179,16 @@ def read_tiles(conn: psycopg.Connection) -> dict[tuple[int, int, int], TileStats
              for r in conn.execute(_TILES).fetchall()}
     if not tiles:
         raise SystemExit("tiles.tile has no content: run the tiles and generalize stages first")
-    for level, x, y, _p, w, h, nb, util, rho, dist, n, scaled, _pad, rects in conn.execute(_PAGES):
+    for level, x, y, _p, w, h, nb, util, rho, dist, n, scaled, pad, rects in conn.execute(_PAGES):
         t = tiles[(level, x, y)]
+        if not t.page_dims:
+            t.padding = int(pad)
         t.page_dims.append((int(w), int(h)))
         t.page_bytes.append(int(nb))
         t.page_util.append(float(util))
         r = np.frombuffer(bytes(rects), "<i4").reshape(-1, 4)
         t.content_texels += int((r[:, 2].astype(np.int64) * r[:, 3]).sum())
+        t.chart_sizes.append(r[:, 2:])
         t.charts += int(n)
         t.scaled += int(scaled)
         t.texels_per_metre, t.view_distance_m = float(rho), float(dist)
@@ -452,8 +457,8 @@ def _check_layout(lay: A.Layout, sizes: np.ndarray, page_size: int) -> bool:
     return True
 
 
-def compare_packers(conn: psycopg.Connection, tiles: dict[tuple[int, int, int], TileStats], page_size: int,
-                    n_tiles: int = PACKER_TILES, stage_packer: str = "shelf") -> dict[str, Any]:
+def compare_packers(tiles: dict[tuple[int, int, int], TileStats], page_size: int, n_tiles: int = PACKER_TILES,
+                    stage_packer: str = "shelf") -> dict[str, Any]:
     """Shelf against xatlas on the chart sizes of the tiles with the most charts (n_tiles = 0: every tile)."""
     chosen = sorted((t for t in tiles.values() if t.pages), key=lambda t: (-t.charts, t.key))
     if n_tiles > 0:
@@ -462,9 +467,8 @@ def compare_packers(conn: psycopg.Connection, tiles: dict[tuple[int, int, int], 
     totals = {p: {"pages": 0, "page_texels": 0, "content_texels": 0, "seconds": 0.0, "ok": True}
               for p in A.PACKERS}
     for t in chosen:
-        recs = conn.execute(_TILE_RECTS, t.key).fetchall()
-        sizes = np.concatenate([np.frombuffer(bytes(r[1]), "<i4").reshape(-1, 4)[:, 2:] for r in recs]).astype(np.int64)
-        pad = int(recs[0][0])
+        sizes = np.concatenate(t.chart_sizes).astype(np.int64)
+        pad = t.padding
         row: dict[str, Any] = {"level": t.level, "x": t.x, "y": t.y, "gen_level": t.gen_level,
                                "charts": len(sizes), "padding": pad,
                                "stored": {"pages": t.pages, "utilization": round(t.content_texels / t.page_texels, 4)}}
@@ -532,7 +536,7 @@ def measure(url: str, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_EN
                 f"{v['atlas']['draw_calls']} vs {v['per_building']['draw_calls']} ({v['draw_call_ratio']}x), "
                 f"bytes {v['atlas']['bytes']:,} vs {v['per_building']['bytes']:,} ({v['seconds']} s)")
         t1 = time.perf_counter()
-        packers = compare_packers(conn, tiles, settings.tex_page_size, packer_tiles, settings.tex_packer)
+        packers = compare_packers(tiles, settings.tex_page_size, packer_tiles, settings.tex_packer)
         pt = packers["totals"]
         log(f"packers on {packers['tiles']} tiles ({packers['charts']:,} charts): shelf "
             f"{100 * (pt['shelf']['utilization'] or 0):.1f} % in {pt['shelf']['seconds']} s, xatlas "
@@ -540,7 +544,7 @@ def measure(url: str, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_EN
             f"({time.perf_counter() - t1:.1f} s)")
     over = views["overview"]
     return {
-        "database": _dbname(url),
+        "database": db_name(url),
         "settings": {"page_size": settings.tex_page_size, "max_texels_per_metre": settings.tex_max_texels_per_metre,
                      "padding_max": settings.tex_padding, "quality": settings.tex_quality, "webp_method": WEBP_METHOD,
                      "packer": settings.tex_packer, "max_sse": vb.MAX_SSE},
@@ -562,11 +566,6 @@ def measure(url: str, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_EN
 # --- markdown ----------------------------------------------------------------------------------------------------
 
 
-def _table(header: Sequence[str], rows: Iterable[Sequence[object]], align: str) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---:" if a == "r" else "---" for a in align) + "|"]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-
-
 def _pct(x: float | None) -> str:
     return "–" if x is None else f"{100 * x:.1f} %"
 
@@ -579,10 +578,6 @@ def _rho(r: list[float] | None) -> str:
     if not r:
         return "–"
     return f"{r[0]:.2f}" if r[0] == r[1] else f"{r[0]:.2f}–{r[1]:.2f}"
-
-
-def _pass(ok: bool) -> str:
-    return "**pass**" if ok else "**FAIL**"
 
 
 def _group_rows(groups: list[dict[str, Any]], by: str) -> list[list[object]]:
@@ -618,9 +613,10 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
         "*worst page*: of the pages' own utilizations. *draw calls/tile*: glTF primitives the exporter writes "
         "(one per atlas page used, plus the vertex-coloured one where a feature has no UVs); one texture per "
         "building: the tile's textured features + that primitive.", "",
-        *_table(["band (gen_level)", *GROUP_HEADER[1:]], _group_rows(r["bands"], "gen_level"), "lrrrrrrrrrr"), "",
+        *markdown_table(["band (gen_level)", *GROUP_HEADER[1:]], _group_rows(r["bands"], "gen_level"),
+                        "lrrrrrrrrrr"), "",
         f"{h} Atlases per quadtree level", "",
-        *_table(["level", *GROUP_HEADER[1:]], _group_rows(r["levels"], "level"), "lrrrrrrrrrr"), "",
+        *markdown_table(["level", *GROUP_HEADER[1:]], _group_rows(r["levels"], "level"), "lrrrrrrrrrr"), "",
         f"{h} Atlases against one texture per building", "",
         "Draw calls and texture bytes of the tiles a client loads for a camera (api.lod_for_view, "
         "`cull_features => false`, 60°, 1080 px, 16:9, max SSE "
@@ -640,9 +636,10 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
                      f"{a['page_texels'] / 1e6:.2f} / {b['page_texels'] / 1e6:.2f} ({_pct(b['utilization'])})",
                      f"{b['encoded']:,} of {x['textured_features']:,}"])
     over = v["overview"]
-    lines += [*_table(["camera", "tiles", "textured features", "draw calls: atlases", "one texture per building",
-                       "fewer", "MB: atlases", "one per building", "more",
-                       "M page texels: atlases / per building (its utilization)", "encoded"], rows, "lrrrrrrrrrr"), "",
+    lines += [*markdown_table(["camera", "tiles", "textured features", "draw calls: atlases",
+                               "one texture per building", "fewer", "MB: atlases", "one per building", "more",
+                               "M page texels: atlases / per building (its utilization)", "encoded"], rows,
+                              "lrrrrrrrrrr"), "",
               f"Overview: {over['draw_call_ratio']}× fewer draw calls with atlases (target ≥ "
               f"{r['draw_call_target']:g}×: {_pass(r['draw_call_pass'])}).", "",
               f"{h} Shelf packer against xatlas on real tiles", "",
@@ -658,21 +655,21 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
         tt = pk["totals"][p]
         prow.append([p, f"{tt['pages']:,}", _pct(tt["utilization"]), f"{tt['seconds']:.2f}",
                      f"{1e3 * tt['seconds'] / max(pk['charts'], 1):.3f}"])
-    lines += [*_table(["packer", "pages", "utilization", "seconds", "ms/chart"], prow, "lrrrr"), "",
+    lines += [*markdown_table(["packer", "pages", "utilization", "seconds", "ms/chart"], prow, "lrrrr"), "",
               f"xatlas reaches a higher utilization on {pk['xatlas_better']} of {pk['tiles']} tiles. By band:", ""]
     brow = [[f"{b['gen_level']} ({b['band']})", str(b["tiles"]), f"{b['charts']:,}",
              f"{b['shelf']['pages']} / {b['xatlas']['pages']}",
              f"{_pct(b['shelf']['utilization'])} / {_pct(b['xatlas']['utilization'])}",
              f"{b['shelf']['seconds']:.2f} / {b['xatlas']['seconds']:.2f}"] for b in pk["by_band"]]
-    lines += [*_table(["band", "tiles", "charts", "pages shelf / xatlas", "utilization shelf / xatlas",
-                       "seconds shelf / xatlas"], brow, "lrrrrr"), ""]
+    lines += [*markdown_table(["band", "tiles", "charts", "pages shelf / xatlas", "utilization shelf / xatlas",
+                               "seconds shelf / xatlas"], brow, "lrrrrr"), ""]
     rows = [[f"{x['level']}/{x['x']}/{x['y']} (band {x['gen_level']})", f"{x['charts']:,}", str(x["padding"]),
              f"{x['shelf']['pages']} / {x['xatlas']['pages']}",
              f"{_pct(x['shelf']['utilization'])} / {_pct(x['xatlas']['utilization'])}",
              f"{x['shelf']['seconds']:.3f} / {x['xatlas']['seconds']:.3f}"] for x in pk["rows"][:10]]
     lines += [f"The {min(10, len(pk['rows']))} tiles with the most charts:", "",
-              *_table(["tile", "charts", "gutter", "pages shelf / xatlas", "utilization shelf / xatlas",
-                       "seconds shelf / xatlas"], rows, "lrrrrr")]
+              *markdown_table(["tile", "charts", "gutter", "pages shelf / xatlas", "utilization shelf / xatlas",
+                               "seconds shelf / xatlas"], rows, "lrrrrr")]
     return lines
 
 
@@ -689,8 +686,8 @@ def render_markdown(report: dict[str, Any]) -> str:
               f"Above {report['parameters']['max_encode']:,} features per view a seeded sample is encoded and the "
               "rest estimated at the sample's bytes per page texel. Re-encoding already WebP-decoded texels "
               "compresses a little better than fresh ones would, so the baseline's bytes are if anything low.",
-              "", "## Machine", ""]
-    lines += _table(["", ""], [[k, v] for k, v in report["machine"].items()], "ll")
+              ""]
+    lines += machine_section(report["machine"])
     lines += ["", "![utilization per band, draw calls and bytes per view, shelf vs xatlas](textures.png)", ""]
     return "\n".join(lines)
 
@@ -754,22 +751,12 @@ def plot(report: dict[str, Any], path: Path) -> None:
 # --- main -------------------------------------------------------------------------------------------------------
 
 
-def _dbname(url: str) -> str:
-    from psycopg.conninfo import conninfo_to_dict
-
-    return str(conninfo_to_dict(url).get("dbname", "?"))
-
-
 def run(url: str, out: Path, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_ENCODE, seed: int = SEED,
         command: str = "") -> dict[str, Any]:
-    from benchmarks.bench import machine
-
     out.mkdir(parents=True, exist_ok=True)
     report = {"command": command or "python -m benchmarks.report_textures", **measure(url, packer_tiles, max_encode,
                                                                                      seed)}
-    mach = machine(url)
-    mach.pop("osm2pgsql", None)
-    report["machine"] = mach
+    report["machine"] = machine(url, osm2pgsql=False)
     (out / "textures.json").write_text(json.dumps(report, indent=1, ensure_ascii=False) + "\n")
     (out / "textures.md").write_text(render_markdown(report))
     plot(report, out / "textures.png")
@@ -791,14 +778,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.packer_tiles < 0 or args.max_encode < 1:
         p.error("--packer-tiles must be >= 0 and --max-encode >= 1")
     url = args.db or cluster.ensure()
-    out: Path = args.out if args.out.is_absolute() else REPO / args.out
+    out: Path = REPO / args.out  # an absolute --out stays as it is
     command = f"python -m benchmarks.report_textures --out {args.out}"
     if args.packer_tiles != PACKER_TILES:
         command += f" --packer-tiles {args.packer_tiles}"
     if args.max_encode != MAX_ENCODE:
         command += f" --max-encode {args.max_encode}"
     if args.db:
-        command += f" --db {_dbname(url)}"
+        command += f" --db {db_name(url)}"
     run(url, out, args.packer_tiles, args.max_encode, args.seed, command)
     return 0
 

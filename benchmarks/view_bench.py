@@ -95,8 +95,7 @@ GAP_M = 500.0  # between the side-by-side copies of the 100k step
 _VIEW = """SELECT feature_kind, feature_id, lod, level, x, y
 FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, %s, %s)"""
 # what a client loads and draws: whole tiles, their features outside the frustum included
-_VIEW_TILES = """SELECT feature_kind, feature_id, lod, level, x, y
-FROM api.lod_for_view(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, %s, %s, cull_features => false)"""
+_VIEW_TILES = _VIEW.removesuffix(")") + ", cull_features => false)"
 
 
 def log(msg: str) -> None:
@@ -303,15 +302,17 @@ def _columns(conn: psycopg.Connection, table: str) -> list[str]:
 
 
 def _copy_sql(conn: psycopg.Connection, table: str, src: str, exprs: dict[str, str], grid: str,
-              where: str = "true", overriding: bool = False, order: str = "") -> sql.Composed:
-    """INSERT INTO table SELECT <every column, or its expression> FROM src CROSS JOIN (grid) g WHERE ...
-    [ORDER BY order]; the expressions may use the grid's k (copy), dx, dy (metres), i, j (cell)."""
+              where: str = "true", overriding: bool = False, order: str = "", lateral: str = "") -> sql.Composed:
+    """INSERT INTO table SELECT <every column, or its expression> FROM src CROSS JOIN (grid) g
+    [CROSS JOIN LATERAL (lateral) m] WHERE ... [ORDER BY order]; the expressions may use the grid's k (copy),
+    dx, dy (metres), i, j (cell), and m's columns (a value several columns share, computed once a row)."""
     cols = _columns(conn, table)
     select = [sql.SQL(exprs[c]) if c in exprs else sql.SQL("s.") + sql.Identifier(c) for c in cols]
-    return sql.SQL("INSERT INTO {} ({}) {} SELECT {} FROM {} s CROSS JOIN ({}) g WHERE {} {}").format(
+    return sql.SQL("INSERT INTO {} ({}) {} SELECT {} FROM {} s CROSS JOIN ({}) g {} WHERE {} {}").format(
         sql.SQL(table), sql.SQL(", ").join(map(sql.Identifier, cols)),
         sql.SQL("OVERRIDING SYSTEM VALUE" if overriding else ""),
-        sql.SQL(", ").join(select), sql.SQL(src), sql.SQL(grid), sql.SQL(where),
+        sql.SQL(", ").join(select), sql.SQL(src), sql.SQL(grid),
+        sql.SQL(f"CROSS JOIN LATERAL ({lateral}) m" if lateral else ""), sql.SQL(where),
         sql.SQL("ORDER BY " + order if order else ""))
 
 
@@ -434,11 +435,11 @@ def build_1m(admin_url: str, osm: Path, rebuild: bool = False) -> str:
             "footprint": "ST_Translate(s.footprint, g.dx, g.dy)", "geom": "ST_Translate(s.geom, g.dx, g.dy, 0)"},
             grid_all, overriding=True))
         # bounding spheres: the centre through the working CRS, translated there, and back to ECEF
-        moved = "ST_Transform(ST_Translate(ST_Transform(ST_SetSRID(ST_MakePoint(s.cx, s.cy, s.cz), 4978), g.srid), " \
-                "g.dx, g.dy, 0), 4978)"
         step("tiles.tile_content", _copy_sql(conn, "tiles.tile_content", "src_tile_content", {
             **shift, "feature_id": f"s.feature_id + {off}", "osm_id": f"s.osm_id + {off}",
-            "cx": f"ST_X({moved})", "cy": f"ST_Y({moved})", "cz": f"ST_Z({moved})"}, grid_all,
+            "cx": "ST_X(m.c)", "cy": "ST_Y(m.c)", "cz": "ST_Z(m.c)"}, grid_all,
+            lateral="SELECT ST_Transform(ST_Translate(ST_Transform(ST_SetSRID(ST_MakePoint(s.cx, s.cy, s.cz), 4978), "
+                    "g.srid), g.dx, g.dy, 0), 4978) AS c",
             order="1, 2, 3"))  # a tile's rows together on disk, as tiles.finish_hierarchy writes them
         t = time.perf_counter()
         _stack_levels(conn, up, size, int(srid))

@@ -192,22 +192,15 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...],
         if name in ("osm_type", "building_osm_type"):
             values = [OSM_TYPE[v] for v in values]
         props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
-    if textures is None or arr.pages is None or not np.any(arr.pages >= 0):
-        prim = Primitive(
-            positions=arr.positions, normals=arr.normals, colors=arr.colors, feature_ids=arr.feature_ids,
-            indices=arr.indices, properties=props, feature_count=len(rows),
-        )
-        return write_glb(prim, "building", "An OSM building or building:part"), len(arr.indices) // 3
-    plain, parts = _split(arr, len(textures.images))
+    plain, parts = arr, []
+    if textures is not None and arr.pages is not None and np.any(arr.pages >= 0):
+        plain, parts = _split(arr, len(textures.images))
     prim = Primitive(positions=plain.positions, normals=plain.normals, colors=plain.colors,
                      feature_ids=plain.feature_ids, indices=plain.indices, properties=props, feature_count=len(rows))
-    textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
-                          indices=a.indices, uvs=a.uvs, image=p) for p, a in parts]
     # only the pages some triangle uses, renumbered (a page whose triangles were all degenerate goes)
-    used = [p for p, _ in parts]
-    for k, t in enumerate(textured):
-        t.image = k
-    images = [textures.images[p] for p in used]
+    textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
+                          indices=a.indices, uvs=a.uvs, image=k) for k, (_, a) in enumerate(parts)]
+    images = [textures.images[p] for p, _ in parts] if textures is not None else []
     glb = write_glb(prim, "building", "An OSM building or building:part", textured=textured, images=images)
     return glb, len(arr.indices) // 3
 

@@ -65,7 +65,7 @@ class Image:
     mime: str  # image/webp, image/png or image/jpeg
 
 
-NEAREST, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9728, 9729, 9987, 33071
+LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
 class _Builder:
@@ -199,6 +199,8 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         if p.required:
             spec["required"] = True
         class_props[p.name] = spec
+    # the images go last into the buffer (when there are textured primitives)
+    image_views = [b.view(im.data) for im in images] if textured else []
 
     gltf: dict[str, object] = {
         "asset": {"version": "2.0", "generator": f"citylod {__version__}", "copyright": ATTRIBUTION},
@@ -220,7 +222,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
     if textured:
         # WebP only through EXT_texture_webp, required: the pages exist in no other format (no fallback)
         webp = [im.mime == "image/webp" for im in images]
-        gltf["images"] = [{"bufferView": b.view(im.data), "mimeType": im.mime} for im in images]
+        gltf["images"] = [{"bufferView": v, "mimeType": im.mime} for v, im in zip(image_views, images, strict=True)]
         gltf["samplers"] = [{"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE,
                              "wrapT": CLAMP_TO_EDGE}]
         gltf["textures"] = [{"sampler": 0, "extensions": {"EXT_texture_webp": {"source": i}}} if w
@@ -228,7 +230,6 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         if any(webp):
             gltf["extensionsUsed"] = [*gltf["extensionsUsed"], "EXT_texture_webp"]  # type: ignore[misc]
             gltf["extensionsRequired"] = ["EXT_texture_webp"]
-        gltf["buffers"] = [{"byteLength": len(b.bin)}]  # the images were added to the buffer
     return _pack(gltf, bytes(b.bin))
 
 

@@ -68,7 +68,11 @@ def texture_size(extent_m: float | np.ndarray, view_distance_m: float | np.ndarr
                  screen_height_px: float, px_per_texel: float = 1.0) -> int | np.ndarray:
     """Texels along an extent of ``extent_m`` metres: its projected size in pixels at the distance, rounded up
     (at least 1). Vectorised over extents and distances."""
-    rho = texels_per_metre(view_distance_m, fov_y_rad, screen_height_px, px_per_texel)
+    return texels(extent_m, texels_per_metre(view_distance_m, fov_y_rad, screen_height_px, px_per_texel))
+
+
+def texels(extent_m: float | np.ndarray, rho: float | np.ndarray) -> int | np.ndarray:
+    """Texels along an extent of ``extent_m`` metres at ``rho`` texels per metre: rounded up, at least 1."""
     px = np.asarray(extent_m, dtype=np.float64) * rho
     # a hair below the exact product so a float error never adds a whole texel (e.g. 10 m * 12.8/m)
     n = np.maximum(np.ceil(px - 1e-9), 1).astype(np.int64)

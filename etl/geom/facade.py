@@ -77,7 +77,7 @@ class Facades:
     n_doors: np.ndarray  # (n,) int64 per building
 
 
-def _door_walls(
+def door_walls(
     length: np.ndarray, height: np.ndarray, owner: np.ndarray, ground: np.ndarray, exterior: np.ndarray, p: FacadeParams
 ) -> np.ndarray:
     """Indices of the walls that get a door: per building, the first longest eligible wall."""
@@ -189,7 +189,7 @@ def facades(
     wz0 = zb[win_wall] + storey * hw + np.minimum(p.sill_height, hw - 0.05 - p.window_height)
     wz1 = wz0 + p.window_height
 
-    door_wall = _door_walls(length, height, owner, ground, exterior, p)
+    door_wall = door_walls(length, height, owner, ground, exterior, p)
     door_mid = length[door_wall] / 2
     dz0 = zb[door_wall]
     dz1 = dz0 + p.door_height

@@ -34,8 +34,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..tags import ParseError, parse_colour
-from .atlas import linear_to_srgb, srgb_to_linear
-from .facade import FacadeParams, _door_walls, facades
+from .atlas import linear_to_srgb, srgb_to_linear, texels
+from .facade import FacadeParams, door_walls, facades
 from .semantics import SEM_DOOR, SEM_WINDOW
 
 RGB = tuple[int, int, int]
@@ -114,6 +114,16 @@ def parse_rgb(value: str | RGB | None, default: RGB) -> RGB:
     except ParseError:
         return default
     return (int(h[1:3], 16), int(h[3:5], 16), int(h[5:7], 16))
+
+
+def material_and_colour(kind: str, material: str | None, colour: str | RGB | None) -> tuple[str, RGB]:
+    """(pattern, sRGB) of a wall or roof from its raw material and colour tags (building:material and
+    building:colour, or roof:material and roof:colour); untagged colours are the material's own."""
+    if kind == "wall":
+        mat = wall_material(material)
+        return mat, parse_rgb(colour, WALL_COLOURS[mat])
+    mat = roof_material(material)
+    return mat, parse_rgb(colour, ROOF_COLOURS[mat])
 
 
 def _lin(c: RGB) -> np.ndarray:
@@ -329,7 +339,7 @@ def _size(w_m: float, h_m: float, texels_per_metre: float | None, size: tuple[in
         return int(size[0]), int(size[1])
     if texels_per_metre is None or texels_per_metre <= 0:
         raise ValueError("give texels_per_metre > 0 or an explicit size")
-    return max(1, math.ceil(w_m * texels_per_metre - 1e-9)), max(1, math.ceil(h_m * texels_per_metre - 1e-9))
+    return texels(w_m, texels_per_metre), texels(h_m, texels_per_metre)
 
 
 def material_texture(colour: str | RGB | None, material: str | None, width_m: float, height_m: float,
@@ -340,12 +350,19 @@ def material_texture(colour: str | RGB | None, material: str | None, width_m: fl
     ``tile``: every period snapped to divide the extent, so the image repeats seamlessly."""
     if kind not in ("wall", "roof"):
         raise ValueError("kind is wall or roof")
-    mat = wall_material(material) if kind == "wall" else roof_material(material)
-    rgb = parse_rgb(colour, (WALL_COLOURS if kind == "wall" else ROOF_COLOURS)[mat])
+    return linear_to_srgb(_material(kind, colour, material, width_m, height_m, texels_per_metre, size, origin,
+                                    tile, seed)[2])
+
+
+def _material(kind: str, colour: str | RGB | None, material: str | None, width_m: float, height_m: float,
+              texels_per_metre: float | None, size: tuple[int, int] | None, origin: tuple[float, float],
+              tile: bool, seed: int) -> tuple[str, _Field, np.ndarray]:
+    """(pattern, texel field, (h, w, 3) linear colours) of the bare material: what the texture functions share."""
+    mat, rgb = material_and_colour(kind, material, colour)
     w, h = _size(width_m, height_m, texels_per_metre, size)
     fld = _Field(origin[0], origin[1], width_m, height_m, w, h, tile)
     pattern = _wall_pattern if kind == "wall" else _roof_pattern
-    return linear_to_srgb(pattern(mat, _lin(rgb), fld, _seed(kind, mat, rgb, seed)))
+    return mat, fld, pattern(mat, _lin(rgb), fld, _seed(kind, mat, rgb, seed))
 
 
 def roof_texture(colour_rgb: str | RGB | None, material: str | None, width_m: float, height_m: float,
@@ -406,7 +423,7 @@ def wall_openings(a: np.ndarray, b: np.ndarray, owner: np.ndarray, z_bottom: np.
     exterior = np.broadcast_to(np.asarray(exterior, dtype=bool), (n,))
     length = np.hypot(*(b - a).T)
     door = np.zeros(n, dtype=bool)
-    door[_door_walls(length, zt - zb, owner, ground, exterior, p)] = True
+    door[door_walls(length, zt - zb, owner, ground, exterior, p)] = True
     f = facades(a, b, np.arange(n), zb, zt, lv, door, exterior, n_buildings=n, params=p)
     quad = f.triangles.reshape(-1, 2, 3, 3)
     wall = f.owner[::2]
@@ -486,11 +503,8 @@ def facade_texture(colour_rgb: str | RGB | None, material: str | None, levels: f
     Openings are ``openings`` (this wall's, from ``wall_openings(...).of(i)``) or, when None, those facade.py
     lays out on a free-standing wall of this length with ``levels`` storeys (no door). building:material and
     building:colour are accepted raw."""
-    mat = wall_material(material)
-    base_rgb = parse_rgb(colour_rgb, WALL_COLOURS[mat])
-    w, h = _size(length, height, texels_per_metre, size)
-    fld = _Field(0.0, 0.0, length, height, w, h, tile=False)
-    img = _wall_pattern(mat, _lin(base_rgb), fld, _seed("wall", mat, base_rgb, seed))
+    mat, fld, img = _material("wall", colour_rgb, material, length, height, texels_per_metre, size, (0.0, 0.0),
+                              False, seed)
     if openings is None:
         lv = np.nan if levels is None else float(levels)
         openings = wall_openings([[0.0, 0.0]], [[length, 0.0]], [0], 0.0, height, lv, False, True, params)
@@ -505,11 +519,8 @@ def facade_tile(colour_rgb: str | RGB | None, material: str | None, bay_width: f
     a bay of that width and a storey of that height (horizontally centred, sill_height up, lowered to fit),
     on the material with its periods snapped to divide the tile. Repeated with u' = (u - margin) / bay_width
     and v' = v / storey_height it reproduces facade.py's windows on a wall whose pitch is bay_width."""
-    mat = wall_material(material)
-    base_rgb = parse_rgb(colour_rgb, WALL_COLOURS[mat])
-    w, h = _size(bay_width, storey_height, texels_per_metre, None)
-    fld = _Field(0.0, 0.0, bay_width, storey_height, w, h, tile=True)
-    img = _wall_pattern(mat, _lin(base_rgb), fld, _seed("wall", mat, base_rgb, seed))
+    mat, fld, img = _material("wall", colour_rgb, material, bay_width, storey_height, texels_per_metre, None,
+                              (0.0, 0.0), True, seed)
     # facade.py on a one-bay wall (bay plus both margins, one storey) says where the window goes
     m = params.margin
     op = wall_openings([[0.0, 0.0]], [[bay_width + 2 * m, 0.0]], [0], 0.0, storey_height, 1.0, False, True, params)
@@ -542,6 +553,16 @@ def plane_frame(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return du, np.cross(n, du)
 
 
+def plane_keys(tri: np.ndarray, group: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    """(m, 5) int64 (group, unit normal x 1e3, plane offset x 1e2) of triangles (m, 3, 3), rounded: the key
+    planar_charts groups triangles by. ``shift`` moves the offset that many metres against the normal (a LOD3
+    panel's wall lies FacadeParams.depth behind it: etl/geom/texturing.py looks the wall up that way)."""
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
+    off = (n * tri[:, 0]).sum(axis=1) - shift
+    return np.column_stack([group, np.round(n * 1e3), np.round(off * 1e2)]).astype(np.int64)
+
+
 @dataclass(frozen=True)
 class PlanarCharts:
     """Planar faces grouped into charts (same group, same plane). uv: metres in the chart's frame relative to
@@ -553,36 +574,43 @@ class PlanarCharts:
     size: np.ndarray  # (c, 2) float64 metres (width along u, height along v)
     normal: np.ndarray  # (c, 3) unit normal per chart
     group: np.ndarray  # (c,) the group of each chart
+    du: np.ndarray  # (c, 3) unit vector of the chart's u axis
+    dv: np.ndarray  # (c, 3) unit vector of its v axis (normal x du)
+    first: np.ndarray  # (c,) int64 the chart's first triangle
 
 
-def planar_charts(triangles: np.ndarray, group: np.ndarray | None = None) -> PlanarCharts:
+def planar_charts(triangles: np.ndarray, group: np.ndarray | None = None,
+                  align: dict[int, np.ndarray] | None = None) -> PlanarCharts:
     """Charts for planar surfaces (walls, roof faces, caps): triangles (m, 3, 3) with the same ``group`` (e.g.
     building id) whose planes agree (normal to 1e-3, offset to 1 cm) share a chart. An extruded wall's chart
     has u from a and v from its bottom, i.e. the frame of wall_uvs and wall_openings; a chart's size is what
     texture_size takes. Coplanar but separate faces of one group share a chart spanning both, so group walls
-    by wall (not by building) when their openings are to be painted: those are in each wall's own frame."""
+    by wall (not by building) when their openings are to be painted: those are in each wall's own frame.
+    ``align``: group -> horizontal unit vector that the u axis of the group's horizontal charts follows
+    instead of +x (e.g. a building's longest wall, so a rotated flat roof does not waste half its chart)."""
     tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
     m = len(tri)
     grp = np.zeros(m, dtype=np.int64) if group is None else np.asarray(group, dtype=np.int64)
-    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area2 = np.linalg.norm(cr, axis=1)
-    n = cr / np.maximum(area2, 1e-300)[:, None]
-    off = (n * tri[:, 0]).sum(axis=1)
-    key = np.column_stack([grp, np.round(n * 1e3), np.round(off * 1e2)]).astype(np.int64)
-    _, first, chart = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    _, first, chart = np.unique(plane_keys(tri, grp), axis=0, return_index=True, return_inverse=True)
     chart = chart.reshape(-1)
     c = len(first)
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     nsum = np.zeros((c, 3))
     np.add.at(nsum, chart, cr)  # area-weighted: one frame per chart, identical for all its triangles
     nrm = nsum / np.maximum(np.linalg.norm(nsum, axis=1), 1e-300)[:, None]
     du, dv = plane_frame(nrm)
+    if align:
+        turn = np.flatnonzero((np.abs(nrm[:, 2]) > 0.999) & np.isin(grp[first], list(align)))
+        if len(turn):
+            du[turn] = np.array([align[int(g)] for g in grp[first][turn]])
+            dv[turn] = np.cross(nrm[turn], du[turn])
     uv = np.stack([(tri * du[chart][:, None, :]).sum(-1), (tri * dv[chart][:, None, :]).sum(-1)], axis=-1)
     lo = np.full((c, 2), np.inf)
     hi = np.full((c, 2), -np.inf)
     np.minimum.at(lo, chart, uv.min(axis=1))
     np.maximum.at(hi, chart, uv.max(axis=1))
     return PlanarCharts(chart=chart, uv=uv - lo[chart][:, None, :], origin=lo, size=hi - lo, normal=nrm,
-                        group=grp[first])
+                        group=grp[first], du=du, dv=dv, first=first.astype(np.int64))
 
 
 @dataclass(frozen=True)

@@ -46,14 +46,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from exporter.content import SEM_UNKNOWN  # a triangle without a stored semantic (the exporter's convention)
+
 from . import atlas as A
 from . import textures as T
 from .facade import FacadeParams
 from .semantics import SEM_DOOR, SEM_ROOF, SEM_WALL, SEM_WINDOW
 
-SEM_UNKNOWN = 255  # a triangle without a stored semantic (the exporter's convention)
 KIND_WALL, KIND_ROOF, KIND_SHEET, KIND_PALETTE = 0, 1, 2, 3
-KIND_NAMES = ("wall", "roof", "sheet", "palette")
 OPENING_DEPTH = FacadeParams().depth  # LOD3 panels stand this far out of their wall
 PATTERN_SHIFT_M = 9.0  # per-building pattern offsets are multiples of this (divides the common periods)
 _WINDOW_RGB = tuple(int(round((a + b) / 2)) for a, b in zip(T._GLASS_LOW, T._GLASS_HIGH, strict=True))
@@ -86,11 +86,9 @@ class Style:
     def from_tags(cls, key: int, building_material: str | None, building_colour: str | None,
                   roof_material: str | None, roof_colour: str | None, levels: float | None,
                   generic_openings: bool = False) -> Style:
-        wm = T.wall_material(building_material)
-        rm = T.roof_material(roof_material)
-        return cls(key, wm, T.parse_rgb(building_colour, T.WALL_COLOURS[wm]), rm,
-                   T.parse_rgb(roof_colour, T.ROOF_COLOURS[rm]), math.nan if levels is None else float(levels),
-                   generic_openings)
+        wall = T.material_and_colour("wall", building_material, building_colour)
+        roof = T.material_and_colour("roof", roof_material, roof_colour)
+        return cls(key, *wall, *roof, math.nan if levels is None else float(levels), generic_openings)
 
 
 @dataclass
@@ -122,15 +120,6 @@ class TileTexture:
 # --- charts ---------------------------------------------------------------------------------------------------
 
 
-def _plane_keys(tri: np.ndarray, group: np.ndarray, shift: float = 0.0) -> np.ndarray:
-    """(m, 5) int64 (group, normal x 1e3, offset x 1e2) as textures.planar_charts groups triangles, with the
-    plane offset moved by ``shift`` metres against the normal (a panel's wall lies OPENING_DEPTH behind it)."""
-    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    n = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
-    off = (n * tri[:, 0]).sum(axis=1) - shift
-    return np.column_stack([group, np.round(n * 1e3), np.round(off * 1e2)]).astype(np.int64)
-
-
 @dataclass
 class _Charts:
     """Planar charts of one kind: per triangle its chart and metric uv (from the chart's lower-left corner)."""
@@ -147,41 +136,11 @@ class _Charts:
 
 
 def _planar(tri: np.ndarray, group: np.ndarray, align: dict[int, np.ndarray] | None = None) -> _Charts:
-    """textures.planar_charts, then horizontal charts turned to ``align[group]`` (a horizontal unit vector)."""
-    pc = T.planar_charts(tri, group)
-    c = len(pc.size)
-    first = np.full(c, len(tri))
-    np.minimum.at(first, pc.chart, np.arange(len(tri)))
-    keys = _plane_keys(tri[first], group[first]) if c else np.zeros((0, 5), np.int64)
-    du, dv = T.plane_frame(pc.normal)
-    off = (pc.normal * tri[first, 0]).sum(axis=1) if c else np.zeros(0)
-    uv, size, origin = pc.uv, pc.size, pc.origin
-    if align and c:
-        flat = np.abs(pc.normal[:, 2]) > 0.999
-        turn = flat & np.isin(pc.group, list(align))
-        if turn.any():
-            du = du.copy()
-            dv = dv.copy()
-            idx = np.flatnonzero(turn)
-            du[idx] = np.array([align[int(g)] for g in pc.group[idx]])
-            dv[idx] = np.cross(pc.normal[idx], du[idx])
-            on = turn[pc.chart]
-            raw = np.stack([(tri[on] * du[pc.chart[on]][:, None, :]).sum(-1),
-                            (tri[on] * dv[pc.chart[on]][:, None, :]).sum(-1)], axis=-1)
-            lo = np.full((c, 2), np.inf)
-            hi = np.full((c, 2), -np.inf)
-            np.minimum.at(lo, pc.chart[on], raw.min(axis=1))
-            np.maximum.at(hi, pc.chart[on], raw.max(axis=1))
-            uv = uv.copy()
-            uv[on] = raw - lo[pc.chart[on]][:, None, :]
-            origin = np.where(turn[:, None], lo, origin)
-            size = np.where(turn[:, None], hi - lo, size)
-    return _Charts(pc.chart, uv, size, origin, du, dv, pc.group, keys, off)
-
-
-def _sizes(size_m: np.ndarray, rho: float) -> np.ndarray:
-    """(c, 2) int64 texels for charts of size_m metres at rho texels per metre (atlas.texture_size's rule)."""
-    return np.maximum(np.ceil(np.asarray(size_m, np.float64) * rho - 1e-9), 1).astype(np.int64).reshape(-1, 2)
+    """textures.planar_charts (horizontal charts turned to ``align[group]``), with plane keys and offsets."""
+    pc = T.planar_charts(tri, group, align)
+    f = pc.first
+    return _Charts(pc.chart, pc.uv, pc.size, pc.origin, pc.du, pc.dv, pc.group, T.plane_keys(tri[f], group[f]),
+                   (pc.normal * tri[f, 0]).sum(axis=1))
 
 
 def _cache_keys(style_keys: list[int], kind: int, plane_keys: np.ndarray, size_m: np.ndarray) -> list[tuple]:
@@ -342,6 +301,8 @@ def _render_page(lay: A.Layout, p: int, req: _Requests, palette: np.ndarray,
         v = np.empty(n_render)
         tu = np.empty(n_render)
         tv = np.empty(n_render)
+        # and the texel boxes of the walls' openings: every (opening, texel) pair is painted below
+        ops, idx, c0, c1, j0, j1 = [], [], [], [], [], []
         for i in range(nr):
             j = int(R[i])
             wi, hi = int(w[i]), int(h[i])
@@ -354,6 +315,15 @@ def _render_page(lay: A.Layout, p: int, req: _Requests, palette: np.ndarray,
             v[sl].reshape(hi, wi)[:] = (H_m - (np.arange(hi) + 0.5 - oy) * tz)[:, None]
             tu[sl] = ts
             tv[sl] = tz
+            o = req.openings[j]
+            if req.kind[j] == KIND_WALL and len(o):
+                ops.append(o)
+                idx.append(np.full(len(o), i))
+                # texel k covers [(k - inset) t, (k + 1 - inset) t]
+                c0.append(np.clip(np.floor(o[:, 0] / ts + ox), 0, wi))
+                c1.append(np.clip(np.ceil(o[:, 1] / ts + ox), 0, wi))
+                j0.append(np.clip(np.floor((H_m - o[:, 3]) / tz + oy), 0, hi))
+                j1.append(np.clip(np.ceil((H_m - o[:, 2]) / tz + oy), 0, hi))
         lin = np.empty((n_render, 3), np.float64)
         # patterns, one pass per (kind, material, colour): textures.py's own pattern functions on flat arrays
         g_of = req.group[R[:nr]]
@@ -366,22 +336,6 @@ def _render_page(lay: A.Layout, p: int, req: _Requests, palette: np.ndarray,
             pattern = T._wall_pattern if what == "wall" else T._roof_pattern
             lin[sl] = pattern(material, T._lin(rgb), fld, T._seed(what, material, rgb, 0))
         # openings: every (opening, texel) pair of the walls' opening boxes
-        ops, idx, c0, c1, j0, j1 = [], [], [], [], [], []
-        for i in range(nr):
-            ri = int(R[i])
-            o = req.openings[ri]
-            if req.kind[ri] != KIND_WALL or len(o) == 0:
-                continue
-            W_m, H_m = req.size_m[ri]
-            oxi, oyi = req.inset[ri]
-            ts, tz = W_m / (w[i] - 2 * oxi), H_m / (h[i] - 2 * oyi)
-            ops.append(o)
-            idx.append(np.full(len(o), i))
-            # texel j covers [(j - o) t, (j + 1 - o) t]
-            c0.append(np.clip(np.floor(o[:, 0] / ts + oxi), 0, w[i]))
-            c1.append(np.clip(np.ceil(o[:, 1] / ts + oxi), 0, w[i]))
-            j0.append(np.clip(np.floor((H_m - o[:, 3]) / tz + oyi), 0, h[i]))
-            j1.append(np.clip(np.ceil((H_m - o[:, 2]) / tz + oyi), 0, h[i]))
         if ops:
             op = np.concatenate(ops)
             oi = np.concatenate(idx)
@@ -506,7 +460,7 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
         out = np.full(len(ptri), -1, np.int64)
         if not len(ptri) or not plane_key:
             return out
-        keys = _plane_keys(ptri, pfeat, OPENING_DEPTH)
+        keys = T.plane_keys(ptri, pfeat, OPENING_DEPTH)
         uk, inv = _unique_rows(keys)
         found = np.full(len(uk), -1, np.int64)
         for j, kk in enumerate(uk.tolist()):
@@ -610,7 +564,7 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
     ckeys += _cache_keys([styles[g].key for g in rc.group.tolist()], KIND_ROOF, rc.key, rc.size) \
         if cache is not None else [None] * nr
     ckeys += [None] * len(sheets)
-    px = _sizes(size_m, rho) if len(size_m) else np.zeros((0, 2), np.int64)
+    px = A.texels(size_m, rho)
     tiny = (px.prod(axis=1) < params.min_chart_texels) | (px.min(axis=1, initial=2) < 2)
 
     # triangle -> request and chart-local coordinates ([0, 1], y down)

@@ -218,7 +218,7 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
             except Exception as e:  # noqa: BLE001
                 bad.append(i)
                 res.failures.append(fail(r, "texturing_failed", f"{type(e).__name__}: {e}"))
-        good = [i for i in range(len(rows)) if i not in set(bad)]
+        good = sorted(set(range(len(rows))) - set(bad))
         try:
             tt, counts = _texture([rows[i] for i in good], conn, rho, params, cache, store)
         except Exception as e:  # noqa: BLE001

@@ -1,8 +1,9 @@
 -- api.lod_for_view(camera, heading, pitch, fov, viewport_height, max_sse, aspect, cull_features)
 --   -> what a client draws
 -- For a perspective camera, every building, part or block in the view frustum a 3D Tiles client draws, at
--- which LOD, from which tile and with which screen-space error. It walks tiles.tile as a client walks tileset.json with REPLACE
--- refinement: starting at the root, a tile in the view frustum is refined into its children while its
+-- which LOD, from which tile and with which screen-space error. It walks tiles.tile as a client walks
+-- tileset.json with REPLACE refinement: starting at the root, a tile in the view frustum is refined into its
+-- children while its
 -- screen-space error  geometric_error × viewport_height / (distance × 2 tan(fov / 2))  exceeds max_sse;
 -- distance is measured to the tile's box (tiles.box_distance), culling uses the five frustum planes
 -- (tiles.box_visible). The features of the tiles it stops at are read from tiles.tile_content, the list of

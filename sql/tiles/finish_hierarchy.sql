@@ -1,8 +1,9 @@
 -- tiles.finish_hierarchy(base_height)
 -- Completes the tile hierarchy once the generalize stage has filled gen.*: for every tile, its own content
 -- (api.buildings_for_tile, exactly what the exporter writes) is listed in tiles.tile_content (for
--- api.lod_for_view, with each feature's bounding sphere, tiles.feature_sphere) and gives content_features, content_triangles and content_error_m (the largest error
--- bound of its features and of the blocks it omits) and widens its region to the generalized meshes
+-- api.lod_for_view, with each feature's bounding sphere, tiles.feature_sphere) and gives content_features,
+-- content_triangles and content_error_m (the largest error bound of its features and of the blocks it omits)
+-- and widens its region to the generalized meshes
 -- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
 -- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
 -- (so it never grows downwards) and its region the union with its children's. It refuses a tile whose content
@@ -19,7 +20,8 @@ BEGIN
     CREATE TEMP TABLE _feature ON COMMIT DROP AS
     SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
            f.n_members, f.n_triangles, f.error_m, f.min_height, f.height,
-           ST_Transform(ST_Envelope(f.geom), 4326)::box2d AS ext, tiles.feature_sphere(f.geom, base_height) AS sphere,
+           ST_Transform(ST_Envelope(f.geom), 4326)::box2d AS ext,
+           tiles.feature_sphere(f.geom, base_height) AS sphere,
            CASE WHEN f.feature_kind <> 'block' THEN coalesce(o.parent_id, o.id) END AS group_id
     FROM tiles.tile t
     CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f

@@ -14,11 +14,11 @@ LANGUAGE plpgsql
 AS $$
 BEGIN
     CREATE TEMP TABLE _omit ON COMMIT DROP AS
-    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, k.collapse_m + (k.total_error_m - k.error_m) AS total
+    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total
     FROM gen.block k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
-    -- the bound on the distance to LOD3 (the omission plus the members' own errors) within the tile's error
-    WHERE NOT k.omitted AND k.collapse_m + (k.total_error_m - k.error_m) <= t.geometric_error
-      AND (max_level IS NULL OR t.level <= max_level);
+    -- the bound on the distance to LOD3 once omitted: the omission plus the members' own errors
+    CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
+    WHERE NOT k.omitted AND b.total <= t.geometric_error AND (max_level IS NULL OR t.level <= max_level);
 
     UPDATE gen.block k SET omitted = true, error_m = o.collapse_m, total_error_m = o.total
     FROM _omit o WHERE k.block_id = o.block_id;
