@@ -129,6 +129,9 @@ class Settings:
     tex_quality: int = 90
     #: Worker processes (0: one per CPU core, at most 4; 1 runs in the stage's own process).
     tex_workers: int = 0
+    #: A unit of work (a LOD2 tile and its leaves) still running after this many seconds is hung, not slow (the
+    #: slowest of Liechtenstein's 66 takes 3.4 s): its worker is stopped and its features recorded as failed.
+    tex_unit_timeout_s: float = 600.0
 
     # --- export ---------------------------------------------------------------------------------------------
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on

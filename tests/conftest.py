@@ -13,8 +13,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -106,17 +108,44 @@ def new_db(server_url: str, template_db: str) -> Iterator[Callable[[str], str]]:
             _drop(admin, name)
 
 
-def run_etl(url: str, *args: str, check: bool = True, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+#: The slowest stage a test runs takes well under a minute here; past this it is hung, not slow.
+ETL_TIMEOUT = float(os.environ.get("CITYLOD_ETL_TIMEOUT", 900))
+
+
+def run_etl(url: str, *args: str, check: bool = True, env: dict[str, str] | None = None,
+            timeout: float = ETL_TIMEOUT) -> subprocess.CompletedProcess:
     """Run ``python -m etl <args>`` against ``url`` the way make does."""
-    full_env = {**os.environ, "DATABASE_URL": url, **(env or {})}
-    proc = subprocess.run(
-        [sys.executable, "-m", "etl", *args], cwd=REPO, env=full_env, capture_output=True, text=True
-    )
+    return run_py(["-m", "etl", *args], {"DATABASE_URL": url, **(env or {})}, check=check, timeout=timeout)
+
+
+def run_py(args: list[str], env: dict[str, str] | None = None, check: bool = True,
+           timeout: float = ETL_TIMEOUT) -> subprocess.CompletedProcess:
+    """``python <args>`` from the repo, output captured. A run past ``timeout`` fails with the Python stacks
+    of its whole process group (a stage and its worker processes) instead of hanging the suite."""
+    cmd = [sys.executable, *args]
+    full_env = {**os.environ, "PYTHONFAULTHANDLER": "1", **(env or {})}
+    with subprocess.Popen(cmd, cwd=REPO, env=full_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          start_new_session=True) as proc:
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            out, err = _stacks_and_kill(proc)
+            raise AssertionError(f"python {' '.join(args)} did not finish in {timeout:g} s; the stacks of its "
+                                 f"processes (faulthandler):\n{out}\n{err}") from None
     if check and proc.returncode != 0:
-        raise AssertionError(
-            f"python -m etl {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
-        )
-    return proc
+        raise AssertionError(f"python {' '.join(args)} failed ({proc.returncode}):\n{out}\n{err}")
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+def _stacks_and_kill(proc: subprocess.Popen) -> tuple[str, str]:
+    """SIGABRT to the process group (faulthandler prints each Python process' thread stacks), then SIGKILL;
+    what the group wrote."""
+    for sig in (signal.SIGABRT, signal.SIGKILL):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            return proc.communicate(timeout=30)
+    return proc.communicate()
 
 
 def merge_osm(files: list[Path], out: Path) -> Path:

@@ -36,12 +36,14 @@ UV convention of the outputs (glTF): (0, 0) is the top-left corner of a page's f
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from types import ModuleType
 
 import numpy as np
 
@@ -49,6 +51,16 @@ PAGE_SIZE = 512  # the thesis' choice (4.3.1: "W = H = 512 is the most appropria
 MAX_PAGE_SIZE = 4096
 PACKERS = ("shelf", "xatlas")
 FILTER = "lanczos3"
+
+
+@functools.cache
+def openimageio() -> ModuleType:
+    """The OpenImageIO module, single-threaded: citylod parallelises across processes, and OIIO's own thread
+    pool is one more place a process can hang on its way out (its shutdown can deadlock, OIIO issue #3851)."""
+    import OpenImageIO as oiio
+
+    oiio.attribute("threads", 1)
+    return oiio
 
 
 # --- resolution rule -----------------------------------------------------------------------------------------
@@ -98,7 +110,7 @@ def linear_to_srgb(c: np.ndarray) -> np.ndarray:
 def resize(pixels: np.ndarray, width: int, height: int, filter: str = FILTER) -> np.ndarray:
     """(height, width, c) uint8: ``pixels`` (h, w, c) uint8 sRGB (alpha, if any, linear) resampled by
     OpenImageIO in linear light with ``filter`` (any OIIO filter name: lanczos3, blackman-harris, box, ...)."""
-    import OpenImageIO as oiio
+    oiio = openimageio()
 
     src = np.asarray(pixels)
     if src.ndim == 2:
@@ -470,7 +482,7 @@ _EXT = {"ktx2": "ktx2", "webp": "webp", "png": "png", "jpeg": "jpg"}
 
 def writable_formats() -> list[str]:
     """Which of ktx2, webp, png, jpeg this OpenImageIO build can write (pip wheel 3.2.2: no KTX2 writer)."""
-    import OpenImageIO as oiio
+    oiio = openimageio()
 
     out = []
     for fmt in ("ktx2", "webp", "png", "jpeg"):
@@ -486,7 +498,7 @@ def encode_image(pixels: np.ndarray, fmt: str = "auto", quality: int = 90, metho
     ktx2, webp, png that can be written). webp/jpeg are lossy at ``quality``; an opaque alpha channel is
     dropped (JPEG has none, and OIIO's WebP writer would treat it as premultiplied). ``method``: libwebp's
     effort 0 (fast) .. 6."""
-    import OpenImageIO as oiio
+    oiio = openimageio()
 
     if fmt == "auto":
         fmt = next(f for f in writable_formats() if f != "jpeg")
@@ -523,7 +535,7 @@ def encode_image(pixels: np.ndarray, fmt: str = "auto", quality: int = 90, metho
 
 def decode_image(data: bytes, fmt: str) -> np.ndarray:
     """(h, w, c) uint8 pixels of encoded image bytes (OpenImageIO reads files, so through a temp file)."""
-    import OpenImageIO as oiio
+    oiio = openimageio()
 
     with tempfile.TemporaryDirectory(prefix="citylod-img-") as tmp:
         path = os.path.join(tmp, "page." + _EXT[fmt])

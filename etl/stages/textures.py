@@ -16,23 +16,24 @@ meshes, in the same triangle order, as the exporter writes):
 * a LOD2 tile and the leaves below it are one unit of work sharing a chart cache: the leaves' walls and
   roofs are the LOD2 tile's, at the same resolution wherever the LOD2 tile's rule reaches the cap (on
   Liechtenstein, all of them), so they are copied, and downsampled through OpenImageIO when the parent
-  needs fewer texels. Units are independent and run on a few threads, each with its own connection.
+  needs fewer texels. Units are independent and run in a few worker processes, each with its own connection.
 
 One broken feature never stops the run: a tile that fails is textured again without the features that fail
-alone, and those are listed in tex.failure (they keep their vertex colours). Features in = textured + failed.
+alone, and those are listed in tex.failure (they keep their vertex colours). A unit whose worker hangs (past
+tex_unit_timeout_s) or dies in native code is lost alone: its features go to tex.failure as texturing_hung or
+texturing_crashed, and its stacks to stderr (etl/workers.py). Features in = textured + failed.
 """
 
 from __future__ import annotations
 
 import atexit
 import math
-import multiprocessing
 import os
 import time
 import traceback
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import psycopg
@@ -44,6 +45,7 @@ from ..geom.semantics import SEM_DOOR, SEM_WINDOW
 from ..geom.wkb import decode_triangles
 from ..progress import Progress, summary
 from ..settings import Settings
+from ..workers import Lost, imap_isolated
 
 FORMAT = "webp"
 WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these pages (measured)
@@ -57,6 +59,10 @@ _FEATURES = """
 SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.levels, f.building_colour, f.roof_colour,
        f.building_material, f.roof_material, f.gen_level, f.n_triangles, f.semantics, ST_AsBinary(f.geom)
 FROM api.buildings_for_tile(%s, %s, %s) f
+ORDER BY f.feature_kind, f.building_id
+"""
+_FEATURE_IDS = """
+SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id FROM api.buildings_for_tile(%s, %s, %s) f
 ORDER BY f.feature_kind, f.building_id
 """
 # the LOD3 window and door panels of LOD2 features, to paint them where the leaves have them
@@ -257,36 +263,52 @@ def _write(cur: psycopg.Cursor, res: Result) -> None:
                 copy.write_row(row)
 
 
-_WORKER: dict[str, psycopg.Connection] = {}
+_WORKER: dict[str, Any] = {}
 
 
-def _init_worker(url: str) -> None:
+def _init_worker(url: str, settings: Settings) -> None:
     _WORKER["conn"] = connect(url, autocommit=True)  # reads only: no transaction left open between tiles
+    _WORKER["settings"] = settings
     atexit.register(_WORKER["conn"].close)
 
 
-def _do_unit(unit: list[Tile], settings: Settings) -> list[Result]:
+def _do_unit(unit: list[Tile]) -> list[Result]:
     """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache."""
     shared = any(t.gen_level == 3 for t in unit)
     cache = X.ChartCache() if shared else None
-    return [_one_tile(t, _WORKER["conn"], settings, cache, store=shared and t.gen_level == 4) for t in unit]
+    return [_one_tile(t, _WORKER["conn"], _WORKER["settings"], cache, store=shared and t.gen_level == 4)
+            for t in unit]
 
 
-def _map_units(work: list[list[Tile]], url: str, settings: Settings, workers: int) -> Iterator[list[Result]]:
-    """Results of every unit, in order. Worker processes, not threads: most of the time is numpy on arrays of a
-    few thousand elements and Python between them, which threads serialise on the GIL (2 threads were no
-    faster than 1, measured); each process reads its tiles through its own connection."""
+def _map_units(work: list[list[Tile]], url: str, settings: Settings, workers: int) -> Iterator[list[Result] | Lost]:
+    """Results of every unit, in order; a unit whose worker hung or died comes back as a Lost. Worker
+    processes, not threads: most of the time is numpy on arrays of a few thousand elements and Python between
+    them, which threads serialise on the GIL (2 threads were no faster than 1, measured); each process reads
+    its tiles through its own connection. One per unit at a time (etl/workers.py), so a building that hangs or
+    crashes xatlas or OpenImageIO loses its unit's textures, never the run."""
     if workers <= 1:
-        _init_worker(url)
+        _init_worker(url, settings)
         try:
-            yield from (_do_unit(u, settings) for u in work)
+            yield from (_do_unit(u) for u in work)
         finally:
             _WORKER.pop("conn").close()
         return
-    ctx = multiprocessing.get_context("spawn")  # never fork a process that holds open connections
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                             initargs=(url,)) as pool:
-        yield from pool.map(_do_unit, work, [settings] * len(work))
+    yield from imap_isolated(_do_unit, work, workers, settings.tex_unit_timeout_s, _init_worker, (url, settings))
+
+
+def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[Result]:
+    """A lost unit's features, every one in tex.failure (they keep their vertex colours)."""
+    out = []
+    for t in unit:
+        rho, distance = resolution(t.geometric_error, settings)
+        res = Result(t, rho, distance, padding_for(rho, settings))
+        rows = conn.execute(_FEATURE_IDS, (t.level, t.x, t.y)).fetchall()
+        res.features = len(rows)
+        detail = f"the unit of tile {t.level}/{t.x}/{t.y}: {lost.detail}"
+        res.failures = [(t.level, t.x, t.y, kind, int(fid), osm_type, int(osm_id), f"texturing_{lost.reason}", detail)
+                        for kind, fid, osm_type, osm_id in rows]
+        out.append(res)
+    return out
 
 
 def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
@@ -306,12 +328,16 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
     progress = Progress("textures", "features", total=expected)
     by_band: dict[int, dict[str, float]] = {}
+    lost = 0
     totals = dict.fromkeys(("features", "textured", "failed", "pages", "bytes", "page_texels", "content_texels",
                             "rendered_texels", "copied", "resized", "flat", "sheets", "scaled", "panels_mapped"), 0)
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure")
-        for results in _map_units(work, url, settings, workers):
-            for res in results:
+        for unit, out in zip(work, _map_units(work, url, settings, workers), strict=True):
+            if isinstance(out, Lost):
+                lost += 1
+                out = _lost(conn, unit, out, settings)
+            for res in out:
                 _write(cur, res)
                 page_texels = sum(p[6] * p[7] for p in res.pages)
                 n_bytes = sum(p[8] for p in res.pages)
@@ -357,6 +383,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds,
         buildings,
     )
-    return {**totals, "tiles": len(tiles), "units": len(work), "workers": workers, "utilization": round(util, 4),
+    return {**totals, "tiles": len(tiles), "units": len(work), "units_lost": lost, "workers": workers,
+            "utilization": round(util, 4),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

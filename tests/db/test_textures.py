@@ -217,6 +217,31 @@ def test_the_db_server_serves_the_textured_files(textured) -> None:
         thread.join(10)
 
 
+def test_units_past_their_time_limit_are_recorded_as_failed_not_lost(textured, conn_of) -> None:
+    url, _, counts = textured
+    conn = conn_of(url)
+    # a limit every unit exceeds: each worker's watchdog ends it mid-unit (as it would a hang in native code)
+    proc = run_etl(url, "textures", env={"CITYLOD_TEX_UNIT_TIMEOUT_S": "0.001", "CITYLOD_TEX_WORKERS": "2"})
+    assert "Timeout (" in proc.stderr and "most recent call first" in proc.stderr  # the workers' stacks
+    run = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
+                       "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    assert run["units_lost"] == run["units"] > 0 and run["workers"] == 2
+    assert run["textured"] == 0 and run["failed"] == run["features"] == counts["features"]
+    assert conn.execute("SELECT count(*) FROM tex.page").fetchone()[0] == 0
+    reasons = conn.execute("SELECT reason, count(*), count(DISTINCT (level, x, y, feature_kind, feature_id)), "
+                           "bool_and(detail LIKE '%time limit%') FROM tex.failure GROUP BY 1").fetchall()
+    assert reasons == [("texturing_hung", counts["features"], counts["features"], True)]
+    # every feature of every tile is there, as api.buildings_for_tile lists them
+    missing = conn.execute("""
+        SELECT count(*) FROM tiles.tile t, api.buildings_for_tile(t.level, t.x, t.y) f
+        WHERE NOT EXISTS (SELECT 1 FROM tex.failure x WHERE (x.level, x.x, x.y, x.feature_kind, x.feature_id)
+                                                            = (t.level, t.x, t.y, f.feature_kind, f.building_id))
+    """).fetchone()[0]
+    assert missing == 0
+    run_etl(url, "textures")  # back to the module's textured state
+    assert conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0] == counts["failed"]
+
+
 def test_generalizing_again_makes_the_textures_stale(textured, tmp_path) -> None:
     url = textured[0]
     # a later generalize run: export refuses the old textures until the textures stage runs again

@@ -57,7 +57,9 @@ def roofs_tiles(city: Callable) -> Path:
 
 
 def read_rgb(path: Path) -> np.ndarray:
-    import OpenImageIO as oiio
+    from etl.geom.atlas import openimageio
+
+    oiio = openimageio()
 
     buf = oiio.ImageBuf(str(path))
     assert not buf.has_error, buf.geterror()

@@ -13,11 +13,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 import psycopg
 import pytest
 from scipy import ndimage
 
+from etl.geom.atlas import openimageio
 from tests.conftest import BUILD, SHARED, run_etl
 from tests.e2e.test_viewer import CHROMIUM, REPO, run_driver, served
 
@@ -56,6 +56,7 @@ LIMIT 1
 
 
 def read_rgb(path: Path) -> np.ndarray:
+    oiio = openimageio()
     buf = oiio.ImageBuf(str(path))
     return np.asarray(buf.get_pixels(oiio.UINT8)).reshape(buf.spec().height, buf.spec().width, -1)[..., :3]
 

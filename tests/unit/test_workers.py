@@ -1,0 +1,75 @@
+"""etl/workers.py: a hung or crashed item loses only itself, in item order, with its stacks on stderr; an
+exception in the item's code is raised; a worker that hangs on its way out is killed, never waited on."""
+
+from __future__ import annotations
+
+import atexit
+import faulthandler
+import multiprocessing
+import os
+import time
+
+import pytest
+
+from etl import workers as W
+
+
+def behave(item: tuple[str, int]) -> int:
+    kind, value = item
+    if kind == "hang":
+        time.sleep(3600)
+    elif kind == "stubborn":  # as if the watchdog could not end it: the parent must
+        faulthandler.cancel_dump_traceback_later()
+        time.sleep(3600)
+    elif kind == "abort":
+        os.abort()
+    elif kind == "raise":
+        raise ValueError(f"bad item {value}")
+    return value * 2
+
+
+def hang_at_exit() -> None:
+    atexit.register(time.sleep, 3600)
+
+
+def test_hung_and_crashed_items_are_lost_alone_in_order(capfd: pytest.CaptureFixture[str]) -> None:
+    items = [("ok", 1), ("hang", 0), ("ok", 2), ("abort", 0), ("ok", 3), ("ok", 4), ("ok", 5)]
+    out = list(W.imap_isolated(behave, items, workers=2, timeout=2.0))
+    assert out[0] == 2 and out[2] == 4 and out[4:] == [6, 8, 10]
+    hung, crashed = out[1], out[3]
+    assert isinstance(hung, W.Lost) and hung.reason == "hung" and hung.seconds >= 2.0
+    assert isinstance(crashed, W.Lost) and crashed.reason == "crashed" and crashed.exitcode != 0
+    assert "time limit" in hung.detail and "died" in crashed.detail
+    err = capfd.readouterr().err
+    # faulthandler in the workers: the watchdog's dump of the hung item, the fatal-signal dump of the abort
+    assert "Timeout (0:00:02)" in err and "Fatal Python error: Aborted" in err
+    assert err.count("in behave") >= 2
+    assert not multiprocessing.active_children()
+
+
+def test_the_parent_kills_a_hung_worker_its_watchdog_did_not_end(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(W, "GRACE_S", 1.0)
+    out = list(W.imap_isolated(behave, [("stubborn", 0), ("ok", 1)], workers=1, timeout=1.0))
+    assert isinstance(out[0], W.Lost) and out[0].reason == "hung" and out[0].exitcode == -9 and out[1] == 2
+    assert not multiprocessing.active_children()
+
+
+def test_an_exception_in_the_items_code_is_raised_with_its_traceback() -> None:
+    with pytest.raises(W.WorkerError, match=r"ValueError: bad item 7"):
+        list(W.imap_isolated(behave, [("ok", 1), ("raise", 7), ("ok", 2)], workers=2, timeout=30.0))
+    assert not multiprocessing.active_children()
+
+
+def test_a_worker_that_hangs_at_exit_is_killed(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(W, "EXIT_WAIT_S", 1.0)
+    out = list(W.imap_isolated(behave, [("ok", i) for i in range(5)], workers=2, timeout=30.0,
+                               initializer=hang_at_exit))
+    assert out == [0, 2, 4, 6, 8]
+    assert not multiprocessing.active_children()
+
+
+def test_more_workers_than_items_and_bad_arguments() -> None:
+    assert list(W.imap_isolated(behave, [("ok", 21)], workers=4, timeout=30.0)) == [42]
+    assert list(W.imap_isolated(behave, [], workers=2, timeout=30.0)) == []
+    with pytest.raises(ValueError):
+        list(W.imap_isolated(behave, [("ok", 1)], workers=0, timeout=30.0))
