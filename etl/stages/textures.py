@@ -195,6 +195,11 @@ def _texture(rows: list[tuple], conn: psycopg.Connection, rho: float, params: X.
     return tt, counts
 
 
+def _failure(key: tuple[int, int, int], row: tuple, reason: str, detail: str) -> tuple:
+    """A tex.failure row (_FAIL_COLUMNS) of the feature whose _FEATURES / _FEATURE_IDS row starts with ``row``."""
+    return (*key, row[0], int(row[1]), row[2], int(row[3]), reason, detail[:2000])
+
+
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
               store: bool) -> Result:
     t0 = time.perf_counter()
@@ -208,9 +213,6 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     res.features = len(rows)
     key = (tile.level, tile.x, tile.y)
 
-    def fail(r: tuple, reason: str, detail: str) -> tuple:
-        return (*key, r[0], int(r[1]), r[2], int(r[3]), reason, detail[:2000])
-
     good = list(range(len(rows)))
     tt: X.TileTexture | None = None
     try:
@@ -223,13 +225,13 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
                 _texture([r], conn, rho, params, None, False)
             except Exception as e:  # noqa: BLE001
                 bad.append(i)
-                res.failures.append(fail(r, "texturing_failed", f"{type(e).__name__}: {e}"))
+                res.failures.append(_failure(key, r, "texturing_failed", f"{type(e).__name__}: {e}"))
         good = sorted(set(range(len(rows))) - set(bad))
         try:
             tt, counts = _texture([rows[i] for i in good], conn, rho, params, cache, store)
         except Exception as e:  # noqa: BLE001
             detail = "".join(traceback.format_exception_only(type(e), e)).strip()
-            res.failures += [fail(rows[i], "tile_texturing_failed", detail) for i in good]
+            res.failures += [_failure(key, rows[i], "tile_texturing_failed", detail) for i in good]
             good, tt = [], None
     if tt is not None:
         rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
@@ -305,8 +307,7 @@ def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Sett
         rows = conn.execute(_FEATURE_IDS, (t.level, t.x, t.y)).fetchall()
         res.features = len(rows)
         detail = f"the unit of tile {t.level}/{t.x}/{t.y}: {lost.detail}"
-        res.failures = [(t.level, t.x, t.y, kind, int(fid), osm_type, int(osm_id), f"texturing_{lost.reason}", detail)
-                        for kind, fid, osm_type, osm_id in rows]
+        res.failures = [_failure((t.level, t.x, t.y), r, f"texturing_{lost.reason}", detail) for r in rows]
         out.append(res)
     return out
 

@@ -17,26 +17,9 @@ from etl.geom.atlas import srgb_to_linear
 from etl.geom.extrude import extrude
 from etl.geom.facade import FacadeParams, facades
 from etl.geom.semantics import SEM_DOOR, SEM_WALL, SEM_WINDOW
+from tests.unit.test_facade import COURT, ELL, OFF, RECT, P, walls
 
-P = FacadeParams()
-OFF = np.array([385_000.0, 6_672_000.0])  # UTM-sized coordinates
-RECT = shapely.Polygon([(0, 0), (10, 0), (10, 6), (0, 6)])  # south wall first: it gets the door (tie)
-ELL = shapely.Polygon([(0, 0), (30, 0), (30, 10), (10, 10), (10, 25), (0, 25)])
-COURT = shapely.Polygon(shapely.box(0, 0, 40, 40).exterior, [shapely.box(10, 10, 30, 30).exterior.coords])
 REPO = Path(__file__).resolve().parents[2]
-
-
-def walls(poly: shapely.Polygon, owner: int = 0, zt: float = 9.0, levels: float = 3.0) -> dict[str, np.ndarray]:
-    poly = shapely.orient_polygons(poly)
-    a, b, ext = [], [], []
-    for k, ring in enumerate([poly.exterior, *poly.interiors]):
-        c = np.asarray(ring.coords)[:, :2] + OFF
-        a.append(c[:-1])
-        b.append(c[1:])
-        ext += [k == 0] * (len(c) - 1)
-    n = len(ext)
-    return dict(a=np.concatenate(a), b=np.concatenate(b), owner=np.full(n, owner), z_bottom=np.zeros(n),
-                z_top=np.full(n, zt), levels=np.full(n, levels), ground=np.ones(n, bool), exterior=np.array(ext))
 
 
 def facade_rects(w: dict[str, np.ndarray], n: int) -> list[tuple]:
