@@ -23,28 +23,39 @@ goes to build/bench/logs/.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import os
-import platform
-import re
 import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import psycopg
-from psycopg import sql
 from psycopg.conninfo import conninfo_to_dict
 
-from etl import cluster
-from etl.settings import REPO, Settings
+from benchmarks import report_textures, view_bench
+from benchmarks.common import (
+    DEMO_OSM,
+    HEADLINE,
+    LOG_DIR,
+    OUT_ROOT,
+    SHARED_OSM,
+    drop_db,
+    extract_name,
+    log,
+    machine,
+    machine_section,
+    markdown_table,
+    pass_mark,
+    recreate_db,
+    run_child,
+)
+from core import cluster
+from core.settings import REPO, Settings
 
-SHARED_OSM = Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm"
 # Liechtenstein first: it is the benchmark extract the headline figures quote.
 DEFAULT_EXTRACTS = (
     "liechtenstein_2022-07-24.osm.pbf",
@@ -52,15 +63,9 @@ DEFAULT_EXTRACTS = (
     "munich_altstadt.osm.pbf",
     "london_city.osm.pbf",
 )
-DEMO_OSM = REPO / "data" / "Helsinki.osm.pbf"
-HEADLINE = "liechtenstein_2022-07-24"
-
 BENCH_DB = "citylod_bench"
 O2P_DB = "citylod_bench_o2p"
 STYLE = Path(__file__).resolve().parent / "osm2pgsql" / "buildings.lua"
-OUT_ROOT = REPO / "build" / "bench"
-LOG_DIR = OUT_ROOT / "logs"
-
 STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export")
 # Which pipeline_run count is "the buildings this stage handled".
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
@@ -68,10 +73,6 @@ BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles":
 SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
 # Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
 VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step", "buildings_per_s"})
-
-
-def log(msg: str) -> None:
-    print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
 # --- measuring one child process ----------------------------------------------------------------------------
@@ -85,37 +86,7 @@ class Sample:
     stage_s: float | None = None  # duration_s the stage recorded itself (excludes start-up and imports)
 
 
-def run_child(cmd: Sequence[str], env: dict[str, str], logfile: Path) -> tuple[float, float]:
-    """Run ``cmd`` to completion; return (wall seconds, peak RSS MiB). Raises on a non-zero exit."""
-    logfile.parent.mkdir(parents=True, exist_ok=True)
-    with logfile.open("wb") as fh:
-        fh.write(("$ " + " ".join(cmd) + "\n").encode())
-        fh.flush()
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(list(cmd), env=env, cwd=REPO, stdout=fh, stderr=subprocess.STDOUT)
-        # wait4 rather than proc.wait(): it hands back this child's own rusage, whereas
-        # getrusage(RUSAGE_CHILDREN) would mix in every earlier child of the benchmark.
-        _, status, usage = os.wait4(proc.pid, 0)
-        seconds = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)  # tell Popen the child is already reaped
-    if proc.returncode != 0:
-        tail = logfile.read_text(errors="replace").splitlines()[-20:]
-        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}; log {logfile}:\n" + "\n".join(tail))
-    return seconds, usage.ru_maxrss / 1024  # Linux reports ru_maxrss in KiB
-
-
 # --- databases ----------------------------------------------------------------------------------------------
-
-
-def recreate_db(admin_url: str, name: str) -> None:
-    with psycopg.connect(admin_url, autocommit=True) as conn:
-        conn.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
-        conn.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
-
-
-def drop_db(admin_url: str, name: str) -> None:
-    with psycopg.connect(admin_url, autocommit=True) as conn:
-        conn.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
 
 
 def last_run(url: str, stage: str) -> tuple[dict[str, Any], float | None]:
@@ -210,14 +181,6 @@ class ExtractResult:
         return statistics.median(s.seconds for s in self.o2p)
 
 
-def extract_name(path: Path) -> str:
-    name = path.name
-    for suffix in (".osm.pbf", ".pbf", ".osm"):
-        if name.endswith(suffix):
-            return name[: -len(suffix)]
-    return name
-
-
 def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True) -> ExtractResult:
     res = ExtractResult(path=path)
     url = cluster.database_url(BENCH_DB)
@@ -254,13 +217,9 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True) 
         rows = conn.execute("SELECT kind, count(*) FROM buildings GROUP BY kind").fetchall()
     res.o2p_rows = {k: int(n) for k, n in rows}
 
-    from benchmarks import view_bench  # lazily: view_bench imports this module
-
     res.views = view_bench.triangles_per_view(url)
     log(f"{res.name} triangles per view: overview {res.views['overview']['triangles']:,} vs all LOD3 "
         f"{res.views['all_lod3']['triangles']:,} ({res.views['overview_reduction']}x fewer)")
-    from benchmarks import report_textures  # lazily, as view_bench
-
     res.textures = report_textures.measure(url)
     log(f"{res.name} textures: utilization {res.textures['totals']['utilization']}, overview "
         f"{res.textures['views']['overview']['draw_call_ratio']}x fewer draw calls than one texture per building")
@@ -272,122 +231,6 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True) 
     if drift := res.drift():
         log(f"WARNING {res.name}: counts of {', '.join(drift)} changed between repeats (code edited?)")
     return res
-
-
-# --- machine block ------------------------------------------------------------------------------------------
-
-
-def _first(cmd: Sequence[str]) -> str | None:
-    try:
-        r = subprocess.run(list(cmd), capture_output=True, text=True, check=True, cwd=REPO)
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    out = (r.stdout or r.stderr).strip().splitlines()
-    return out[0].strip() if out else None
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
-def _ram_gib() -> str:
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemTotal:"):
-                return f"{int(line.split()[1]) / 1024**2:.1f} GiB"
-    except OSError:
-        pass
-    return "unknown"
-
-
-def _os_name() -> str:
-    try:
-        for line in Path("/etc/os-release").read_text().splitlines():
-            if line.startswith("PRETTY_NAME="):
-                return line.split("=", 1)[1].strip().strip('"')
-    except OSError:
-        pass
-    return platform.platform()
-
-
-def _osm2pgsql_version() -> str:
-    # It logs the version to stderr behind a timestamp ("2026-… osm2pgsql version 1.8.0").
-    try:
-        r = subprocess.run(["osm2pgsql", "--version"], capture_output=True, text=True)
-    except OSError:
-        return "not installed"
-    m = re.search(r"osm2pgsql version (\S+)", r.stdout + r.stderr)
-    return m.group(1) if m else "unknown"
-
-
-def _git() -> str:
-    sha = _first(["git", "rev-parse", "--short", "HEAD"])
-    if sha is None:
-        return "no commit yet"
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, cwd=REPO
-    ).stdout.strip()
-    return sha + ("-dirty" if dirty else "")
-
-
-def _postgis_short(full: str) -> str:
-    """``POSTGIS="3.3.2 ..." GEOS="3.11.1-CAPI-1.17.1" SFCGAL="SFCGAL 1.4.1, ..."`` -> short form."""
-    parts = []
-    for key in ("POSTGIS", "GEOS", "PROJ", "SFCGAL"):
-        m = re.search(rf'{key}="(?:SFCGAL )?([0-9][^ ",]*)', full)
-        if m:
-            parts.append(f"{'PostGIS' if key == 'POSTGIS' else key} {m.group(1).split('-')[0]}")
-    return ", ".join(parts) or full
-
-
-def machine(url: str, osm2pgsql: bool = True) -> dict[str, str]:
-    """The machine a report ran on (its Machine table); ``osm2pgsql=False`` for the reports that do not run it."""
-    with psycopg.connect(url) as conn:
-        server = conn.execute("SHOW server_version").fetchone()
-        full = conn.execute("SELECT postgis_full_version()").fetchone()
-    out = {
-        "CPU": _cpu_model(),
-        "cores": str(os.cpu_count()),
-        "RAM": _ram_gib(),
-        "OS": _os_name(),
-        "Python": platform.python_version(),
-        "PostgreSQL": str(server[0]) if server else "?",
-        "PostGIS": _postgis_short(str(full[0])) if full else "?",
-    }
-    if osm2pgsql:
-        out["osm2pgsql"] = _osm2pgsql_version()
-    return out | {"git": _git(), "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")}
-
-
-def db_name(url: str) -> str:
-    """The database a URL names, as the reports quote it."""
-    return str(conninfo_to_dict(url).get("dbname", "?"))
-
-
-# --- report (markdown helpers shared by benchmarks/report_*.py) ---------------------------------------------
-
-
-def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]], align: str) -> list[str]:
-    """Markdown table; ``align`` has one l/r per column."""
-    if len(align) != len(header):
-        raise ValueError("one alignment per column")
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---:" if c == "r" else "---" for c in align) + "|"]
-    for row in rows:
-        if len(row) != len(header):
-            raise ValueError("one cell per column")
-        out.append("| " + " | ".join(str(c) for c in row) + " |")
-    return out
-
-
-def machine_section(mach: dict[str, str]) -> list[str]:
-    """The ``## Machine`` heading and table of a report."""
-    return ["## Machine", "", *markdown_table(["", ""], [[k, v] for k, v in mach.items()], "ll")]
 
 
 def _rate(n: float, s: float) -> str:
@@ -491,10 +334,6 @@ def _headline(r: ExtractResult) -> str:
     return text
 
 
-def _pass(ok: bool) -> str:
-    return "**pass**" if ok else "**FAIL**"
-
-
 def _generalize_section(results: list[ExtractResult], head: ExtractResult | None) -> list[str]:
     rows = []
     for r in results:
@@ -533,7 +372,7 @@ def _views_section(results: list[ExtractResult]) -> list[str]:
         rows.append([r.name, f"{v['all_lod3']['triangles']:,}",
                      f"{o['triangles']:,} ({o['features']:,} features, {o['tiles']} tiles, "
                      f"{o['camera']['height'] / 1000:.1f} km up)",
-                     f"{v['overview_reduction']:.1f}×" + (f" {_pass(v['pass'])}" if r.name == HEADLINE else ""),
+                     f"{v['overview_reduction']:.1f}×" + (f" {pass_mark(v['pass'])}" if r.name == HEADLINE else ""),
                      f"{st['triangles']:,} ({st['features']:,} features, LOD "
                      + "/".join(str(k) for k in sorted(st["by_lod"])) + ")"])
     if not rows:
@@ -544,8 +383,6 @@ def _views_section(results: list[ExtractResult]) -> list[str]:
 
 def _textures_section(results: list[ExtractResult], head: ExtractResult | None) -> list[str]:
     """Atlases of every extract in one table, then the benchmark extract's tables (report_textures)."""
-    from benchmarks import report_textures
-
     rows = []
     for r in results:
         t = r.textures
@@ -554,7 +391,7 @@ def _textures_section(results: list[ExtractResult], head: ExtractResult | None) 
         tt, near, over, pk = t["totals"], t["views"]["near"], t["views"]["overview"], t["packers"]["totals"]
         util, ratio = f"{100 * (tt['utilization'] or 0):.1f} %", f"({over['draw_call_ratio']}×)"
         if r.name == HEADLINE:
-            util, ratio = f"{util} {_pass(t['utilization_pass'])}", f"{ratio} {_pass(t['draw_call_pass'])}"
+            util, ratio = f"{util} {pass_mark(t['utilization_pass'])}", f"{ratio} {pass_mark(t['draw_call_pass'])}"
         rows.append([r.name, f"{tt['textured_tiles']}", f"{tt['pages']:,}", f"{tt['bytes'] / 1e6:.1f}", util,
                      f"{tt['draw_calls_per_tile']:.1f}",
                      f"{near['atlas']['draw_calls']:,} vs {near['per_building']['draw_calls']:,}",
@@ -586,7 +423,8 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
             SERVER_NOTE.format(rounds=5, target=SERVER_TARGET), "",
             *markdown_table(["cache", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent", "errors"],
                             rows, "lrrrrrrr"), "",
-            f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: {_pass(warm >= SERVER_TARGET)}."]
+            f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: "
+            f"{pass_mark(warm >= SERVER_TARGET)}."]
 
 
 def _num(x: float | None) -> str:
@@ -609,7 +447,7 @@ def _scale_section(scale: dict[str, Any] | None) -> list[str]:
 
         rows.append([label, f"{m['buildings']:,}", f"{m['tiles']:,}", ms(m["p50_ms"]), ms(m["p95_ms"]),
                      ms(m["max_ms"]), _num(m.get("mean_features")), _num(m.get("max_features")),
-                     f"{m.get('timeouts', 0)}", _pass(m["pass"]) if key == "1m" else "–"])
+                     f"{m.get('timeouts', 0)}", pass_mark(m["pass"]) if key == "1m" else "–"])
     if first is None:
         return []
     header = ["database", "buildings (features)", "tiles", "p50 ms", "p95 ms", "max ms",
@@ -791,8 +629,6 @@ def main(argv: list[str] | None = None) -> int:
         if args.scale_json:
             scale = json.loads(args.scale_json.read_text())
         elif head is not None and not args.no_scale:
-            from benchmarks import view_bench
-
             scale = view_bench.scale(admin_url, head)
     finally:
         if not args.keep:

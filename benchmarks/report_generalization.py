@@ -39,7 +39,7 @@ import numpy as np
 import psycopg
 import shapely
 
-from benchmarks.bench import (
+from benchmarks.common import (
     DEMO_OSM,
     SHARED_OSM,
     drop_db,
@@ -50,13 +50,13 @@ from benchmarks.bench import (
     recreate_db,
     run_child,
 )
-from etl import cluster
+from core import cluster
+from core.settings import REPO, Settings
+from core.wkb import decode_triangles
 from etl.geom.check import weld as weld_rows
 from etl.geom.decimate import decimate
 from etl.geom.hausdorff import hausdorff
 from etl.geom.simplify import PIN_DISTANCE, simplify_footprints
-from etl.geom.wkb import decode_triangles
-from etl.settings import REPO, Settings
 
 EXTRACTS = {
     "munich": SHARED_OSM / "munich_altstadt.osm.pbf",

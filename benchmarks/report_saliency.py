@@ -46,11 +46,12 @@ from typing import Any
 import numpy as np
 import psycopg
 
-from benchmarks.bench import db_name, machine, machine_section, markdown_table
-from etl import cluster
+from benchmarks.common import db_name, machine, machine_section, markdown_table
+from core import cluster
+from core.camera import distance_for_pixels
+from core.geodesy import enu_rotation
+from core.settings import REPO
 from etl.geom import view_saliency as vs
-from etl.settings import REPO
-from exporter.geodesy import enu_rotation
 
 DEFAULT_OUT = Path("build/reports")
 DEFAULT_FRAMES = 120
@@ -225,7 +226,7 @@ def read_without(conn: psycopg.Connection, top: int) -> dict[tuple[int, int, int
 def far_distance(city: City, fov: float = FOV, viewport_height: int = VIEWPORT_H, max_sse: float = MAX_SSE) -> float:
     """How far the path zooms out: 1.25 × the distance at which the root tile alone meets max_sse, plus the
     city's half extent (distances are to the tile boxes, the path's to its focus)."""
-    d_root = city.root_error * viewport_height / (2 * math.tan(math.radians(fov) / 2) * max_sse)
+    d_root = distance_for_pixels(city.root_error, max_sse, math.radians(fov), viewport_height)
     return max(1.25 * d_root + city.radius_m, 4.0 * city.radius_m, 2.0 * NEAR_M)
 
 

@@ -53,10 +53,11 @@ from typing import Any
 import numpy as np
 import psycopg
 
-from benchmarks.bench import _pass, db_name, machine, machine_section, markdown_table
-from etl import cluster
+from benchmarks import view_bench as vb
+from benchmarks.common import db_name, machine, machine_section, markdown_table, pass_mark
+from core import cluster
+from core.settings import REPO, Settings
 from etl.geom import atlas as A
-from etl.settings import REPO, Settings
 from etl.stages.textures import WEBP_METHOD
 
 DEFAULT_OUT = Path("build/reports")
@@ -382,8 +383,6 @@ class TileCharts:
 
 
 def view_tiles(conn: psycopg.Connection, cam: Any, max_sse: float) -> list[tuple[int, int, int]]:
-    from benchmarks import view_bench as vb
-
     rows = conn.execute(f"SELECT DISTINCT level, x, y FROM ({vb._VIEW_TILES}) q ORDER BY 1, 2, 3",
                         vb._params(cam, max_sse)).fetchall()
     return [(int(r[0]), int(r[1]), int(r[2])) for r in rows]
@@ -393,8 +392,6 @@ def measure_view(conn: psycopg.Connection, name: str, cam: Any, tiles: dict[tupl
                  charts: dict[tuple[int, int, int], TileCharts], settings: Settings, max_encode: int,
                  seed: int, max_sse: float) -> dict[str, Any]:
     """Draw calls and texture bytes of the tiles a camera loads: atlases against one texture per building."""
-    from benchmarks import view_bench as vb
-
     t0 = time.perf_counter()
     keys = [k for k in view_tiles(conn, cam, max_sse) if k in tiles]
     for k in keys:
@@ -517,8 +514,6 @@ def compare_packers(tiles: dict[tuple[int, int, int], TileStats], page_size: int
 def measure(url: str, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_ENCODE, seed: int = SEED,
             settings: Settings | None = None) -> dict[str, Any]:
     """Every figure of the report (no files): the dict textures.json holds, minus machine and command."""
-    from benchmarks import view_bench as vb
-
     settings = settings or Settings.from_env()
     t0 = time.perf_counter()
     with psycopg.connect(url, autocommit=True) as conn:
@@ -608,7 +603,7 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
         f"{t['textured_tiles']} of {t['tiles']} tiles textured, {t['textured_features']:,} features "
         f"({t['failed_features']:,} failed), {t['pages']:,} pages of at most {r['settings']['page_size']} texels, "
         f"{t['bytes'] / 1e6:.1f} MB of WebP; utilization {_pct(t['utilization'])} of the page texels hold chart "
-        f"texels (target ≥ {100 * r['utilization_target']:.0f} %: {_pass(r['utilization_pass'])}). "
+        f"texels (target ≥ {100 * r['utilization_target']:.0f} %: {pass_mark(r['utilization_pass'])}). "
         "*utilization*: chart texels / page texels over the group's pages (texel-weighted); *mean page*, "
         "*worst page*: of the pages' own utilizations. *draw calls/tile*: glTF primitives the exporter writes "
         "(one per atlas page used, plus the vertex-coloured one where a feature has no UVs); one texture per "
@@ -641,7 +636,7 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
                                "M page texels: atlases / per building (its utilization)", "encoded"], rows,
                               "lrrrrrrrrrr"), "",
               f"Overview: {over['draw_call_ratio']}× fewer draw calls with atlases (target ≥ "
-              f"{r['draw_call_target']:g}×: {_pass(r['draw_call_pass'])}).", "",
+              f"{r['draw_call_target']:g}×: {pass_mark(r['draw_call_pass'])}).", "",
               f"{h} Shelf packer against xatlas on real tiles", "",
               f"The chart sizes the stage packed (tex.page.rects) of the {pk['tiles']} tiles with the most charts "
               f"(of {pk['of_tiles']} textured; {pk['charts']:,} charts), laid out again by atlas.layout with each "

@@ -37,7 +37,7 @@ Three measurements, each usable alone (``--help`` of each subcommand) and called
       lod.building_mesh (LOD2 and LOD3, the ones the API reads), gen.building_mesh, gen.footprint,
       tiles.building_tile, tiles.tile and gen.block, every geometry translated (cells, anchors, outlines,
       meshes, blocks); regions are the translated regions reprojected, boxes recomputed with
-      exporter.geodesy.region_box. The 2 new upper levels (5 tiles) are built as the pipeline builds them:
+      core.geodesy.region_box. The 2 new upper levels (5 tiles) are built as the pipeline builds them:
       their band from height and width (gen.level_for_height), their blocks merged from their children's by
       the generalize stage's own code (generalize.coarse_blocks), their content listed in tiles.tile_content
       through api.buildings_for_tile, the geometric error the larger of their content's and their children's
@@ -70,11 +70,12 @@ from typing import Any
 import psycopg
 from psycopg import sql
 
-from etl import cluster
-from etl.settings import REPO, Settings
+from benchmarks.common import HEADLINE, LOG_DIR, SHARED_OSM, recreate_db, run_child
+from core import cluster
+from core.camera import Camera
+from core.settings import REPO, Settings
 from etl.stages import generalize
 from etl.stages.generalize import store_boxes
-from exporter.traverse import Camera
 
 MAX_SSE = 16.0
 SEED = 4
@@ -330,8 +331,6 @@ def _grid_table(conn: psycopg.Connection, name: str, cells: Sequence[tuple[int, 
 
 def build_100k(admin_url: str, osm: Path, rebuild: bool = False) -> str:
     """``citylod_view_100k``: the extract ×6 side by side, through lod, tiles and generalize for real."""
-    from benchmarks.bench import LOG_DIR, recreate_db, run_child
-
     url = cluster.database_url(DB_100K)
     inputs = _inputs(osm, "100k")
     if not rebuild and _marker_ok(url, inputs):
@@ -547,7 +546,6 @@ def main(argv: list[str] | None = None) -> int:
 
     cluster.ensure()
     if args.cmd == "scale":
-        from benchmarks.bench import HEADLINE, SHARED_OSM
         osm = (args.osm or SHARED_OSM / f"{HEADLINE}.osm.pbf").resolve()
         only = ("100k",) if args.only == "100k" else ("100k", "1m")
         res = scale(cluster.database_url("postgres"), osm, args.cameras, args.seed, args.rebuild, only)

@@ -8,8 +8,8 @@ import os
 import sys
 from pathlib import Path
 
-from . import cluster
-from .settings import REPO, Settings
+from core import cluster
+from core.settings import REPO, Settings
 
 DEMO_OSM = REPO / "data" / "Helsinki.osm.pbf"
 
@@ -35,7 +35,8 @@ def cmd_db(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .migrate import migrate_and_reload
 
     with connect(settings=settings) as conn:
@@ -57,7 +58,8 @@ def cmd_fetch_demo(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .runs import pipeline_run, sha256_file
     from .stages import ingest
 
@@ -74,7 +76,8 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_lod(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .runs import pipeline_run
     from .stages import lod
 
@@ -85,7 +88,8 @@ def cmd_lod(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .runs import pipeline_run
     from .stages import tiles
 
@@ -96,7 +100,8 @@ def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_landmarks(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .runs import pipeline_run
     from .stages import landmarks
 
@@ -107,7 +112,8 @@ def cmd_landmarks(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .runs import pipeline_run
     from .stages import generalize
 
@@ -118,7 +124,8 @@ def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_textures(args: argparse.Namespace, settings: Settings) -> int:
-    from .db import connect
+    from core.db import connect
+
     from .runs import pipeline_run
     from .stages import textures
 

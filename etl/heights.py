@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .settings import Settings
+from core.settings import Settings
 
 SOURCES = np.array(["height", "levels", "type_default", "default"])
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import psycopg
 from psycopg import sql
 
-from .settings import REPO
+from core.settings import REPO
 
 MIGRATIONS = REPO / "migrations"
 SQL_DIR = REPO / "sql"

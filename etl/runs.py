@@ -16,7 +16,7 @@ from pathlib import Path
 import psycopg
 from psycopg.types.json import Jsonb
 
-from .settings import REPO
+from core.settings import REPO
 
 
 def git_commit() -> str | None:

@@ -28,7 +28,8 @@ from urllib.parse import unquote, urlparse
 
 import numpy as np
 
-from .geodesy import geodetic_to_ecef
+from core.geodesy import geodetic_to_ecef
+
 from .gltf import SCALAR_DTYPES, accessor_array, read_glb
 
 TOLERANCE_RAD = 1e-9

@@ -15,9 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from etl.geom.semantics import SEM_DOOR, SEM_ROOF, SEM_WINDOW
-
-from .geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
+from core.geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
+from core.semantics import SEM_DOOR, SEM_ROOF, SEM_UNKNOWN, SEM_WINDOW
 
 DEFAULT_WALL = "#d8d2c4"
 DEFAULT_ROOF = "#9c8f84"
@@ -53,7 +52,6 @@ class ContentArrays:
 
 WINDOW_RGBA = np.array([58, 74, 92, 255], dtype=np.uint8)  # dark blue-grey glass
 DOOR_RGBA = np.array([101, 67, 33, 255], dtype=np.uint8)  # brown wood
-SEM_UNKNOWN = 255  # a triangle without a stored semantic: coloured as roof when it faces up
 _WINDOW_LINEAR = srgb_to_linear16(WINDOW_RGBA)
 _DOOR_LINEAR = srgb_to_linear16(DOOR_RGBA)
 

@@ -28,13 +28,13 @@ import psycopg
 import shapely
 from psycopg.rows import dict_row
 
-from etl.db import connect
-from etl.geom.wkb import decode_triangles
-from etl.progress import Progress, summary
-from etl.settings import Settings
+from core.db import connect
+from core.geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
+from core.progress import Progress, summary
+from core.settings import Settings
+from core.wkb import decode_triangles
 
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
-from .geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
 from .gltf import Image, Primitive, Property, write_glb
 from .tileset import TileRecord, build_tileset, region_centre
 

@@ -354,7 +354,7 @@ class _Changed(Exception):
 
 def reader_url(url: str, environ: Mapping[str, str] | None = None) -> str:
     """The URL the server connects with: CITYLOD_READER_URL when set, else ``url`` (DATABASE_URL or the local
-    cluster's, as every stage gets it from etl.cluster.ensure) with the user replaced by citylod_reader and no
+    cluster's, as every stage gets it from core.cluster.ensure) with the user replaced by citylod_reader and no
     password (the local cluster trusts its socket; elsewhere libpq's PGPASSWORD/.pgpass or CITYLOD_READER_URL)."""
     from psycopg.conninfo import conninfo_to_dict, make_conninfo
 

@@ -23,8 +23,9 @@ from typing import Any, Literal, TypedDict
 
 import numpy as np
 
+from core.geodesy import column_major, enu_to_ecef, geodetic_to_ecef
+
 from . import ATTRIBUTION, __version__
-from .geodesy import column_major, enu_to_ecef, geodetic_to_ecef
 
 Refine = Literal["ADD", "REPLACE"]
 

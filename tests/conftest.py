@@ -1,7 +1,7 @@
 """Test harness: a real PostGIS, never a mock, and never a skip when it is missing.
 
 * The server is DATABASE_URL when set (its user must be allowed to CREATE DATABASE), else the local cluster
-  under var/pg, started here if it is not running (etl/cluster.py).
+  under var/pg, started here if it is not running (core/cluster.py).
 * A template database is created once per session with every migration applied and sql/ loaded; each test
   database is a copy of it (CREATE DATABASE ... TEMPLATE), which takes a fraction of a second.
 * Test databases are dropped at the end unless KEEP_TEST_DB=1; their names are printed so you can
@@ -31,7 +31,7 @@ from psycopg import sql
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from etl import cluster  # noqa: E402
+from core import cluster  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
 from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
 

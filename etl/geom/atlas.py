@@ -47,6 +47,8 @@ from types import ModuleType
 
 import numpy as np
 
+from core.camera import pixels_per_metre
+
 PAGE_SIZE = 512  # the thesis' choice (4.3.1: "W = H = 512 is the most appropriate choice")
 MAX_PAGE_SIZE = 4096
 PACKERS = ("shelf", "xatlas")
@@ -72,8 +74,8 @@ def texels_per_metre(view_distance_m: float | np.ndarray, fov_y_rad: float, scre
     d = np.asarray(view_distance_m, dtype=np.float64)
     if np.any(d <= 0) or not 0 < fov_y_rad < math.pi or screen_height_px <= 0 or px_per_texel <= 0:
         raise ValueError("need distance > 0, 0 < fov < pi, screen height > 0 and px_per_texel > 0")
-    rho = screen_height_px / (2.0 * d * math.tan(fov_y_rad / 2.0)) / px_per_texel
-    return float(rho) if rho.ndim == 0 else rho
+    rho = pixels_per_metre(d, fov_y_rad, screen_height_px) / px_per_texel
+    return float(rho) if np.ndim(rho) == 0 else rho
 
 
 def texture_size(extent_m: float | np.ndarray, view_distance_m: float | np.ndarray, fov_y_rad: float,

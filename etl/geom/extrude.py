@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from core.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
+
 from .check import signed_volume
-from .semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ class Extrusion:
     offsets: np.ndarray  # (n + 1,) int64
     ok: np.ndarray  # (n,) bool: False = cap triangulation did not cover the footprint (no triangles then)
     volume: np.ndarray  # (n,) float64 enclosed volume
-    semantics: np.ndarray  # (m,) uint8 per triangle: ground (bottom cap), wall, roof (top cap); etl/geom/semantics
+    semantics: np.ndarray  # (m,) uint8 per triangle: ground (bottom cap), wall, roof (top cap); core/semantics.py
     walls: Walls  # the footprint ring edges the walls stand on (LOD3 puts its openings on them)
 
     def of(self, k: int) -> np.ndarray:

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .semantics import SEM_DOOR, SEM_WINDOW
+from core.semantics import SEM_DOOR, SEM_WINDOW
 
 EMBED = 0.01  # how far a box's back face sits behind the wall plane
 _EPS = 1e-9  # keeps exact fits (e.g. a storey exactly as high as required) on the accepting side

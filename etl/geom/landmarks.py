@@ -17,6 +17,8 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from core.camera import distance_for_pixels
+
 # ---------------------------------------------------------------------------------------------------------------
 # measures
 
@@ -296,7 +298,7 @@ def exaggeration_intervals(height: np.ndarray, level: np.ndarray, min_level: int
     lv = np.asarray(level, dtype=np.float64)
     top = lv.max(initial=min_level)
     k = top - min_level + 1
-    from_m = h * viewport_px / (2 * np.tan(np.radians(fov_deg) / 2) * min_screen_px)
+    from_m = distance_for_pixels(h, min_screen_px, np.radians(fov_deg), viewport_px)
     top_scale = 1 + (max_scale - 1) * np.clip(lv - min_level + 1, 0, k) / k
     return from_m, top_scale
 

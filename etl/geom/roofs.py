@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from .semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
+from core.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
 
 GRID = 1e-7
 

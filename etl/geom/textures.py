@@ -33,10 +33,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from core.semantics import SEM_DOOR, SEM_WINDOW
+
 from ..tags import ParseError, parse_colour
 from .atlas import linear_to_srgb, srgb_to_linear, texels
 from .facade import FacadeParams, door_walls, facades
-from .semantics import SEM_DOOR, SEM_WINDOW
 
 RGB = tuple[int, int, int]
 

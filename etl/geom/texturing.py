@@ -4,7 +4,7 @@ Pure (arrays in, arrays out; no database): the textures stage (etl/stages/textur
 one tile as api.buildings_for_tile gives them and stores what comes out. It connects the procedural textures
 (etl/geom/textures.py) and the atlas (etl/geom/atlas.py):
 
-* **Charts.** Triangles are sorted by their semantics (etl/geom/semantics.py) and orientation:
+* **Charts.** Triangles are sorted by their semantics (core/semantics.py) and orientation:
   - walls: one planar chart per feature and wall plane (textures.planar_charts: u metres along the wall, v
     metres up from its bottom), textured with the facade (building:material, building:colour) and its
     openings. Openings are the LOD3 window/door panels themselves: a panel stands FacadeParams.depth out of
@@ -46,12 +46,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from exporter.content import SEM_UNKNOWN  # a triangle without a stored semantic (the exporter's convention)
+from core.semantics import SEM_DOOR, SEM_ROOF, SEM_UNKNOWN, SEM_WALL, SEM_WINDOW
 
 from . import atlas as A
 from . import textures as T
 from .facade import FacadeParams
-from .semantics import SEM_DOOR, SEM_ROOF, SEM_WALL, SEM_WINDOW
 
 KIND_WALL, KIND_ROOF, KIND_SHEET, KIND_PALETTE = 0, 1, 2, 3
 OPENING_DEPTH = FacadeParams().depth  # LOD3 panels stand this far out of their wall
@@ -377,7 +376,7 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
     """Charts, pages and per-corner UVs for one tile.
 
     triangles (m, 3, 3) in a metric CRS with z up (the working CRS), ``feature`` (m,) index into ``styles``,
-    ``semantics`` (m,) etl/geom/semantics codes (SEM_UNKNOWN: by orientation). ``opening_triangles`` =
+    ``semantics`` (m,) core/semantics.py codes (SEM_UNKNOWN: by orientation). ``opening_triangles`` =
     (triangles, feature, semantics) of LOD3 window/door panels for features whose own mesh has none (LOD2).
     ``cache``: reuse chart pixels and openings found there; ``store``: add this tile's to it (leaves)."""
     tri = np.asarray(triangles, np.float64).reshape(-1, 3, 3)

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from exporter.geodesy import ecef_to_geodetic, enu_rotation, geodetic_to_ecef
-from exporter.traverse import Camera
+from core.camera import Camera
+from core.geodesy import ecef_to_geodetic, enu_rotation, geodetic_to_ecef
 
 from .jfa import jump_flood
 
@@ -50,7 +50,7 @@ def viewport(cam: Camera) -> tuple[int, int]:
 
 def focal_px(cam: Camera) -> float:
     """Focal length in pixels: a length l at depth z spans l × focal / z pixels."""
-    return cam.viewport_height / (2.0 * math.tan(math.radians(cam.fov) / 2.0))
+    return cam.focal_px()
 
 
 def geodetic_up(lon: np.ndarray | float, lat: np.ndarray | float) -> np.ndarray:

@@ -44,17 +44,17 @@ import numpy as np
 import psycopg
 import shapely
 
-from exporter.geodesy import region_box
+from core.db import connect, working_srid
+from core.geodesy import region_box
+from core.progress import Progress, summary
+from core.settings import Settings
+from core.wkb import decode_triangles, encode_triangles_batch
 
-from ..db import connect, working_srid
 from ..geom.decimate import decimate
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
 from ..geom.hausdorff import hausdorff, outline_hausdorff
 from ..geom.simplify import PIN_DISTANCE, simplify_footprints
-from ..geom.wkb import decode_triangles, encode_triangles_batch
-from ..progress import Progress, summary
-from ..settings import Settings
 
 BATCH = 2000
 OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of the walls

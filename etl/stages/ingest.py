@@ -23,8 +23,9 @@ import osmium
 import osmium.geom
 import psycopg
 
-from ..progress import Progress, summary
-from ..settings import Settings
+from core.progress import Progress, summary
+from core.settings import Settings
+
 from ..tags import BuildingTags, building_kind, parse_building_tags
 
 _IMPORT_COLUMNS = (

@@ -25,10 +25,11 @@ import numpy as np
 import psycopg
 from psycopg import sql
 
-from ..db import working_srid
+from core.db import working_srid
+from core.progress import summary
+from core.settings import Settings
+
 from ..geom import landmarks as lm
-from ..progress import summary
-from ..settings import Settings
 
 #: Semantic measure: weight of each tag flag (sum 1). A flag holds when the outline or any of its parts has it.
 SEMANTIC = {"worship": 0.2, "religious_building": 0.2, "tower": 0.15, "historic": 0.15, "wikidata": 0.15,

@@ -28,16 +28,17 @@ import numpy as np
 import psycopg
 import shapely
 
+from core.db import connect, working_srid
+from core.progress import Progress, summary
+from core.semantics import N_SEMANTICS, SEM_ROOF, SEM_WALL
+from core.settings import Settings
+from core.wkb import encode_triangles_batch
+
 from .. import heights as heights_mod
-from ..db import connect, working_srid
 from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams, facades
-from ..geom.semantics import N_SEMANTICS, SEM_ROOF, SEM_WALL
-from ..geom.wkb import encode_triangles_batch
-from ..progress import Progress, summary
-from ..settings import Settings
 
 BATCH = 2000
 ROOF_SLAB_M = 0.3  # thickness of a roof drawn without walls (building:part=roof)

@@ -38,13 +38,15 @@ from typing import Any
 import numpy as np
 import psycopg
 
-from ..db import connect
+from core.camera import distance_for_pixels
+from core.db import connect
+from core.progress import Progress, summary
+from core.semantics import SEM_DOOR, SEM_WINDOW
+from core.settings import Settings
+from core.wkb import decode_triangles
+
 from ..geom import atlas as A
 from ..geom import texturing as X
-from ..geom.semantics import SEM_DOOR, SEM_WINDOW
-from ..geom.wkb import decode_triangles
-from ..progress import Progress, summary
-from ..settings import Settings
 from ..workers import Lost, imap_isolated
 
 FORMAT = "webp"
@@ -112,9 +114,10 @@ def resolution(geometric_error: float, settings: Settings) -> tuple[float, float
     cap = settings.tex_max_texels_per_metre
     rho = cap
     if geometric_error > 0:
-        d = geometric_error * settings.tex_screen_height / (2 * math.tan(fov / 2) * settings.tex_max_sse)
+        d = distance_for_pixels(geometric_error, settings.tex_max_sse, fov, settings.tex_screen_height)
         rho = min(cap, float(A.texels_per_metre(d, fov, settings.tex_screen_height, settings.tex_px_per_texel)))
-    distance = settings.tex_screen_height / (2 * math.tan(fov / 2) * rho * settings.tex_px_per_texel)
+    # where rho texels per metre are exactly rho * px_per_texel pixels per metre
+    distance = distance_for_pixels(1.0, rho * settings.tex_px_per_texel, fov, settings.tex_screen_height)
     return rho, distance
 
 

@@ -7,8 +7,8 @@ import time
 
 import psycopg
 
-from ..progress import summary
-from ..settings import Settings
+from core.progress import summary
+from core.settings import Settings
 
 
 def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:

@@ -3,8 +3,8 @@
 -- For a perspective camera, every building, part or block in the view frustum a 3D Tiles client draws, at
 -- which LOD, from which tile and with which screen-space error. It walks tiles.tile as a client walks
 -- tileset.json with REPLACE refinement: starting at the root, a tile in the view frustum is refined into its
--- children while its
--- screen-space error  geometric_error × viewport_height / (distance × 2 tan(fov / 2))  exceeds max_sse;
+-- children while its screen-space error (tiles.screen_space_error: geometric_error × viewport_height /
+-- (distance × 2 tan(fov / 2))) exceeds max_sse;
 -- distance is measured to the tile's box (tiles.box_distance), culling uses the five frustum planes
 -- (tiles.box_visible). The features of the tiles it stops at are read from tiles.tile_content, the list of
 -- api.buildings_for_tile's rows the generalize stage stored, so the exporter and this function agree by
@@ -93,13 +93,13 @@ BEGIN
                                          r[1] * d[2] - r[2] * d[1]] AS up) v
     ), walk AS (
         SELECT t.level, t.x, t.y, t.is_leaf, dist.m AS distance_m,
-               t.geometric_error * $5 / (greatest(dist.m, 1e-7) * 2 * tan(cam.tv)) AS sse
+               tiles.screen_space_error(t.geometric_error, dist.m, 2 * cam.tv, $5) AS sse
         FROM cam JOIN tiles.tile t ON t.level = 0 AND t.x = 0 AND t.y = 0
         CROSS JOIN LATERAL (SELECT tiles.box_distance(t.box, cam.px, cam.py, cam.pz) AS m) dist
         WHERE tiles.box_visible(t.box, cam.px, cam.py, cam.pz, cam.planes)
         UNION ALL
         SELECT c.level, c.x, c.y, c.is_leaf, dist.m,
-               c.geometric_error * $5 / (greatest(dist.m, 1e-7) * 2 * tan(cam.tv))
+               tiles.screen_space_error(c.geometric_error, dist.m, 2 * cam.tv, $5)
         FROM walk w
         CROSS JOIN cam
         JOIN tiles.tile c ON c.level = w.level + 1 AND c.x BETWEEN 2 * w.x AND 2 * w.x + 1

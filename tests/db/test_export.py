@@ -8,10 +8,10 @@ import numpy as np
 import psycopg
 import pytest
 
-from etl.settings import Settings
+from core.geodesy import Y_UP_TO_Z_UP
+from core.settings import Settings
 from exporter.checks import check_tileset
 from exporter.export import export_tileset
-from exporter.geodesy import Y_UP_TO_Z_UP
 from exporter.gltf import accessor_array, property_table, read_glb
 from tests.conftest import REPO, node_bin, run_etl
 
@@ -254,7 +254,7 @@ def test_placement_against_the_osm_file_itself(lod2, conn_of) -> None:
     import math
     import xml.etree.ElementTree as ET
 
-    from exporter.geodesy import ecef_to_geodetic
+    from core.geodesy import ecef_to_geodetic
     from tests.conftest import FIXTURES
 
     root = ET.parse(FIXTURES / "100_square.osm").getroot()

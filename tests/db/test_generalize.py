@@ -9,8 +9,9 @@ import numpy as np
 import psycopg
 import pytest
 
+from core.camera import Camera
 from exporter.checks import check_tileset
-from exporter.traverse import Camera, select
+from exporter.traverse import select
 from tests.conftest import run_etl
 
 BUDGET = {"CITYLOD_TILE_MAX_FEATURES": "40", "CITYLOD_TILE_MAX_TRIANGLES": "4000"}

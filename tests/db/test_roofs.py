@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from core.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
+from core.wkb import decode_triangles
 from etl.geom import roofs
-from etl.geom.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
-from etl.geom.wkb import decode_triangles
 from exporter.checks import check_tileset
 from exporter.content import WINDOW_RGBA, srgb_to_linear16
 from exporter.gltf import accessor_array, property_table, read_glb

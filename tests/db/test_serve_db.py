@@ -25,8 +25,8 @@ import psycopg
 import pytest
 from psycopg import sql
 
+from core.settings import Settings
 from etl.migrate import migrate_and_reload
-from etl.settings import Settings
 from exporter.serve import (
     READER_ROLE,
     BadPath,

@@ -18,10 +18,10 @@ import numpy as np
 import psycopg
 import pytest
 
+from core.semantics import SEM_WALL, SEM_WINDOW
+from core.settings import Settings
+from core.wkb import decode_triangles
 from etl.geom import atlas as A
-from etl.geom.semantics import SEM_WALL, SEM_WINDOW
-from etl.geom.wkb import decode_triangles
-from etl.settings import Settings
 from exporter.checks import check_tileset
 from exporter.gltf import read_glb
 from exporter.serve import make_db_server, reader_url, server_url

@@ -31,8 +31,8 @@ import numpy as np
 import psycopg
 import pytest
 
-from etl.settings import Settings
-from exporter.geodesy import ecef_to_geodetic, enu_rotation, geodetic_to_ecef
+from core.geodesy import ecef_to_geodetic, enu_rotation, geodetic_to_ecef
+from core.settings import Settings
 from tests.conftest import BUILD, REPO
 from tests.e2e.test_viewer import run_driver, served
 

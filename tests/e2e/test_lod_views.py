@@ -28,8 +28,8 @@ import numpy as np
 import psycopg
 import pytest
 
-from exporter.geodesy import box_distance, region_box
-from exporter.traverse import Camera
+from core.camera import Camera
+from core.geodesy import box_distance, region_box
 from tests.conftest import REPO, SHARED, run_etl
 from tests.e2e.test_viewer import run_driver, served
 

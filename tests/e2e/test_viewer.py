@@ -125,7 +125,7 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
     for pkg in ("playwright-core", "cesium"):
         assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
 
-    from etl.settings import Settings
+    from core.settings import Settings
 
     munich = city("munich")
     row = conn_of(munich.url).execute(PICK_TARGET).fetchone()

@@ -5,8 +5,8 @@ import pytest
 import shapely
 import trimesh
 
+from core.wkb import decode_triangles, encode_triangles, encode_triangles_batch
 from etl.geom.extrude import extrude
-from etl.geom.wkb import decode_triangles, encode_triangles, encode_triangles_batch
 
 OFF = np.array([385_000.0, 6_672_000.0])  # UTM-sized coordinates, where precision matters
 

@@ -6,8 +6,8 @@ import pytest
 import shapely
 import trimesh
 
+from core.semantics import SEM_DOOR, SEM_WINDOW
 from etl.geom.facade import FacadeParams, Facades, facades
-from etl.geom.semantics import SEM_DOOR, SEM_WINDOW
 
 P = FacadeParams()
 OFF = np.array([385_000.0, 6_672_000.0])  # UTM-sized coordinates

@@ -7,8 +7,8 @@ import subprocess
 import numpy as np
 import pytest
 
+from core.geodesy import enu_rotation, geodetic_to_ecef
 from exporter.content import srgb_to_linear16, tile_arrays
-from exporter.geodesy import enu_rotation, geodetic_to_ecef
 from exporter.gltf import Primitive, Property, accessor_array, property_table, read_glb, write_glb
 from tests.conftest import REPO, node_bin
 

@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from core.settings import Settings
 from etl.heights import resolve
-from etl.settings import Settings
 
 S = Settings()
 

@@ -8,9 +8,9 @@ import pytest
 import shapely
 import trimesh
 
+from core.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
 from etl.geom import roofs
 from etl.geom.roofs import RoofError
-from etl.geom.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
 
 Z_EAVE, H = 6.0, 4.0
 # footprint and its straight skeleton as SFCGAL ST_StraightSkeleton returns it (interior arcs only, each once);

@@ -12,11 +12,11 @@ import shapely
 import trimesh
 from scipy import ndimage
 
+from core.semantics import SEM_DOOR, SEM_WALL, SEM_WINDOW
 from etl.geom import textures as T
 from etl.geom.atlas import srgb_to_linear
 from etl.geom.extrude import extrude
 from etl.geom.facade import FacadeParams, facades
-from etl.geom.semantics import SEM_DOOR, SEM_WALL, SEM_WINDOW
 from tests.unit.test_facade import COURT, ELL, OFF, RECT, P, walls
 
 REPO = Path(__file__).resolve().parents[2]

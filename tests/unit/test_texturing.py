@@ -10,12 +10,12 @@ import pytest
 import shapely
 import trimesh
 
+from core.semantics import SEM_DOOR, SEM_ROOF, SEM_WALL, SEM_WINDOW
 from etl.geom import atlas as A
 from etl.geom import textures as T
 from etl.geom import texturing as X
 from etl.geom.extrude import extrude
 from etl.geom.facade import FacadeParams, facades
-from etl.geom.semantics import SEM_DOOR, SEM_ROOF, SEM_WALL, SEM_WINDOW
 
 OFF = np.array([385_000.0, 6_672_000.0])  # UTM-sized coordinates
 BOXES = [(0, 0, 12, 8, 9.0, 3.0), (20, 0, 38, 10, 6.0, 2.0), (0, 20, 8, 50, 15.0, 5.0)]  # x0 y0 x1 y1 top levels

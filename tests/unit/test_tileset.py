@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from core.geodesy import column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
 from exporter.checks import check_tileset
-from exporter.geodesy import column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
 from exporter.gltf import write_glb
 from exporter.tileset import TileRecord, build_tileset, region_diagonal
 from tests.unit.test_gltf import cube_primitive

@@ -6,9 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from exporter.geodesy import box_distance, box_visible, geodetic_to_ecef, region_box
+from core.camera import Camera
+from core.geodesy import box_distance, box_visible, geodetic_to_ecef, region_box
 from exporter.tileset import TileRecord, build_tileset
-from exporter.traverse import Camera, select
+from exporter.traverse import select
 
 D = math.radians
 ROOT = (D(24.90), D(60.10), D(25.00), D(60.20), 0.0, 60.0)

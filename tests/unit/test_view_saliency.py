@@ -1,5 +1,5 @@
 """etl.geom.view_saliency: projection of known points, the frustum against the one api.lod_for_view culls with
-(exporter.traverse.Camera.planes), the vertical view angle of known geometry, the ROI distance against the
+(core.camera.Camera.planes), the vertical view angle of known geometry, the ROI distance against the
 exact Euclidean distance, the saliency splat, and the camera path (>= 100 frames, deterministic, on target)."""
 
 import math
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from core.camera import Camera
+from core.geodesy import ecef_to_geodetic, enu_rotation
 from etl.geom import view_saliency as vs
-from exporter.geodesy import ecef_to_geodetic, enu_rotation
-from exporter.traverse import Camera
 
 LON, LAT = 24.94, 60.17  # Helsinki
 ENU = enu_rotation(math.radians(LON), math.radians(LAT))

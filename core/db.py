@@ -1,4 +1,4 @@
-"""Database connections. One DSN: DATABASE_URL, else the local cluster (etl/cluster.py)."""
+"""Database connections. One DSN: DATABASE_URL, else the local cluster (core/cluster.py)."""
 
 from __future__ import annotations
 
