@@ -25,7 +25,7 @@ MIN_DISTANCE_M = 1e-7
 def pixels_per_metre(distance: float | np.ndarray, fov_rad: float, viewport_height: float) -> float | np.ndarray:
     """Pixels one metre spans at ``distance`` (m) across the view direction."""
     d = np.maximum(distance, MIN_DISTANCE_M)
-    out = viewport_height / (d * 2 * np.tan(fov_rad / 2))
+    out = viewport_height / (d * 2 * math.tan(fov_rad / 2))  # fov is one number: libm's tan, as PostgreSQL's
     return float(out) if np.ndim(out) == 0 else out
 
 
@@ -39,7 +39,7 @@ def distance_for_pixels(length_m: float | np.ndarray, pixels: float, fov_rad: fl
                         viewport_height: float) -> float | np.ndarray:
     """The distance at which ``length_m`` spans exactly ``pixels``: screen_space_error's inverse (a tile of
     geometric error e is drawn from ``distance_for_pixels(e, max_sse, ...)`` on)."""
-    out = length_m * viewport_height / (2 * np.tan(fov_rad / 2) * pixels)
+    out = length_m * viewport_height / (2 * math.tan(fov_rad / 2) * pixels)
     return float(out) if np.ndim(out) == 0 else out
 
 
