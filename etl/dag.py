@@ -216,6 +216,8 @@ def inputs(conn: psycopg.Connection, stage: str, settings: Settings, reads: tupl
 
 
 def _show(v: object) -> str:
+    if isinstance(v, str) and re.fullmatch(r"[0-9a-f]{64}", v):
+        return v[:12]  # a sha256
     return "unset" if v is None else json.dumps(v) if isinstance(v, dict | list) else str(v)
 
 
