@@ -97,12 +97,15 @@ textures: generalize ## procedural facade/roof textures in per-tile atlas pages 
 export: $(EXPORT_READS) ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
 	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD)) $(call STALE,export)
 
-serve: $(SETUP_NODE) $(if $(DB),$(EXPORT_READS),export) ## serve OUT, exported first if stale (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
+# serving only reads what is there (OUT, or the database with DB=1): it never reruns a stage, which with the default
+# OSM would replace a dataset ingested from another file
+serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
 	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)),--dir $(OUT)) --host $(HOST) --port $(PORT)
 
 demo: ## everything on Helsinki: install, database, every stage not yet current (ingest ... textures, export), serve
 	$(MAKE) setup
-	$(MAKE) serve OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) export OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------
 test: setup-test ## run every test (ruff, unit, real PostGIS, validators, CesiumJS in headless Chromium)
