@@ -9,7 +9,8 @@ record now:
   current);
 * ``code``: sha256 of every project module its stage module imports (read from the source, lazy imports
   included), of every sql/ object that code or that SQL names, as loaded in the database (meta.sql_object,
-  not the file on disk: the database runs what migrate loaded), and of the migrations applied;
+  not the file on disk: the database runs what migrate loaded), and of the migrations applied (third-party
+  packages are left out: the venv pins them in constraints.txt);
 * ``file`` (ingest: path and sha256 of the OSM file) and ``options`` (export: output directory and --lod);
   export is also stale when its files are gone or changed (``output``: the sha256 of the tileset.json written).
 
