@@ -46,7 +46,7 @@ _UVS = "SELECT feature_kind, feature_id, n_triangles, page, uv FROM api.tile_uvs
 
 OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
 
-#: The property table: (column of _FEATURES, component type or None for STRING, description, required, noData)
+#: The property table: (column of api.export_features, component type or None for STRING, description, required, noData)
 PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("osm_id", "INT64", "OSM id of the way or relation (gen.block.block_id for a block)", True, None),
     ("osm_type", None, "way, relation or block", True, None),
@@ -137,7 +137,7 @@ def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[
 
 def build_tile_glb(rows: list[dict], region: tuple[float, ...],
                    textures: TileTextures | None = None) -> tuple[bytes, int]:
-    """glb bytes and triangle count for the feature rows (dicts with the columns of _FEATURES) of one tile;
+    """glb bytes and triangle count for the feature rows (dicts with the columns of api.export_features) of one tile;
     with ``textures``, the features that have UVs are drawn with their atlas pages."""
     tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
     counts = np.array([len(t) for t in tris])
