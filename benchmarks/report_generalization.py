@@ -225,7 +225,7 @@ LEFT JOIN LATERAL (
 WHERE o.parent_id IS NULL
 ORDER BY o.id
 """
-# gen.block's aggregation (etl/stages/generalize.py _BLOCKS) over the whole extract: the simplified outlines
+# gen.block's aggregation (sql/gen/block_clusters.sql) over the whole extract: the simplified outlines
 # closer than the tolerance clustered and merged by buffer-union-unbuffer with mitred joins; protected
 # buildings (landmarks) are never merged, and a lone building keeps its simplified outline. Returned with what
 # the block replaces: its members' vertex and polygon counts and the union of their original outlines.

@@ -38,32 +38,15 @@ from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex
 from .gltf import Image, Primitive, Property, write_glb
 from .tileset import TileRecord, build_tileset, region_centre
 
-_FEATURES = """
-SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.kind, f.building_osm_type, f.building_osm_id, f.name,
-       f.building, f.height, f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour,
-       f.building_material, f.roof_material, f.lod, f.gen_level, f.n_members, f.error_m, f.semantics,
-       ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, %(base)s), 4978)) AS ecef_wkb,
-       l.rank AS lm_rank, coalesce(x.role, 0) AS lm_role, lo.osm_id AS lm_landmark_osm_id,
-       coalesce(x.scale_from_m, 0) AS lm_scale_from_m, coalesce(x.scale_step, 0) AS lm_scale_step,
-       coalesce(x.max_scale, 1) AS lm_max_scale, coalesce(x.landmark_radius_m, 0) AS lm_radius_m,
-       coalesce(x.gap_m, 0) AS lm_gap_m,
-       ST_AsBinary(ST_Transform(ST_Translate(ST_Force3D(x.landmark_centroid), 0, 0, %(base)s), 4978)) AS lm_centre_wkb,
-       ST_AsBinary(ST_Transform(ST_Translate(ST_Force3D(x.centroid), 0, 0, %(base)s), 4978)) AS lm_own_wkb
-FROM api.buildings_for_tile(%(level)s, %(x)s, %(y)s, %(lod)s) f
-LEFT JOIN osm.building o ON f.kind <> 'block' AND o.id = f.building_id
-LEFT JOIN lm.building l ON l.building_id = coalesce(o.parent_id, o.id)
-LEFT JOIN LATERAL lm.exaggeration_role(l.building_id) x ON true
-LEFT JOIN osm.building lo ON lo.id = x.landmark_id
-"""
-
-# the textures stage's atlas pages and per-corner UVs of a tile (tex.page, tex.feature_uv)
-_PAGES = "SELECT page_no, mime, bytes FROM tex.page WHERE level = %s AND x = %s AND y = %s ORDER BY page_no"
-_UVS = """SELECT feature_kind, feature_id, n_triangles, page, uv FROM tex.feature_uv
-WHERE level = %s AND x = %s AND y = %s"""
+# A tile's features as the glb holds them (api.export_features: api.buildings_for_tile's rows with ECEF meshes and
+# the landmark metadata), its atlas pages and UVs (api.tile_pages, api.tile_uvs); rows read by column name.
+_FEATURES = "SELECT * FROM api.export_features(%(level)s, %(x)s, %(y)s, %(lod)s, %(base)s)"
+_PAGES = "SELECT page_no, mime, bytes FROM api.tile_pages(%s, %s, %s)"
+_UVS = "SELECT feature_kind, feature_id, n_triangles, page, uv FROM api.tile_uvs(%s, %s, %s)"
 
 OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
 
-#: The property table: (column of _FEATURES, component type or None for STRING, description, required, noData)
+#: The property table: (column of api.export_features, component type or None for STRING, description, required, noData)
 PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("osm_id", "INT64", "OSM id of the way or relation (gen.block.block_id for a block)", True, None),
     ("osm_type", None, "way, relation or block", True, None),
@@ -121,16 +104,18 @@ class TileTextures:
 
 def load_textures(conn: psycopg.Connection, level: int, x: int, y: int) -> TileTextures | None:
     """The tile's textures (tex.page, tex.feature_uv), None when the textures stage has not textured it."""
-    pages = conn.execute(_PAGES, (level, x, y)).fetchall()
-    if not pages:
-        return None
-    if [p[0] for p in pages] != list(range(len(pages))):
-        raise RuntimeError(f"tex.page of tile {level}/{x}/{y} is not numbered 0..{len(pages) - 1}")
-    uvs = {}
-    for kind, fid, n, page, uv in conn.execute(_UVS, (level, x, y)):
-        uvs[(kind, int(fid))] = (np.frombuffer(bytes(page), "<i2").copy(),
-                                 np.frombuffer(bytes(uv), "<f4").reshape(n, 3, 2))
-    return TileTextures([Image(bytes(p[2]), p[1]) for p in pages], uvs)
+    with conn.cursor(row_factory=dict_row) as cur:
+        pages = cur.execute(_PAGES, (level, x, y)).fetchall()
+        if not pages:
+            return None
+        if [p["page_no"] for p in pages] != list(range(len(pages))):
+            raise RuntimeError(f"tex.page of tile {level}/{x}/{y} is not numbered 0..{len(pages) - 1}")
+        uvs = {}
+        for u in cur.execute(_UVS, (level, x, y)):
+            uvs[(u["feature_kind"], int(u["feature_id"]))] = (
+                np.frombuffer(bytes(u["page"]), "<i2").copy(),
+                np.frombuffer(bytes(u["uv"]), "<f4").reshape(u["n_triangles"], 3, 2))
+    return TileTextures([Image(bytes(p["bytes"]), p["mime"]) for p in pages], uvs)
 
 
 def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[int, ContentArrays]]]:
@@ -152,7 +137,7 @@ def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[
 
 def build_tile_glb(rows: list[dict], region: tuple[float, ...],
                    textures: TileTextures | None = None) -> tuple[bytes, int]:
-    """glb bytes and triangle count for the feature rows (dicts with the columns of _FEATURES) of one tile;
+    """glb bytes and triangle count for the feature rows (dicts with the columns of api.export_features) of one tile;
     with ``textures``, the features that have UVs are drawn with their atlas pages."""
     tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
     counts = np.array([len(t) for t in tris])
@@ -234,14 +219,15 @@ def _landmark_frame(rows: list[dict], lon: float, lat: float) -> list[dict[str, 
 
 def load_records(conn: psycopg.Connection) -> list[TileRecord]:
     """The tile tree (api.tile_tree), parents first."""
-    return [
-        TileRecord(level=r[0], x=r[1], y=r[2], is_leaf=r[3], region=tuple(r[6]), geometric_error=r[7],
-                   content_uri=r[8], n_features=r[4], content_features=r[9])
-        for r in conn.execute(
-            "SELECT level, x, y, is_leaf, n_features, n_triangles, region, geometric_error, content_uri,"
-            " content_features FROM api.tile_tree()"
-        )
-    ]
+    with conn.cursor(row_factory=dict_row) as cur:
+        return [
+            TileRecord(level=r["level"], x=r["x"], y=r["y"], is_leaf=r["is_leaf"], region=tuple(r["region"]),
+                       geometric_error=r["geometric_error"], content_uri=r["content_uri"],
+                       n_features=r["n_features"], content_features=r["content_features"])
+            for r in cur.execute(
+                "SELECT level, x, y, is_leaf, n_features, region, geometric_error, content_uri, content_features"
+                " FROM api.tile_tree()")
+        ]
 
 
 def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int | None) -> bytes:
@@ -307,16 +293,10 @@ def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int 
             "(make lod tiles generalize)")
     if any(r.geometric_error is None or r.content_features is None for r in records):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
-    if lod is None:
-        # textures are made from the generalized content: a later lod, tiles or generalize run may have changed it
-        textured, tex_run, gen_run = conn.execute(
-            """SELECT EXISTS (SELECT 1 FROM tex.page),
-                      (SELECT max(run_id) FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok'),
-                      (SELECT max(run_id) FROM meta.pipeline_run
-                       WHERE stage IN ('lod', 'tiles', 'generalize') AND status = 'ok')""").fetchone()  # type: ignore[misc]
-        if textured and (tex_run is None or (gen_run is not None and tex_run < gen_run)):
-            raise RuntimeError("the textures are stale: the tiles were generalized again after the textures stage "
-                               "ran; run it again (make textures)")
+    # textures are made from the generalized content: a later lod, tiles or generalize run may have changed it
+    if lod is None and conn.execute("SELECT api.textures_stale()").fetchone()[0]:  # type: ignore[index]
+        raise RuntimeError("the textures are stale: the tiles were generalized again after the textures stage "
+                           "ran; run it again (make textures)")
 
 
 PARTIAL_MARKER = ".citylod-partial"  # marks an export in progress (or one that crashed): ours to delete

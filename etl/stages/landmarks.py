@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 import psycopg
-from psycopg import sql
+import shapely
 
 from core.db import working_srid
 from core.progress import summary
@@ -38,36 +38,11 @@ EVERY_BAND = -32768  # lm.building.lod2_band of the top landmark: LOD2 in every 
 RELIGIOUS = ["cathedral", "church", "chapel", "mosque", "temple", "synagogue", "shrine", "monastery", "basilica"]
 TOWERS = ["tower", "lighthouse", "water_tower", "communications_tower"]
 
-_UNITS = """
-WITH f AS (
-    SELECT coalesce(o.parent_id, o.id) AS gid,
-           bool_or(o.tags->>'amenity' = 'place_of_worship') AS worship,
-           bool_or(o.building = ANY(%(religious)s) OR o.tags->>'building:part' = ANY(%(religious)s)) AS religious,
-           bool_or(o.building = ANY(%(towers)s) OR o.tags->>'man_made' = ANY(%(towers)s)
-                   OR o.tags ? 'tower:type') AS tower,
-           bool_or(o.tags ? 'historic' OR o.tags ? 'heritage') AS historic,
-           bool_or(o.tags ? 'wikidata' OR o.tags ? 'wikipedia') AS wikidata,
-           bool_or(o.tags ? 'tourism') AS tourism,
-           bool_or(o.name IS NOT NULL) AS named
-    FROM osm.building o GROUP BY 1
-), g AS (
-    SELECT coalesce(o.parent_id, o.id) AS gid, max(m.height) AS height, sum(m.volume_m3) AS volume
-    FROM lod.building_mesh m JOIN osm.building o ON o.id = m.building_id
-    WHERE m.lod = 2 GROUP BY 1
-)
-SELECT b.id, ST_X(c.p), ST_Y(c.p), ST_Area(b.geom_local), ST_Perimeter(b.geom_local),
-       ST_Area(ST_OrientedEnvelope(b.geom_local)), ST_NPoints(b.geom_local), g.height, g.volume,
-       f.worship, f.religious, f.tower, f.historic, f.wikidata, f.tourism, f.named, ST_MaxDistance(c.p, b.geom_local)
-FROM osm.building b
-JOIN g ON g.gid = b.id
-JOIN f ON f.gid = b.id
-CROSS JOIN LATERAL (SELECT ST_PointOnSurface(b.geom_local) AS p) c
-ORDER BY b.id
-"""
-_COLUMNS = ("building_id", "x", "y", "height_m", "volume_m3", "area_m2", "relative_height",
+# lm.building, COPYed in rank order; centroid as EWKB (geometry_recv takes it as it is)
+_COLUMNS = ("building_id", "centroid", "height_m", "volume_m3", "area_m2", "relative_height",
             "shape_distinctiveness", "semantic", "score", "rank", "level", "is_landmark", "lod2_band", "radius_m",
             "scale_distances_m", "scale_factors")
-_TYPES = ("int8", "float8", "float8", "float4", "float8", "float8", "float4", "float4", "float4", "float4",
+_TYPES = ("int8", "bytea", "float4", "float8", "float8", "float4", "float4", "float4", "float4",
           "int4", "int2", "bool", "int2", "float4", "float4[]", "float4[]")
 
 
@@ -91,19 +66,23 @@ def landmark_min_level(level: np.ndarray, max_fraction: float) -> int:
 def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     srid = working_srid(conn)
-    cols: list[list[object]] = [[] for _ in range(17)]
+    # lm.building_measures (sql/lm/building_measures.sql), an inlined SQL function streamed into columns by name
     with conn.cursor(name="lm_units") as src:
         src.itersize = 20_000
-        src.execute(_UNITS, {"religious": RELIGIOUS, "towers": TOWERS})
+        src.execute("SELECT * FROM lm.building_measures(%s, %s)", (RELIGIOUS, TOWERS))
+        assert src.description is not None
+        cols: dict[str, list[object]] = {d.name: [] for d in src.description}
         while rows := src.fetchmany(20_000):
-            for c, vals in zip(cols, zip(*rows, strict=True), strict=True):
+            for c, vals in zip(cols.values(), zip(*rows, strict=True), strict=True):
                 c.extend(vals)
-    ids = np.array(cols[0], dtype=np.int64)
+    ids = np.array(cols["building_id"], dtype=np.int64)
     n = len(ids)
-    xy = np.column_stack([np.array(cols[1], float), np.array(cols[2], float)]) if n else np.zeros((0, 2))
-    area, perimeter, mrr, nverts, height, volume = (np.array(c, dtype=float) for c in cols[3:9])
-    flags = np.array(cols[9:16], dtype=bool).T if n else np.zeros((0, len(SEMANTIC)), bool)
-    radius = np.array(cols[16], dtype=float)
+    xy = np.column_stack([np.array(cols["x"], float), np.array(cols["y"], float)]) if n else np.zeros((0, 2))
+    area, perimeter, mrr, nverts, height, volume = (
+        np.array(cols[k], dtype=float) for k in ("area", "perimeter", "envelope_area", "n_points", "height", "volume"))
+    flags = (np.array([cols[k] for k in ("worship", "religious", "tower", "historic", "wikidata", "tourism", "named")],
+                      dtype=bool).T if n else np.zeros((0, len(SEMANTIC)), bool))
+    radius = np.array(cols["radius"], dtype=float)
 
     indptr, indices = lm.radius_neighbours(xy, settings.lm_neighbour_radius_m)
     relative = lm.relative_height(height, indptr, indices)
@@ -132,30 +111,20 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         b, s = lm.interval_arrays(float(from_m[i]), settings.lm_scale_step, float(top_scale[i]))
         intervals[i] = (b.tolist(), s.tolist())
 
+    # the points as EWKB in the working CRS: what ST_SetSRID(ST_MakePoint(x, y), srid) would make of them
+    centroids = shapely.to_wkb(shapely.set_srid(shapely.points(xy), srid), include_srid=True) if n else []
+    band = [int(b) if lm_ else None for b, lm_ in zip(lod2_band.tolist(), is_landmark.tolist(), strict=True)]
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE lm.building")
-        cur.execute(sql.SQL("CREATE TEMP TABLE _lm ({}) ON COMMIT DROP").format(sql.SQL(", ").join(
-            sql.SQL("{} {}").format(sql.Identifier(c), sql.SQL(t)) for c, t in zip(_COLUMNS, _TYPES, strict=True))))
-        with cur.copy(f"COPY _lm ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
+        with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
-            for row in zip(ids.tolist(), xy[:, 0].tolist(), xy[:, 1].tolist(), height.tolist(), volume.tolist(),
-                           area.tolist(), relative.tolist(), shape.tolist(), semantic.tolist(), score.tolist(),
-                           rank.tolist(), level.tolist(), is_landmark.tolist(), lod2_band.tolist(),
-                           radius.tolist(), intervals, strict=True):
-                copy.write_row((*row[:-1], *row[-1]))
-        cur.execute("""
-            INSERT INTO lm.building (building_id, centroid, height_m, volume_m3, area_m2, relative_height,
-                                     shape_distinctiveness, semantic, score, rank, level, is_landmark, lod2_band,
-                                     radius_m, scale_distances_m, scale_factors)
-            SELECT building_id, ST_SetSRID(ST_MakePoint(x, y), %s), height_m, volume_m3, area_m2, relative_height,
-                   shape_distinctiveness, semantic, score, rank, level, is_landmark,
-                   CASE WHEN is_landmark THEN lod2_band END, radius_m, scale_distances_m, scale_factors
-            FROM _lm ORDER BY rank""", (srid,))
-        cur.execute("UPDATE osm.building SET protected = false WHERE protected")
-        cur.execute("""UPDATE osm.building b SET protected = true FROM lm.building l
-                       WHERE l.building_id = b.id AND l.is_landmark""")
-        drawn = cur.execute("""SELECT count(DISTINCT coalesce(o.parent_id, o.id)) FROM lod.building_mesh m
-                               JOIN osm.building o ON o.id = m.building_id WHERE m.lod = 2""").fetchone()[0]  # type: ignore[index]
+            for i in np.argsort(rank).tolist():  # in rank order, as analysts read it
+                copy.write_row((int(ids[i]), centroids[i], float(height[i]), float(volume[i]), float(area[i]),
+                                float(relative[i]), float(shape[i]), float(semantic[i]), float(score[i]),
+                                int(rank[i]), int(level[i]), bool(is_landmark[i]), band[i], float(radius[i]),
+                                *intervals[i]))
+        cur.execute("CALL lm.flag_landmarks()")
+        drawn = cur.execute("SELECT lod.drawn_buildings()").fetchone()[0]  # type: ignore[index]
         cur.execute("ANALYZE lm.building")
     if drawn != n:  # every drawn building is scored (the lod stage recorded the ones it could not draw)
         raise RuntimeError(f"landmarks lost buildings: {drawn} drawn, {n} scored")

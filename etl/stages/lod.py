@@ -23,10 +23,12 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import psycopg
 import shapely
+from psycopg.rows import dict_row
 
 from core.db import connect, working_srid
 from core.progress import Progress, summary
@@ -45,33 +47,11 @@ ROOF_SLAB_M = 0.3  # thickness of a roof drawn without walls (building:part=roof
 LODS = (1, 2, 3)
 _SKELETON_VALUES = sorted(roofs.NEEDS_SKELETON | {k for k, v in roofs.ALIASES.items() if v in roofs.NEEDS_SKELETON})
 
-# Outlines with parts (and not parts themselves): hidden when the parts cover enough of them, otherwise
-# drawn as what the parts leave uncovered (lod.outline_remainder), which is NULL when that is only slivers.
-_SELECT = """
-WITH src AS (
-    SELECT b.*, (b.kind = 'building' AND b.part IS NULL AND b.n_parts > 0) AS has_parts FROM osm.building b
-)
-SELECT b.id, b.osm_type, b.osm_id, b.building, b.height, b.min_height, b.levels, b.min_level,
-       b.roof_levels, b.roof_height, ST_AsBinary(g.geom), b.has_parts, b.part_coverage,
-       b.part, b.roof_shape, b.roof_angle, b.roof_direction, b.roof_orientation,
-       ST_AsBinary(lod.straight_skeleton(r.geom)), ST_AsBinary(r.geom)
-FROM src b
-CROSS JOIN LATERAL (SELECT CASE WHEN b.has_parts THEN lod.outline_remainder(b.id) ELSE b.geom_local END AS geom) g
--- roofs read the footprint without nodes that lie (within 5 cm) on a straight wall: such a node would split
--- the end wall of a gabled roof into two skeleton faces, and neither could become the gable
-LEFT JOIN LATERAL (SELECT ST_SimplifyPreserveTopology(g.geom, 0.05) AS geom
-                   WHERE b.roof_shape = ANY(%(skeleton)s)) r ON true
-WHERE NOT (b.has_parts AND coalesce(b.part_coverage, 0) >= %(coverage)s)
-ORDER BY b.id
-"""
-_HIDDEN = """
-INSERT INTO meta.diagnostic (stage, osm_type, osm_id, code, detail)
-SELECT 'lod', osm_type, osm_id, 'outline_hidden_by_parts',
-       format('%%s parts cover %%s%%%% of the outline (threshold %%s%%%%)', n_parts,
-              round(100 * coalesce(part_coverage, 0))::int, round(100 * %(c)s::numeric))
-FROM osm.building
-WHERE kind = 'building' AND part IS NULL AND n_parts > 0 AND coalesce(part_coverage, 0) >= %(c)s
-"""
+# The input is lod.building_input (sql/lod/building_input.sql: outlines hidden by their parts left out, an
+# outline with parts drawn as what they leave uncovered, the roof footprint and straight skeleton where the roof
+# shape needs them), an inlined SQL function streamed by a server-side cursor and read by column name. Hidden
+# outlines get their diagnostics from lod.diagnose_hidden_outlines, rejects go to osm.reject through
+# lod.store_rejects.
 COLUMNS = (
     "building_id", "lod", "geom", "n_triangles", "min_height", "height", "height_source", "volume_m3",
     "semantics", "roof_shape", "roof_height", "roof_engine", "ground_area_m2", "wall_area_m2", "roof_area_m2",
@@ -186,28 +166,31 @@ def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, b
             note)
 
 
-def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
-    """Mesh rows, rejects and diagnostics for a batch of rows of _SELECT. Pure apart from its inputs."""
+def build_batch(rows: list[dict[str, Any]], settings: Settings, srid: int) -> Batch:
+    """Mesh rows, rejects and diagnostics for a batch of rows of lod.building_input (dicts by column name).
+    Pure apart from its inputs."""
     out = Batch()
     drawn = []
     for r in rows:
-        if r[10] is None:  # an outline whose parts leave only slivers: drawn by its parts
+        if r["footprint"] is None:  # an outline whose parts leave only slivers: drawn by its parts
             out.hidden += 1
-            out.diagnostics.append((r[1], r[2], "outline_hidden_by_parts",
+            out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_hidden_by_parts",
                                     "the parts leave only slivers (< 1 m²) of the outline uncovered"))
             continue
-        if r[11]:
-            out.diagnostics.append((r[1], r[2], "outline_reduced_by_parts",
-                                    f"parts cover {100 * (r[12] or 0):.0f}% of the outline; the rest is drawn"))
+        if r["has_parts"]:
+            out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_reduced_by_parts",
+                                    f"parts cover {100 * (r['part_coverage'] or 0):.0f}% of the outline; "
+                                    "the rest is drawn"))
         drawn.append(r)
     if not drawn:
         return out
     t0 = time.perf_counter()
-    cols = list(zip(*drawn, strict=True))
-    osm_types, osm_ids = cols[1], cols[2]
-    ids = np.asarray(cols[0], dtype=np.int64)
-    hs = heights_mod.resolve(cols[4], cols[5], cols[6], cols[7], cols[8], cols[9], cols[3], settings)
-    geoms = shapely.from_wkb(list(cols[10]))
+    cols = {k: [r[k] for r in drawn] for k in drawn[0]}  # column name -> values, in batch order
+    osm_types, osm_ids = cols["osm_type"], cols["osm_id"]
+    ids = np.asarray(cols["id"], dtype=np.int64)
+    hs = heights_mod.resolve(cols["height"], cols["min_height"], cols["levels"], cols["min_level"],
+                             cols["roof_levels"], cols["roof_height"], cols["building"], settings)
+    geoms = shapely.from_wkb(cols["footprint"])
     out.rejects += [
         (osm_types[k], osm_ids[k], "min_height_ge_height", f"height {hs.top[k]:g} m <= bottom {hs.bottom[k]:g} m")
         for k in np.flatnonzero(hs.invalid)
@@ -242,11 +225,11 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
     engine = np.array(["flat"] * n, dtype=object)
     own: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # LOD2 differing from LOD1 (pitched, roof-only)
     # building:part=roof / building=roof: a roof without walls
-    roof_only = np.array([(cols[13][k] or "").lower() == "roof" or (cols[3][k] or "").lower() == "roof"
+    roof_only = np.array([(cols["part"][k] or "").lower() == "roof" or (cols["building"][k] or "").lower() == "roof"
                           for k in k_of.tolist()], dtype=bool)
     slabs = []  # flat roofs without walls: extruded together after the loop
     for j, k in enumerate(k_of.tolist()):
-        raw = cols[14][k]
+        raw = cols["roof_shape"][k]
         shape, known = roofs.canonical_shape(raw)
         ot, oi = osm_types[k], osm_ids[k]
         if not known:
@@ -256,7 +239,7 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
             if roof_only[j]:
                 slabs.append(j)
             continue
-        rh, rl, angle = cols[9][k], cols[8][k], cols[15][k]
+        rh, rl, angle = cols["roof_height"][k], cols["roof_levels"][k], cols["roof_angle"][k]
         # roof:height, else roof:angle (roof_surface), else roof:levels, else the shape's default pitch
         from_levels = rh is None and angle is None and rl is not None and rl > 0
         roof_tagged = float(rh) if rh is not None else (float(rl) * lh if from_levels else None)
@@ -269,12 +252,13 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
             out.diagnostics.append((ot, oi, "roof_height_clamped",
                                     f"roof height {roof_tagged:g} m exceeds the building's {top[j] - bottom[j]:g} m"))
         try:
-            direction = cols[16][k]
-            roof_geom = geoms[k] if cols[19][k] is None else shapely.from_wkb(cols[19][k])
+            direction = cols["roof_direction"][k]
+            roof_wkb = cols["roof_footprint"][k]
+            roof_geom = geoms[k] if roof_wkb is None else shapely.from_wkb(roof_wkb)
             tri, sem, h, t2, eng, note = _pitched_solid(
-                roof_geom, cols[18][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
+                roof_geom, cols["skeleton"][k], shape, float(bottom[j]), float(top[j]), roof_tagged, included,
                 None if angle is None else float(angle), None if direction is None else float(direction),
-                cols[17][k], bool(roof_only[j]))
+                cols["roof_orientation"][k], bool(roof_only[j]))
             own[j] = (tri, sem)
             roof_h[j], top2[j], shape_used[j], engine[j] = h, t2, shape, eng
             out.pitched += 1
@@ -328,7 +312,8 @@ def build_batch(rows: list[tuple], settings: Settings, srid: int) -> Batch:
     keep[keep] &= ~roof_only[w_owner[keep]]
     w_owner = w_owner[keep]
     eave = top2 - roof_h
-    storeys = (heights_mod.floats(cols[6]) - np.nan_to_num(heights_mod.floats(cols[7])))[k_of]  # NaN: untagged
+    # NaN: untagged
+    storeys = (heights_mod.floats(cols["levels"]) - np.nan_to_num(heights_mod.floats(cols["min_level"])))[k_of]
     params = FacadeParams(level_height=lh, style=settings.lod3_openings)
     fac = facades(w.a[keep], w.b[keep], w_owner, bottom[w_owner], eave[w_owner], storeys[w_owner],
                   (bottom < 0.5)[w_owner], w.exterior[keep], n, params)
@@ -422,14 +407,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
         cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")
         total = cur.execute("SELECT count(*) FROM osm.building").fetchone()[0]  # type: ignore[index]
-        cur.execute(_HIDDEN, {"c": coverage})
-        hidden = cur.rowcount
+        hidden = cur.execute("CALL lod.diagnose_hidden_outlines(%s, NULL)", (coverage,)).fetchone()[0]  # type: ignore[index]
         progress.total = total - hidden
-        with reader.cursor(name="lod_input") as src:
+        with reader.cursor(name="lod_input", row_factory=dict_row) as src:
             src.itersize = BATCH
-            src.execute(_SELECT, {"coverage": coverage, "skeleton": _SKELETON_VALUES})
-            cur.execute("CREATE TEMP TABLE _lod_reject (osm_type char(1), osm_id bigint, reason text, detail text)"
-                        " ON COMMIT DROP")
+            src.execute("SELECT * FROM lod.building_input(%s, %s)", (coverage, _SKELETON_VALUES))
             # The database parses and indexes a batch (COPY) while Python builds the next: two cores busy.
             pending: queue.Queue[Batch | None] = queue.Queue(maxsize=2)
             failure: list[BaseException] = []
@@ -443,10 +425,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                             copy.set_types(list(COPY_TYPES))
                             for m in b.meshes:
                                 copy.write_row(m)
-                        if b.rejects:
-                            with cur.copy("COPY _lod_reject (osm_type, osm_id, reason, detail) FROM STDIN") as copy:
-                                for r in b.rejects:
-                                    copy.write_row(r)
+                        if b.rejects:  # few: with their tags and footprint, so nothing is lost
+                            cur.execute("CALL lod.store_rejects(%s, %s, %s, %s)",
+                                        [list(c) for c in zip(*b.rejects, strict=True)])
                         if b.diagnostics:
                             with cur.copy("COPY meta.diagnostic (stage, osm_type, osm_id, code, detail) FROM STDIN"
                                           ) as copy:
@@ -480,12 +461,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                 writer.join()
             if failure:
                 raise failure[0]
-            # rejects keep the building's tags and footprint, so nothing is lost
-            cur.execute(
-                """INSERT INTO osm.reject (osm_type, osm_id, stage, reason, detail, tags, geom)
-                   SELECT r.osm_type, r.osm_id, 'lod', r.reason, r.detail, b.tags, b.geom
-                   FROM _lod_reject r JOIN osm.building b ON b.osm_type = r.osm_type AND b.osm_id = r.osm_id"""
-            )
         cur.execute("ANALYZE lod.building_mesh")
     if counts["buildings"] + counts["rejected"] + hidden != total:
         raise RuntimeError(

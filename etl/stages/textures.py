@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 import psycopg
+from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
 from core.db import connect
@@ -53,25 +54,10 @@ FORMAT = "webp"
 WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these pages (measured)
 BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.building ids
 
-_TILES = """
-SELECT level, x, y, gen_level, geometric_error, is_leaf, content_features FROM tiles.tile
-WHERE content_features > 0 ORDER BY level, x, y
-"""
-_FEATURES = """
-SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.levels, f.building_colour, f.roof_colour,
-       f.building_material, f.roof_material, f.gen_level, f.n_triangles, f.semantics, ST_AsBinary(f.geom)
-FROM api.buildings_for_tile(%s, %s, %s) f
-ORDER BY f.feature_kind, f.building_id
-"""
-_FEATURE_IDS = """
-SELECT f.feature_kind, f.building_id, f.osm_type, f.osm_id FROM api.buildings_for_tile(%s, %s, %s) f
-ORDER BY f.feature_kind, f.building_id
-"""
-# the LOD3 window and door panels of LOD2 features, to paint them where the leaves have them
-_LOD3 = """
-SELECT building_id, semantics, ST_AsBinary(geom) FROM lod.building_mesh
-WHERE lod = 3 AND building_id = ANY(%s) AND n_windows + n_doors > 0
-"""
+# The stage reads tex.tiles_to_texture (Tile rows), tex.tile_features (a tile's features, the same meshes in the
+# same triangle order as the exporter's) and tex.opening_meshes (sql/tex/), rows by column name.
+_FEATURES = "SELECT * FROM tex.tile_features(%s, %s, %s)"
+_FEATURE_IDS = "SELECT feature_kind, building_id, osm_type, osm_id FROM tex.tile_features(%s, %s, %s)"  # no meshes
 _PAGE_COLUMNS = ("level", "x", "y", "page_no", "format", "mime", "width", "height", "n_bytes", "bytes",
                  "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects")
 _PAGE_TYPES = ("int2", "int4", "int4", "int2", "text", "text", "int4", "int4", "int4", "bytea", "float4", "float4",
@@ -151,17 +137,23 @@ def units(tiles: list[Tile]) -> list[list[Tile]]:
     return sorted(out, key=lambda u: -sum(t.features for t in u))
 
 
-def _style(r: tuple) -> X.Style:
-    kind, bid, levels, bcol, rcol, bmat, rmat, gen_level = r[0], r[1], r[4], r[5], r[6], r[7], r[8], r[9]
-    key = BLOCK_KEY + int(bid) if kind == "block" else int(bid)
-    return X.Style.from_tags(key, bmat, bcol, rmat, rcol, levels, generic_openings=gen_level <= 2)
+#: A row of tex.tile_features, by column name.
+Feature = dict[str, Any]
 
 
-def _arrays(rows: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
+def _style(r: Feature) -> X.Style:
+    bid = int(r["building_id"])
+    key = BLOCK_KEY + bid if r["feature_kind"] == "block" else bid
+    return X.Style.from_tags(key, r["building_material"], r["building_colour"], r["roof_material"], r["roof_colour"],
+                             r["levels"], generic_openings=r["gen_level"] <= 2)
+
+
+def _arrays(rows: list[Feature]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
     tris, sems, counts = [], [], []
     for r in rows:
-        t = decode_triangles(r[12])
-        s = np.full(len(t), X.SEM_UNKNOWN, np.uint8) if r[11] is None else np.frombuffer(bytes(r[11]), np.uint8)
+        t = decode_triangles(r["mesh"])
+        s = (np.full(len(t), X.SEM_UNKNOWN, np.uint8) if r["semantics"] is None
+             else np.frombuffer(bytes(r["semantics"]), np.uint8))
         if len(s) != len(t):
             raise ValueError(f"{len(s)} semantics bytes for {len(t)} triangles")
         tris.append(t)
@@ -172,18 +164,20 @@ def _arrays(rows: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list
             np.concatenate(sems) if sems else np.zeros(0, np.uint8), counts)
 
 
-def _texture(rows: list[tuple], conn: psycopg.Connection, rho: float, params: X.Params,
+def _texture(rows: list[Feature], conn: psycopg.Connection, rho: float, params: X.Params,
              cache: X.ChartCache | None, store: bool) -> tuple[X.TileTexture, list[int]]:
     tri, feat, sem, counts = _arrays(rows)
     styles = [_style(r) for r in rows]
     # LOD2 features whose leaves were not textured in this unit: their openings from the LOD3 meshes
-    need = sorted({int(r[1]) for r, s in zip(rows, styles, strict=True)
-                   if r[9] == 3 and r[0] != "block" and (cache is None or s.key not in cache.buildings)})
+    lod2 = [r["gen_level"] == 3 and r["feature_kind"] != "block" for r in rows]
+    need = sorted({int(r["building_id"]) for r, s, is2 in zip(rows, styles, lod2, strict=True)
+                   if is2 and (cache is None or s.key not in cache.buildings)})
     extra = None
     if need:
-        index = {int(r[1]): i for i, r in enumerate(rows) if r[9] == 3 and r[0] != "block"}
+        index = {int(r["building_id"]): i for i, (r, is2) in enumerate(zip(rows, lod2, strict=True)) if is2}
         ot, of, os_ = [], [], []
-        for bid, s3, g3 in conn.execute(_LOD3, (need,)).fetchall():
+        for bid, s3, g3 in conn.execute("SELECT building_id, semantics, mesh FROM tex.opening_meshes(%s)",
+                                        (need,)).fetchall():
             t3 = decode_triangles(g3)
             s = np.frombuffer(bytes(s3), np.uint8) if s3 is not None else np.zeros(0, np.uint8)
             if len(s) != len(t3):
@@ -198,9 +192,16 @@ def _texture(rows: list[tuple], conn: psycopg.Connection, rho: float, params: X.
     return tt, counts
 
 
-def _failure(key: tuple[int, int, int], row: tuple, reason: str, detail: str) -> tuple:
-    """A tex.failure row (_FAIL_COLUMNS) of the feature whose _FEATURES / _FEATURE_IDS row starts with ``row``."""
-    return (*key, row[0], int(row[1]), row[2], int(row[3]), reason, detail[:2000])
+def _failure(key: tuple[int, int, int], row: Feature, reason: str, detail: str) -> tuple:
+    """A tex.failure row (_FAIL_COLUMNS) of the feature ``row`` (of tex.tile_features)."""
+    return (*key, row["feature_kind"], int(row["building_id"]), row["osm_type"], int(row["osm_id"]), reason,
+            detail[:2000])
+
+
+def _features(conn: psycopg.Connection, tile: Tile, query: str) -> list[Feature]:
+    """The rows of ``query`` (_FEATURES or _FEATURE_IDS) for ``tile``."""
+    with conn.cursor(row_factory=dict_row) as cur:
+        return cur.execute(query, (tile.level, tile.x, tile.y)).fetchall()  # type: ignore[arg-type]
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
@@ -212,7 +213,7 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     params = X.Params(page_size=settings.tex_page_size, padding=pad, packer=settings.tex_packer,
                       min_chart_texels=settings.tex_min_chart_texels,
                       xatlas_min_planes=settings.tex_xatlas_min_planes)
-    rows = conn.execute(_FEATURES, (tile.level, tile.x, tile.y)).fetchall()
+    rows = _features(conn, tile, _FEATURES)
     res.features = len(rows)
     key = (tile.level, tile.x, tile.y)
 
@@ -249,8 +250,8 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
         for j, i in enumerate(good):
             r = rows[i]
             sl = slice(off[j], off[j + 1])
-            res.uvs.append((*key, r[0], int(r[1]), int(counts[j]), tt.tri_page[sl].astype("<i2").tobytes(),
-                            tt.tri_uv[sl].astype("<f4").tobytes()))
+            res.uvs.append((*key, r["feature_kind"], int(r["building_id"]), int(counts[j]),
+                            tt.tri_page[sl].astype("<i2").tobytes(), tt.tri_uv[sl].astype("<f4").tobytes()))
         res.stats = tt.stats
     res.seconds = time.perf_counter() - t0
     return res
@@ -307,7 +308,7 @@ def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Sett
     for t in unit:
         rho, distance = resolution(t.geometric_error, settings)
         res = Result(t, rho, distance, padding_for(rho, settings))
-        rows = conn.execute(_FEATURE_IDS, (t.level, t.x, t.y)).fetchall()
+        rows = _features(conn, t, _FEATURE_IDS)
         res.features = len(rows)
         detail = f"the unit of tile {t.level}/{t.x}/{t.y}: {lost.detail}"
         res.failures = [_failure((t.level, t.x, t.y), r, f"texturing_{lost.reason}", detail) for r in rows]
@@ -321,12 +322,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         raise ValueError(f"tex_page_size must be a multiple of 4 in 16..{A.MAX_PAGE_SIZE}")
     if settings.tex_max_texels_per_metre <= 0:
         raise ValueError("tex_max_texels_per_metre must be > 0")
-    rows = conn.execute(_TILES).fetchall()
-    if not rows:
+    tiles = conn.cursor(row_factory=class_row(Tile)).execute("SELECT * FROM tex.tiles_to_texture()").fetchall()
+    if not tiles:
         raise RuntimeError("no tiles: run the tiles and generalize stages first (make tiles generalize)")
-    if any(r[4] is None for r in rows):
+    if any(t.geometric_error is None for t in tiles):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
-    tiles = [Tile(int(r[0]), int(r[1]), int(r[2]), int(r[3]), float(r[4]), bool(r[5]), int(r[6])) for r in rows]
     expected = sum(t.features for t in tiles)
     work = units(tiles)
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)

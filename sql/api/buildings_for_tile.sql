@@ -12,39 +12,14 @@
 -- tiles.building_tiles_below (GiST on the anchors, then quadtree arithmetic); protected buildings in the block
 -- bands through osm.building.protected. With single_lod = 1, 2 or 3 the hierarchy
 -- is ignored: leaves give every building at that LOD and inner tiles nothing (a single-LOD tileset, ADD).
+-- Rows are api.feature (migrations/0020_feature_type.sql, one definition for this and tiles.lod2_features).
 -- Meshes are POLYHEDRALSURFACE Z in the working CRS, z metres above ground; error_m bounds the distance to
 -- the full-detail LOD3 models. Blocks have osm_type 'B' and osm_id = gen.block.block_id.
 -- Example:
 --   SELECT feature_kind, lod, count(*), sum(n_triangles), max(error_m)
 --   FROM api.buildings_for_tile(0, 0, 0) GROUP BY 1, 2;
 CREATE OR REPLACE FUNCTION api.buildings_for_tile(level integer, x integer, y integer, single_lod integer DEFAULT NULL)
-RETURNS TABLE (
-    feature_kind      text,
-    building_id       bigint,
-    osm_type          text,
-    osm_id            bigint,
-    kind              text,
-    building_osm_type text,
-    building_osm_id   bigint,
-    name              text,
-    building          text,
-    height            real,
-    min_height        real,
-    levels            real,
-    roof_shape        text,
-    building_colour   text,
-    roof_colour       text,
-    building_material text,
-    roof_material     text,
-    lod               smallint,
-    gen_level         smallint,
-    n_members         integer,
-    error_m           real,
-    n_triangles       integer,
-    roof_height       real,
-    semantics         bytea,
-    geom              geometry
-)
+RETURNS SETOF api.feature  -- migrations/0020_feature_type.sql
 LANGUAGE plpgsql STABLE PARALLEL SAFE
 AS $$
 DECLARE

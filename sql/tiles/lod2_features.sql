@@ -2,37 +2,12 @@
 -- Every building and part below tile (level, x, y) at LOD2, its decimated mesh where decimation paid
 -- (gen.building_mesh, gen_level 3); with only_groups, just the buildings (outline ids, tiles.building_tile
 -- group_id) listed: the landmarks api.buildings_for_tile keeps at LOD2 in the coarser bands. One definition
--- for the LOD2 band and the landmarks, so the two never drift apart.
+-- for the LOD2 band and the landmarks, so the two never drift apart; rows are api.feature, as
+-- api.buildings_for_tile's. Inlined into its caller (LANGUAGE sql, STABLE, not STRICT).
 -- Example: SELECT feature_kind, count(*) FROM tiles.lod2_features(3, 4, 2) GROUP BY 1;
 CREATE OR REPLACE FUNCTION tiles.lod2_features(level integer, x integer, y integer,
                                                only_groups bigint[] DEFAULT NULL)
-RETURNS TABLE (
-    feature_kind      text,
-    building_id       bigint,
-    osm_type          text,
-    osm_id            bigint,
-    kind              text,
-    building_osm_type text,
-    building_osm_id   bigint,
-    name              text,
-    building          text,
-    height            real,
-    min_height        real,
-    levels            real,
-    roof_shape        text,
-    building_colour   text,
-    roof_colour       text,
-    building_material text,
-    roof_material     text,
-    lod               smallint,
-    gen_level         smallint,
-    n_members         integer,
-    error_m           real,
-    n_triangles       integer,
-    roof_height       real,
-    semantics         bytea,
-    geom              geometry
-)
+RETURNS SETOF api.feature  -- migrations/0020_feature_type.sql
 LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     SELECT b.kind, b.id, b.osm_type::text, b.osm_id, b.kind,

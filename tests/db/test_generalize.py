@@ -10,6 +10,7 @@ import psycopg
 import pytest
 
 from core.camera import Camera
+from core.geodesy import region_box
 from exporter.checks import check_tileset
 from exporter.traverse import select
 from tests.conftest import run_etl
@@ -348,6 +349,13 @@ def test_feature_spheres_bound_their_meshes(deep, conn_of) -> None:
         # never outside; the farthest vertex of a group near the sphere (at most radius / 1.002 at a box corner,
         # less when no vertex is at one: a roof apex)
         assert 0.5 < worst <= 1.0, (level, kind, worst, n)
+
+
+def test_tile_boxes_are_their_regions_boxes(deep, conn_of) -> None:
+    # tiles.set_boxes stores each tile's box where it belongs: exactly region_box of its own region
+    rows = conn_of(deep[0]).execute("SELECT region, box FROM tiles.tile ORDER BY level DESC, x DESC, y").fetchall()
+    assert len(rows) > 4 and all(b is not None for _, b in rows)
+    np.testing.assert_array_equal(np.array([b for _, b in rows]), region_box(np.array([r for r, _ in rows])))
 
 
 def test_the_walk_inlines_its_box_tests(deep, conn_of) -> None:

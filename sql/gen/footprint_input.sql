@@ -1,0 +1,46 @@
+-- gen.footprint_input(pin_m) -> one row per building (an outline with its parts), in id order
+-- What the generalize stage simplifies at level 2: every building of the tile quadtree (tiles.building_tile
+-- group_id) with its outline, the area-weighted height of its LOD2 meshes (the tallest one's where they have
+-- no area), the lowest bottom, its LOD2 triangles, whether LOD3 put openings on it, and the boundaries of
+-- the outlines within pin_m of it (their shared walls stay where they are).
+--   pin_m  distance (m) within which a neighbour's boundary pins vertices (etl.geom.simplify.PIN_DISTANCE)
+-- Streamed by a server-side cursor: LANGUAGE sql, STABLE and not STRICT, so the planner inlines it into the
+-- caller's query and it plans as that query would; a non-inlined set-returning function would be
+-- materialized whole before its first row.
+-- Example: SELECT group_id, top, bottom, n_triangles_in, openings FROM gen.footprint_input(0.1) LIMIT 5;
+CREATE OR REPLACE FUNCTION gen.footprint_input(pin_m double precision)
+RETURNS TABLE (
+    group_id       bigint,
+    footprint      bytea,
+    top            double precision,
+    bottom         real,
+    n_triangles_in bigint,
+    openings       boolean,
+    pinned         bytea
+)
+LANGUAGE sql STABLE PARALLEL SAFE
+AS $$
+    SELECT o.id, ST_AsBinary(o.geom_local), coalesce(s.height, s.hmax), s.min_height, s.n_in, s.openings,
+           ST_AsBinary(nb.fixed)
+    FROM (
+        SELECT bt.group_id,
+               sum(m.height * m.ground_area_m2) FILTER (WHERE m.lod = 2)
+                   / nullif(sum(m.ground_area_m2) FILTER (WHERE m.lod = 2), 0) AS height,
+               max(m.height) AS hmax, min(m.min_height) AS min_height,
+               sum(m.n_triangles) FILTER (WHERE m.lod = 2) AS n_in,
+               bool_or(m.n_windows + m.n_doors > 0) FILTER (WHERE m.lod = 3) AS openings
+        FROM tiles.building_tile bt
+        JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod IN (2, 3)
+        GROUP BY bt.group_id
+    ) s
+    JOIN osm.building o ON o.id = s.group_id
+    LEFT JOIN LATERAL (
+        SELECT ST_Collect(ST_Boundary(n.geom_local)) AS fixed
+        FROM osm.building n
+        WHERE n.geom_local && ST_Expand(o.geom_local, $1) AND n.id <> o.id AND n.parent_id IS NULL
+          AND ST_DWithin(n.geom_local, o.geom_local, $1)
+    ) nb ON true
+    ORDER BY o.id
+$$;
+COMMENT ON FUNCTION gen.footprint_input(double precision) IS
+    'Buildings (outline + parts) for the level-2 footprints: outline (WKB), area-weighted LOD2 height, bottom, LOD2 triangles, LOD3 openings, neighbours'' boundaries within pin_m (WKB); id order. Example: SELECT * FROM gen.footprint_input(0.1) LIMIT 5;';
