@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -236,3 +237,15 @@ def node_bin() -> str:
     assert node, "node is not installed (make setup installs the npm tools; Node.js comes with the base image)"
     assert (REPO / "node_modules" / "gltf-validator").exists(), "npm tools missing: run make setup"
     return node
+
+
+def validate_glb(path: Path) -> dict:
+    """The Khronos glTF-Validator (tests/js/validate_glb.mjs) over a glb or every glb under a directory: its
+    summary {files, errors, warnings, infos, hints, reports: the first files with errors or warnings}."""
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(path)], capture_output=True,
+                          text=True)
+    assert proc.stdout.strip(), f"glTF-Validator gave no report (exit {proc.returncode}):\n{proc.stderr}"
+    report = json.loads(proc.stdout)
+    assert report["files"] > 0, f"no glb under {path}"
+    assert proc.returncode == (1 if report["errors"] else 0), proc.stderr
+    return report

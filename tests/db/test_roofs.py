@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-
 import numpy as np
 import pytest
 import trimesh
@@ -15,7 +12,7 @@ from etl.geom import roofs
 from exporter.checks import check_tileset
 from exporter.content import WINDOW_RGBA, srgb_to_linear16
 from exporter.gltf import accessor_array, property_table, read_glb
-from tests.conftest import REPO, node_bin, run_etl
+from tests.conftest import run_etl, validate_glb
 
 
 @pytest.fixture()
@@ -115,9 +112,7 @@ def test_export_lod_option(city, conn_of, tmp_path, lod) -> None:
     c = city("roofs")
     out = tmp_path / f"lod{lod}"
     run_etl(c.url, "export", "--out", str(out), "--lod", str(lod))
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,
-                          text=True)
-    report = json.loads(proc.stdout)
+    report = validate_glb(out)
     assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
     stored = conn_of(c.url).execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = %s",

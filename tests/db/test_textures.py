@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import hashlib
 import http.client
-import json
-import subprocess
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -25,7 +23,7 @@ from etl.geom import atlas as A
 from exporter.checks import check_tileset
 from exporter.gltf import read_glb
 from exporter.serve import make_db_server, reader_url, server_url
-from tests.conftest import REPO, SHARED, node_bin, run_etl
+from tests.conftest import SHARED, run_etl, validate_glb
 
 S = Settings()
 
@@ -143,9 +141,7 @@ def test_a_second_run_gives_the_same_bytes(textured, conn_of) -> None:
 def test_export_validates_with_one_material_per_page(textured, conn_of) -> None:
     url, out, _ = textured
     conn = conn_of(url)
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,
-                          text=True)
-    report = json.loads(proc.stdout)
+    report = validate_glb(out)
     assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
     n_pages = dict(((r[0], r[1], r[2]), r[3]) for r in conn.execute(
