@@ -14,6 +14,7 @@ PORT   ?= 8765
 HOST   ?= 127.0.0.1
 
 SETUP_PY   := $(VENV)/.installed
+SETUP_REPORTS := $(VENV)/.installed-reports
 SETUP_NODE := node_modules/.installed
 
 .PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
@@ -32,13 +33,18 @@ $(SETUP_PY): pyproject.toml constraints.txt
 	$(PY) -m pip install -q -c constraints.txt -e '.[dev]'
 	touch $@
 
+# matplotlib (the optional `reports` extra): only the benchmark reports and their tests draw plots.
+$(SETUP_REPORTS): $(SETUP_PY)
+	$(PY) -m pip install -q -c constraints.txt -e '.[dev,reports]'
+	touch $@
+
 $(SETUP_NODE): package.json package-lock.json
 	npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
 setup: $(SETUP_PY) $(SETUP_NODE) ## install PostgreSQL/PostGIS, the Python venv and the npm tools
 
-setup-test: setup
+setup-test: setup $(SETUP_REPORTS) ## setup, plus Chromium and what the report tests plot with
 	scripts/install-system.sh test
 
 # --- database ------------------------------------------------------------------------------------------------
@@ -112,7 +118,7 @@ test: setup-test ## run every test (ruff, unit, real PostGIS, validators, Cesium
 	$(PY) -m ruff check etl exporter tests benchmarks
 	$(PY) -m pytest tests
 
-test-unit: $(SETUP_PY) ## only the pure tests (no database)
+test-unit: $(SETUP_REPORTS) ## only the pure tests (no database)
 	$(PY) -m pytest tests/unit
 
 lint: $(SETUP_PY) ## ruff
@@ -122,13 +128,13 @@ bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsq
 	scripts/install-system.sh bench
 	$(PY) -m benchmarks.bench --write BENCHMARKS.md
 
-report-generalization: $(SETUP_PY) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
+report-generalization: $(SETUP_REPORTS) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
 	$(PY) -m benchmarks.report_generalization --out build/reports $(if $(EXTRACTS),--extracts $(EXTRACTS))
 
-report-saliency: $(SETUP_PY) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*
+report-saliency: $(SETUP_REPORTS) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*
 	$(PY) -m benchmarks.report_saliency --out build/reports
 
-report-textures: $(SETUP_PY) ## [DATABASE_URL=url] atlas utilization, pages and bytes per level, draw calls vs one texture per building, xatlas vs shelf -> build/reports/textures.*
+report-textures: $(SETUP_REPORTS) ## [DATABASE_URL=url] atlas utilization, pages and bytes per level, draw calls vs one texture per building, xatlas vs shelf -> build/reports/textures.*
 	$(PY) -m benchmarks.report_textures --out build/reports
 
 clean: ## remove build outputs (keeps the database, venv and downloads)
