@@ -18,7 +18,7 @@ SETUP_REPORTS := $(VENV)/.installed-reports
 SETUP_NODE := node_modules/.installed
 
 .PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
-        test-unit bench report-generalization report-saliency report-textures lint clean distclean
+        test-unit test-extracts bench report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -114,15 +114,19 @@ demo: ## everything on Helsinki: install, database, every stage not yet current 
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------
-test: setup-test ## run every test (ruff, unit, real PostGIS, validators, CesiumJS in headless Chromium)
-	$(PY) -m ruff check etl exporter tests benchmarks
-	$(PY) -m pytest tests
+# make test needs no data but what it fetches (Helsinki) or writes (tests/fixtures): the same tests everywhere.
+test: setup-test data/Helsinki.osm.pbf ## every test but the extract tier (ruff, unit, real PostGIS, validators, CesiumJS)
+	$(PY) -m ruff check core etl exporter tests benchmarks
+	$(PY) -m pytest tests -m "not extracts"
 
-test-unit: $(SETUP_REPORTS) ## only the pure tests (no database)
-	$(PY) -m pytest tests/unit
+test-extracts: setup-test data/Helsinki.osm.pbf ## the tests on the shared OSM extracts (../shared/data/osm or CITYLOD_SHARED_DATA)
+	$(PY) -m pytest tests -m extracts
+
+test-unit: $(SETUP_REPORTS) ## only the pure tests (no database, no browser)
+	$(PY) -m pytest tests -m "not db"
 
 lint: $(SETUP_PY) ## ruff
-	$(PY) -m ruff check etl exporter tests benchmarks
+	$(PY) -m ruff check core etl exporter tests benchmarks
 
 bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md
 	scripts/install-system.sh bench
