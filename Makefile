@@ -122,7 +122,7 @@ test: setup-test data/Helsinki.osm.pbf ## every test but the extract tier (ruff,
 test-extracts: setup-test data/Helsinki.osm.pbf ## the tests on the shared OSM extracts (../shared/data/osm or CITYLOD_SHARED_DATA)
 	$(PY) -m pytest tests -m extracts
 
-test-unit: $(SETUP_REPORTS) ## only the pure tests (no database, no browser)
+test-unit: $(SETUP_REPORTS) $(SETUP_NODE) ## only the pure tests (no database, no browser; the glTF-Validator is an npm tool)
 	$(PY) -m pytest tests -m "not db"
 
 lint: $(SETUP_PY) ## ruff
