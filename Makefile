@@ -14,10 +14,11 @@ PORT   ?= 8765
 HOST   ?= 127.0.0.1
 
 SETUP_PY   := $(VENV)/.installed
+SETUP_REPORTS := $(VENV)/.installed-reports
 SETUP_NODE := node_modules/.installed
 
 .PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
-        test-unit bench report-generalization report-saliency report-textures lint clean distclean
+        test-unit test-extracts bench report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -32,13 +33,18 @@ $(SETUP_PY): pyproject.toml constraints.txt
 	$(PY) -m pip install -q -c constraints.txt -e '.[dev]'
 	touch $@
 
+# matplotlib (the optional `reports` extra): only the benchmark reports and their tests draw plots.
+$(SETUP_REPORTS): $(SETUP_PY)
+	$(PY) -m pip install -q -c constraints.txt -e '.[dev,reports]'
+	touch $@
+
 $(SETUP_NODE): package.json package-lock.json
 	npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
 setup: $(SETUP_PY) $(SETUP_NODE) ## install PostgreSQL/PostGIS, the Python venv and the npm tools
 
-setup-test: setup
+setup-test: setup $(SETUP_REPORTS) ## setup, plus Chromium and what the report tests plot with
 	scripts/install-system.sh test
 
 # --- database ------------------------------------------------------------------------------------------------
@@ -108,27 +114,31 @@ demo: ## everything on Helsinki: install, database, every stage not yet current 
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------
-test: setup-test ## run every test (ruff, unit, real PostGIS, validators, CesiumJS in headless Chromium)
-	$(PY) -m ruff check etl exporter tests benchmarks
-	$(PY) -m pytest tests
+# make test needs no data but what it fetches (Helsinki) or writes (tests/fixtures): the same tests everywhere.
+test: setup-test data/Helsinki.osm.pbf ## every test but the extract tier (ruff, unit, real PostGIS, validators, CesiumJS)
+	$(PY) -m ruff check core etl exporter tests benchmarks
+	$(PY) -m pytest tests -m "not extracts"
 
-test-unit: $(SETUP_PY) ## only the pure tests (no database)
-	$(PY) -m pytest tests/unit
+test-extracts: setup-test data/Helsinki.osm.pbf ## the tests on the shared OSM extracts (../shared/data/osm or CITYLOD_SHARED_DATA)
+	$(PY) -m pytest tests -m extracts
+
+test-unit: $(SETUP_REPORTS) $(SETUP_NODE) ## only the pure tests (no database, no browser; the glTF-Validator is an npm tool)
+	$(PY) -m pytest tests -m "not db"
 
 lint: $(SETUP_PY) ## ruff
-	$(PY) -m ruff check etl exporter tests benchmarks
+	$(PY) -m ruff check core etl exporter tests benchmarks
 
 bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md
 	scripts/install-system.sh bench
 	$(PY) -m benchmarks.bench --write BENCHMARKS.md
 
-report-generalization: $(SETUP_PY) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
+report-generalization: $(SETUP_REPORTS) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
 	$(PY) -m benchmarks.report_generalization --out build/reports $(if $(EXTRACTS),--extracts $(EXTRACTS))
 
-report-saliency: $(SETUP_PY) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*
+report-saliency: $(SETUP_REPORTS) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*
 	$(PY) -m benchmarks.report_saliency --out build/reports
 
-report-textures: $(SETUP_PY) ## [DATABASE_URL=url] atlas utilization, pages and bytes per level, draw calls vs one texture per building, xatlas vs shelf -> build/reports/textures.*
+report-textures: $(SETUP_REPORTS) ## [DATABASE_URL=url] atlas utilization, pages and bytes per level, draw calls vs one texture per building, xatlas vs shelf -> build/reports/textures.*
 	$(PY) -m benchmarks.report_textures --out build/reports
 
 clean: ## remove build outputs (keeps the database, venv and downloads)

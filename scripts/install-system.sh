@@ -28,6 +28,23 @@ if [ "$(id -u)" -ne 0 ]; then
   SUDO="sudo"
 fi
 export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
+# A freshly booted machine often runs apt-daily or unattended-upgrades: wait for their locks instead of failing.
+# DPkg::Lock::Timeout covers dpkg's locks (install); apt-get update's /var/lib/apt/lists/lock it does not
+# (apt 2.6), so a run that could not get a lock is retried until the same deadline.
+LOCK_WAIT_S="${CITYLOD_APT_LOCK_WAIT_S:-900}"
+apt_get() {
+  local deadline=$((SECONDS + LOCK_WAIT_S)) err
+  err=$(mktemp)
+  until $SUDO apt-get -o DPkg::Lock::Timeout="$LOCK_WAIT_S" "$@" 2>"$err"; do
+    if grep -q 'Could not get lock' "$err" && [ "$SECONDS" -lt "$deadline" ]; then
+      echo "apt-get $1: another apt holds its lock ($(grep -m1 -o 'held by process.*' "$err" || echo '?')); waiting" >&2
+      sleep 10
+    else
+      cat "$err" >&2; rm -f "$err"; return 1
+    fi
+  done
+  cat "$err" >&2; rm -f "$err"
+}
+apt_get update -qq
+apt_get install -y -qq "${missing[@]}" >/dev/null
 # The Debian package creates and starts a system cluster on 5432; citylod runs its own under var/pg.

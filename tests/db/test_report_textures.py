@@ -1,4 +1,4 @@
-"""make report-textures on a textured city (test_textures' Munich fixture, built for this module): the files are
+"""make report-textures on a textured city (test_textures' Helsinki fixture, built for this module): the files are
 written, utilization is tex.page's texel-weighted value, the draw calls per tile are the exported glbs'
 primitives, atlases never need more draw calls than one texture per building, both packers place every real
 chart, and bench.py's Textures section renders from the same figures."""
@@ -14,11 +14,11 @@ import pytest
 from benchmarks import bench
 from benchmarks import report_textures as rt
 from exporter.gltf import read_glb
-from tests.db.test_textures import textured  # noqa: F401 -- the module fixture: Munich through textures, exported
+from tests.db.test_textures import textured  # noqa: F401 -- the module fixture: Helsinki through textures, exported
 
 
 @pytest.mark.db
-def test_report_textures_on_munich(textured, conn_of, tmp_path) -> None:  # noqa: F811
+def test_report_textures_on_helsinki(textured, conn_of, tmp_path) -> None:  # noqa: F811
     url, out, counts = textured
     assert rt.main(["--db", url, "--out", str(tmp_path), "--packer-tiles", "3", "--max-encode", "300"]) == 0
     for name in ("textures.md", "textures.json", "textures.png"):

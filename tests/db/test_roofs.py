@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-
 import numpy as np
 import pytest
 import trimesh
@@ -15,7 +12,7 @@ from etl.geom import roofs
 from exporter.checks import check_tileset
 from exporter.content import WINDOW_RGBA, srgb_to_linear16
 from exporter.gltf import accessor_array, property_table, read_glb
-from tests.conftest import REPO, node_bin, run_etl
+from tests.conftest import run_etl, validate_glb
 
 
 @pytest.fixture()
@@ -93,13 +90,20 @@ def test_lod3_adds_windows_and_doors(gallery) -> None:
         assert (sem3 == 3).sum() == 2 * n_win and (sem3 == 4).sum() == 2 * n_door, ref
 
 
-@pytest.mark.parametrize("name", ["munich", "london"])
-def test_real_extract_lod2_watertight(city, conn_of, name) -> None:
+@pytest.mark.parametrize(("name", "min_pitched", "shapes"), [  # pitched: Helsinki 23, London 54, Munich 387
+    ("helsinki", 20, {"flat", "gabled", "hipped", "pyramidal", "dome", "round", "gambrel"}),
+    pytest.param("munich", 50, {"flat", "gabled", "hipped", "pyramidal", "dome", "skillion", "onion", "gambrel"},
+                 marks=pytest.mark.extracts),
+    pytest.param("london", 50, {"flat", "gabled", "hipped", "pyramidal", "dome", "mansard", "gambrel"},
+                 marks=pytest.mark.extracts)], ids=["helsinki", "munich", "london"])
+def test_real_extract_lod2_watertight(city, conn_of, name, min_pitched, shapes) -> None:
     conn = conn_of(city(name).url)
     total, closed, pitched = conn.execute(
         """SELECT count(*), count(*) FILTER (WHERE watertight AND winding_consistent AND volume_m3 > 0),
                   count(*) FILTER (WHERE roof_shape <> 'flat') FROM lod.building_mesh WHERE lod = 2""").fetchone()
-    assert pitched > 50  # real roofs were built, not all flattened
+    assert pitched > min_pitched  # real roofs were built, not all flattened
+    drawn = {r[0] for r in conn.execute("SELECT DISTINCT roof_shape FROM lod.building_mesh WHERE lod = 2")}
+    assert shapes <= drawn  # the city's tagged shapes, each drawn as itself
     assert closed / total >= 0.995
     # roofs that could not be built are drawn flat (and closed): they must stay rare among pitched ones
     fallbacks = conn.execute("SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'roof_fallback'"
@@ -115,9 +119,7 @@ def test_export_lod_option(city, conn_of, tmp_path, lod) -> None:
     c = city("roofs")
     out = tmp_path / f"lod{lod}"
     run_etl(c.url, "export", "--out", str(out), "--lod", str(lod))
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,
-                          text=True)
-    report = json.loads(proc.stdout)
+    report = validate_glb(out)
     assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
     stored = conn_of(c.url).execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = %s",

@@ -1,4 +1,4 @@
-"""Stage textures on a real city (Munich Altstadt): bounded pages, a UV for every corner of every textured
+"""Stage textures on a real city (the Helsinki demo extract): bounded pages, a UV for every corner of every textured
 feature inside its chart, utilization as stored, coarser tiles with fewer texels per metre, the same bytes on
 a second run, features in = textured + failed; and the export: glTF-Validator 0 errors, one material per
 atlas page (not per building), the DB server's bytes the file's, windows where the LOD3 panels are."""
@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import hashlib
 import http.client
-import json
-import subprocess
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -25,19 +23,19 @@ from etl.geom import atlas as A
 from exporter.checks import check_tileset
 from exporter.gltf import read_glb
 from exporter.serve import make_db_server, reader_url, server_url
-from tests.conftest import REPO, SHARED, node_bin, run_etl
+from tests.conftest import helsinki, run_etl, validate_glb
 
 S = Settings()
 
 
 @pytest.fixture(scope="module")
 def textured(new_db: Callable[[str], str], tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Path, dict]:
-    """Munich through every stage, textures included, exported: (url, tileset dir, the textures run's counts)."""
+    """Helsinki through every stage, textures included, exported: (url, tileset dir, the textures run's counts)."""
     url = new_db("textures")
-    run_etl(url, "ingest", "--osm", str(SHARED / "munich_altstadt.osm.pbf"))
+    run_etl(url, "ingest", "--osm", str(helsinki()))
     for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
         run_etl(url, stage)
-    out = tmp_path_factory.mktemp("textures") / "munich"
+    out = tmp_path_factory.mktemp("textures") / "helsinki"
     run_etl(url, "export", "--out", str(out))
     with psycopg.connect(url) as conn:
         counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
@@ -143,9 +141,7 @@ def test_a_second_run_gives_the_same_bytes(textured, conn_of) -> None:
 def test_export_validates_with_one_material_per_page(textured, conn_of) -> None:
     url, out, _ = textured
     conn = conn_of(url)
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(out)], capture_output=True,
-                          text=True)
-    report = json.loads(proc.stdout)
+    report = validate_glb(out)
     assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
     n_pages = dict(((r[0], r[1], r[2]), r[3]) for r in conn.execute(

@@ -28,8 +28,9 @@ TRIANGLES = 3_000  # below what 60 features hold at LOD3 (~200 triangles each), 
 
 @pytest.fixture(scope="module")
 def small_budget(city, new_db):
-    """Munich tiled with a budget of 60 features and 3,000 triangles per tile, to get a deep tree."""
-    src = city("munich")
+    """Helsinki (572 buildings and parts) tiled with a budget of 60 features and 3,000 triangles per tile, to get
+    a deep tree."""
+    src = city("helsinki")
     url = new_db("tiles_budget")
     run_etl(url, "ingest", "--osm", str(src.osm))
     run_etl(url, "lod")

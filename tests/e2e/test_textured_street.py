@@ -1,4 +1,4 @@
-"""A textured street in CesiumJS: Munich exported with and without the textures stage, the same street-level
+"""A textured street in CesiumJS: Helsinki exported with and without the textures stage, the same street-level
 camera in headless Chromium (tests/e2e/lod_views_e2e.mjs), screenshots in build/test/textures/. The textured
 picture must show texture detail where the plain one has flat faces (luminance varying inside the faces and
 window panels of the plain picture); CesiumJS must load every textured tile without an error (EXT_texture_webp,
@@ -18,7 +18,7 @@ import pytest
 from scipy import ndimage
 
 from etl.geom.atlas import openimageio
-from tests.conftest import BUILD, SHARED, run_etl
+from tests.conftest import BUILD, helsinki, run_etl
 from tests.e2e.test_viewer import CHROMIUM, REPO, run_driver, served
 
 DRIVER = REPO / "tests" / "e2e" / "lod_views_e2e.mjs"
@@ -88,7 +88,7 @@ def detail_within_faces(plain: np.ndarray, other: np.ndarray) -> tuple[float, fl
 def test_textured_street_shows_texture_detail(new_db: Callable[[str], str], tmp_path: Path) -> None:
     assert CHROMIUM.exists(), f"Chromium not found at {CHROMIUM}: run scripts/install-system.sh test"
     url = new_db("textured_street")
-    run_etl(url, "ingest", "--osm", str(SHARED / "munich_altstadt.osm.pbf"))
+    run_etl(url, "ingest", "--osm", str(helsinki()))
     for stage in ("lod", "landmarks", "tiles", "generalize"):
         run_etl(url, stage)
     plain, textured = tmp_path / "plain", tmp_path / "textured"
@@ -97,7 +97,7 @@ def test_textured_street_shows_texture_detail(new_db: Callable[[str], str], tmp_
     run_etl(url, "export", "--out", str(textured))
     with psycopg.connect(url) as conn:
         row = conn.execute(STREET_CAMERA, {"d": DISTANCE}).fetchone()
-    assert row, "no wall in Munich faces open space"
+    assert row, "no wall in Helsinki faces open space"
     _, _, nx, ny, lon, lat = row
     heading = math.degrees(math.atan2(-nx, -ny)) % 360  # looking back at the wall (compass: east of north)
     shots = {}

@@ -1,4 +1,4 @@
-"""The viewer end to end: `python -m exporter serve` on the real Munich tileset, CesiumJS in headless Chromium
+"""The viewer end to end: `python -m exporter serve` on the real Helsinki tileset, CesiumJS in headless Chromium
 (tests/e2e/viewer_e2e.mjs) loads it offline, clicks a known building and must read back its OSM id.
 
 Also the server alone (no browser): media types, CORS, 404s and refused path traversal.
@@ -24,7 +24,7 @@ from exporter.serve import spawned
 
 REPO = Path(__file__).resolve().parents[2]
 DRIVER = REPO / "tests" / "e2e" / "viewer_e2e.mjs"
-SCREENSHOT = REPO / "build" / "screenshots" / "viewer_munich.png"
+SCREENSHOT = REPO / "build" / "screenshots" / "viewer_helsinki.png"
 CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
 
 # The largest tall-ish, roughly convex, standalone building, with no other building within 3 m of the point
@@ -78,7 +78,7 @@ def raw_get(base: str, path: str, method: str = "GET") -> tuple[int, dict[str, s
 
 @pytest.mark.db
 def test_server_routes(city: Callable, tmp_path: Path) -> None:
-    tiles = city("munich").tiles
+    tiles = city("helsinki").tiles
     glb = next(tiles.rglob("*.glb")).relative_to(tiles).as_posix()
     with served(tiles) as (base, proc):
         status, headers, body = raw_get(base, f"/tiles/{glb}")
@@ -127,15 +127,15 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
 
     from core.settings import Settings
 
-    munich = city("munich")
-    row = conn_of(munich.url).execute(PICK_TARGET).fetchone()
-    assert row, "no building in Munich fits the pick-target query"
+    helsinki = city("helsinki")
+    row = conn_of(helsinki.url).execute(PICK_TARGET).fetchone()
+    assert row, "no building in Helsinki fits the pick-target query"
     osm_type, osm_id, lon, lat, height = row
     top = Settings.from_env().base_height_m + float(height)  # the roof, metres above the ellipsoid
 
     SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
     SCREENSHOT.unlink(missing_ok=True)
-    with served(munich.tiles) as (base, _proc):
+    with served(helsinki.tiles) as (base, _proc):
         res, context = run_driver(DRIVER, [
             "--url", base, "--lon", repr(lon), "--lat", repr(lat), "--height", repr(top),
             "--screenshot", str(SCREENSHOT), "--expect-osm-id", str(osm_id)])
