@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -34,7 +35,7 @@ from exporter.server.paths import BadPath, tile_address
 from exporter.server.payload import Payload, accepts_gzip, etag_matches, make_payload
 from exporter.server.reader import READER_ROLE, reader_url
 from exporter.server.source import DbTileSource
-from tests.conftest import PREFIX, REPO, City, _with_db
+from tests.conftest import PREFIX, REPO, City, _with_db, run_etl
 
 BASE_HEIGHT = Settings.from_env().base_height_m
 
@@ -218,12 +219,12 @@ def fixtures_city(city: Callable[[str], City]) -> City:
     return city("fixtures")
 
 
-@pytest.fixture(scope="module")
-def outage_url(fixtures_city: City, server_url: str) -> Iterator[str]:
-    """A copy of the fixtures city's database, for the outage test to drop. Made before any server of this
-    module connects to the city's database (CREATE DATABASE ... TEMPLATE needs the source to be idle)."""
-    name = f"{PREFIX}_serve_outage"
-    src = psycopg.conninfo.conninfo_to_dict(fixtures_city.url)["dbname"]
+@contextmanager
+def city_copy(city: City, server_url: str, suffix: str) -> Iterator[str]:
+    """A copy of ``city``'s database (dropped after), for a test that drops or changes it. Made before any server
+    of this module connects to the city's database (CREATE DATABASE ... TEMPLATE needs the source to be idle)."""
+    name = f"{PREFIX}_serve_{suffix}"
+    src = psycopg.conninfo.conninfo_to_dict(city.url)["dbname"]
     with psycopg.connect(server_url, autocommit=True) as admin:
         admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
         deadline = time.monotonic() + 30
@@ -236,14 +237,30 @@ def outage_url(fixtures_city: City, server_url: str) -> Iterator[str]:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.5)
-    yield _with_db(server_url, name)
-    with psycopg.connect(server_url, autocommit=True) as admin:
-        admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
+    try:
+        yield _with_db(server_url, name)
+    finally:
+        with psycopg.connect(server_url, autocommit=True) as admin:
+            admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
 
 
 @pytest.fixture(scope="module")
-def db_server(fixtures_city: City, outage_url: str) -> Iterator[tuple[DbTileSource, str]]:
-    """The DB-mode server on the fixtures city, as the reader role (outage_url first: see there)."""
+def outage_url(fixtures_city: City, server_url: str) -> Iterator[str]:
+    """A copy of the fixtures city for the outage test to drop."""
+    with city_copy(fixtures_city, server_url, "outage") as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def rerun_url(fixtures_city: City, server_url: str) -> Iterator[str]:
+    """A copy of the fixtures city for the re-run test to change."""
+    with city_copy(fixtures_city, server_url, "rerun") as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def db_server(fixtures_city: City, outage_url: str, rerun_url: str) -> Iterator[tuple[DbTileSource, str]]:
+    """The DB-mode server on the fixtures city, as the reader role (the copies first: see city_copy)."""
     with running(reader_url(fixtures_city.url, environ={})) as s:
         yield s
 
@@ -476,6 +493,54 @@ def test_reader_migration_in_a_second_database(server_url: str) -> None:
     finally:
         with psycopg.connect(server_url, autocommit=True) as admin:
             admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
+
+
+@pytest.mark.db
+def test_a_pipeline_rerun_drops_the_cache(rerun_url: str, tmp_path: Path) -> None:
+    """Cached tiles are served until a pipeline run lands (the generation changes); then they are built again
+    from the database as it is now."""
+    with running(reader_url(rerun_url, environ={}), revalidate_s=0.0) as (server, base):
+        c = Client(base)
+        try:
+            status, _, js = c.get("/tiles/tileset.json")
+            assert status == 200
+            uri = max(content_uris(json.loads(js)), key=lambda u: int(u.split("/")[1]))  # a leaf: named buildings
+            status, _, before = c.get(f"/tiles/{uri}")
+            assert status == 200 and b"renamed by a re-run" not in before
+            builds = server.stats()["builds"]
+            with psycopg.connect(rerun_url) as admin:
+                admin.execute("UPDATE osm.building SET name = 'renamed by a re-run'")
+            # no run recorded yet: the cached bytes, not the database's
+            assert c.get(f"/tiles/{uri}")[2] == before and server.stats()["builds"] == builds
+
+            run_etl(rerun_url, "export", "--out", str(tmp_path / "tiles"))  # a real run: a new generation
+            status, _, after = c.get(f"/tiles/{uri}")
+            assert status == 200 and b"renamed by a re-run" in after
+            assert after == (tmp_path / "tiles" / uri).read_bytes(), "the rebuilt tile is the new export's"
+            assert server.stats()["builds"] == builds + 1
+        finally:
+            c.close()
+
+
+@pytest.mark.db
+def test_connections_killed_under_the_server_are_replaced(fixtures_city: City, server_url: str) -> None:
+    """A restart or a terminated backend kills the pooled connections: the next request is still answered, on a
+    fresh connection, not a 503."""
+    dbname = psycopg.conninfo.conninfo_to_dict(fixtures_city.url)["dbname"]
+    with running(reader_url(fixtures_city.url, environ={}), revalidate_s=0.0) as (server, base):
+        c = Client(base)
+        try:
+            for _ in range(3):
+                assert c.get("/tiles/tileset.json")[0] == 200
+                with psycopg.connect(server_url, autocommit=True) as admin:
+                    killed = admin.execute(
+                        "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity"
+                        " WHERE usename = %s AND datname = %s", (READER_ROLE, dbname)).fetchone()[0]
+                assert killed >= 1
+                status, _, body = c.get("/tiles/tileset.json")
+                assert status == 200, body[:300]
+        finally:
+            c.close()
 
 
 @pytest.mark.db
