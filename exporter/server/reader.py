@@ -15,7 +15,8 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from typing import TypeVar
 
 import psycopg
@@ -82,20 +83,28 @@ class Reader:
     def __init__(self, url: str, size: int, acquire_timeout: float = 30.0) -> None:
         self.conninfo = _conninfo(url)
         self.size = size
-        # min_size 1: an idle server keeps one connection, which is also how it notices an outage at once
+        # min_size 1: an idle server keeps one connection, which is also how it notices an outage at once.
+        # Opened by the first successful attempt, so that a server that cannot start does not retry in the back.
         self.pool: ConnectionPool[psycopg.Connection] = ConnectionPool(
             self.conninfo, min_size=1, max_size=size, kwargs={"autocommit": True}, configure=_configure,
-            timeout=acquire_timeout, reconnect_timeout=RECONNECT_TIMEOUT_S, name="citylod-reader", open=True)
+            timeout=acquire_timeout, reconnect_timeout=RECONNECT_TIMEOUT_S, name="citylod-reader", open=False)
         self._probe_lock = threading.Lock()
         # (monotonic time of the last failed attempt, its error); -inf: attempt at the next read
         self._down: tuple[float, str] | None = (-math.inf, "not connected yet")
+        self._opened = False
+
+    @contextmanager
+    def connection(self) -> Iterator[psycopg.Connection]:
+        """A pooled connection, once the database is known to be reachable (else DbUnavailable at once)."""
+        self._ensure_reachable()
+        with self.pool.connection() as conn:
+            yield conn
 
     def read(self, fn: Callable[[psycopg.Connection], T]) -> T:
         for attempt in (1, 2):
-            self._ensure_reachable()
             conn: psycopg.Connection | None = None
             try:
-                with self.pool.connection() as conn, conn.transaction():
+                with self.connection() as conn, conn.transaction():
                     return fn(conn)
             except PoolTimeout as e:
                 raise DbUnavailable("every database connection is busy") from e
@@ -124,8 +133,12 @@ class Reader:
             except psycopg.Error as e:
                 self._down = (time.monotonic(), one_line(e))
                 raise DbUnavailable(self._down[1]) from e
+            if self._opened:
+                self.pool.check()  # drop the idle connections that died with the outage
+            else:
+                self.pool.open()
+                self._opened = True
             self._down = None
-        self.pool.check()  # drop the idle connections that died with the outage
 
     def close(self) -> None:
         self.pool.close()

@@ -440,7 +440,7 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbT
 @pytest.mark.db
 def test_server_connection_cannot_write(db_server: tuple[DbTileSource, str], fixtures_city: City) -> None:
     server, _ = db_server
-    with server.reader.pool.connection() as conn:
+    with server.reader.connection() as conn:
         assert conn.execute("SELECT current_user").fetchone()[0] == READER_ROLE
         assert conn.execute("SHOW default_transaction_read_only").fetchone()[0] == "on"
         with pytest.raises(psycopg.errors.ReadOnlySqlTransaction), conn.transaction():
