@@ -71,6 +71,28 @@ STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "expo
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
                  "textures": "buildings", "export": "buildings"}
 SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
+# serve --db before and after exporter/serve.py (http.server, a hand-written pool) became exporter/server/
+# (Starlette on uvicorn, psycopg_pool), issue 16. make bench measures only the code it runs, so both are recorded
+# here: `python -m benchmarks.serve_bench --database-url URL` run from a checkout of each commit, alternately
+# (after, before, after, ...), on one Liechtenstein database built by the pipeline (ingest .. textures), the
+# same client; medians of 5 runs each, on 2026-11-25 while other test suites loaded the machine (load 7-18).
+SERVER_SPLIT = {
+    "runs": 5,
+    # cold is the exporter building glbs (Python, one core); two more alternating pairs measured the server
+    # process's CPU time over a cold pass: 12.2 and 12.3 s before, 12.0 and 12.4 s after
+    "cold_note": "within the load's noise: a cold pass costs the server process the same CPU time in both "
+                 "(12.2-12.3 s before, 12.0-12.4 s after, two more pairs)",
+    "before": {"commit": "40af573", "stack": "http.server, hand-written pool",
+               "cold": {"requests": 133, "tiles_per_s": 5.6, "p50_ms": 10414.5, "p99_ms": 12811.2,
+                        "max_ms": 13582.6, "bytes": 113132583, "errors": 0},
+               "warm": {"requests": 42880, "tiles_per_s": 1613.7, "p50_ms": 28.4, "p99_ms": 197.8,
+                        "max_ms": 647.2, "bytes": 36210195840, "errors": 0}},
+    "after": {"commit": "5fbf830", "stack": "Starlette on uvicorn, psycopg_pool",
+              "cold": {"requests": 133, "tiles_per_s": 5.3, "p50_ms": 10955.3, "p99_ms": 13341.2,
+                       "max_ms": 14545.8, "bytes": 113132583, "errors": 0},
+              "warm": {"requests": 42880, "tiles_per_s": 1725.1, "p50_ms": 31.8, "p99_ms": 133.3,
+                       "max_ms": 517.8, "bytes": 36210195840, "errors": 0}},
+}
 # Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
 VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step", "buildings_per_s"})
 
@@ -413,18 +435,35 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
     r = next((x for x in results if x.server), None)
     if r is None or r.server is None:
         return []
-    rows = []
-    for key in ("cold", "warm"):
-        m = r.server[key]
-        rows.append([key, f"{m['requests']:,}", f"{m['tiles_per_s']:,.0f}", f"{m['p50_ms']:.1f}",
-                     f"{m['p99_ms']:.1f}", f"{m['max_ms']:.1f}", f"{m['bytes'] / 1e6:.1f}", str(m["errors"])])
+
+    def rate(m: dict[str, Any]) -> str:
+        x = m["tiles_per_s"]
+        return f"{x:,.1f}" if x < 100 else f"{x:,.0f}"
+
+    def row(cache: str, server: str, m: dict[str, Any]) -> list[str]:
+        return [cache, server, f"{m['requests']:,}", rate(m), f"{m['p50_ms']:.1f}", f"{m['p99_ms']:.1f}",
+                f"{m['max_ms']:.1f}", f"{m['bytes'] / 1e6:.1f}", str(m["errors"])]
+
+    rows = [row(key, "this run", r.server[key]) for key in ("cold", "warm")]
+    for side in ("before", "after"):
+        rec = SERVER_SPLIT[side]
+        rows += [row(key, f"{rec['commit']} {rec['stack']} (recorded, {side} the split)", rec[key])
+                 for key in ("cold", "warm")]
+    bw, aw = SERVER_SPLIT["before"]["warm"], SERVER_SPLIT["after"]["warm"]
+    bc, ac = SERVER_SPLIT["before"]["cold"], SERVER_SPLIT["after"]["cold"]
     warm = r.server["warm"]["tiles_per_s"]
     return ["", f"## Server ({r.name}, {r.server['tiles']} tiles)", "",
             SERVER_NOTE.format(rounds=5, target=SERVER_TARGET), "",
-            *markdown_table(["cache", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent", "errors"],
-                            rows, "lrrrrrrr"), "",
+            *markdown_table(["cache", "server", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent",
+                             "errors"], rows, "llrrrrrrr"), "",
             f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: "
-            f"{pass_mark(warm >= SERVER_TARGET)}."]
+            f"{pass_mark(warm >= SERVER_TARGET)}.", "",
+            "Before and after the server moved from http.server to Starlette on uvicorn (exporter/server/, issue "
+            f"16): the recorded rows, medians of {SERVER_SPLIT['runs']} alternating runs each of "
+            "`python -m benchmarks.serve_bench --database-url URL` from a checkout of each commit on the same "
+            "database (a busy machine: compare them with each other, not with this run): "
+            f"warm {rate(bw)} → {rate(aw)} tiles/s, p99 {bw['p99_ms']:.0f} → {aw['p99_ms']:.0f} ms; "
+            f"cold {rate(bc)} → {rate(ac)} tiles/s, {SERVER_SPLIT['cold_note']}."]
 
 
 def _num(x: float | None) -> str:
