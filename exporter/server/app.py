@@ -3,9 +3,11 @@
 * file mode: ``/tiles/<path>`` are the files of the exported tileset directory (files.file_route);
 * DB mode: ``/tiles/tileset.json`` and ``/tiles/content/L/X/Y.glb`` come from a DbTileSource. The address is
   checked first (paths.tile_address: 400 malformed, 404 cannot exist), without touching the database. A cached
-  tile is answered on the event loop; a miss, a revalidation and a decompression for a client without gzip run
-  on Starlette's worker threads, since they block. Strong ETags (If-None-Match -> 304), gzip when the client
-  accepts it, and a database that is down or holds no current tiles is a 503 with one short line.
+  tile is answered on the event loop. A miss or a revalidation blocks, so it runs on a worker thread, at most
+  TILE_THREADS at a time and apart from the threads Starlette reads files on (and decompresses for a client
+  without gzip): a burst of cold tiles queued behind the database does not hold up the viewer's files. Strong
+  ETags (If-None-Match -> 304), gzip when the client accepts it, and a database that is down or holds no
+  current tiles is a 503 with one short line.
 
 Every response carries ``Access-Control-Allow-Origin: *`` (errors too: a cross-origin CesiumJS app must be able
 to read a 404), and OPTIONS, the CORS preflight, is answered on any path. Starlette's CORSMiddleware does
@@ -18,6 +20,7 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import anyio
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
@@ -34,6 +37,9 @@ if TYPE_CHECKING:  # file mode does not import the exporter's database side
 
 log = logging.getLogger("citylod.serve")
 
+#: Tile requests that may wait for the database at once (the others queue on the event loop); more than the
+#: connection pool, so that a thread decompressing or compressing a tile does not keep the database idle.
+TILE_THREADS = 32
 _ALLOW_ORIGIN = (b"access-control-allow-origin", b"*")
 _PREFLIGHT = [_ALLOW_ORIGIN, (b"access-control-allow-methods", b"GET, HEAD, OPTIONS"),
               (b"access-control-allow-headers", b"*"), (b"access-control-max-age", b"86400"),
@@ -91,6 +97,8 @@ def db_tiles_route(source: DbTileSource) -> Route:
     from .reader import DbUnavailable
     from .source import NotReady
 
+    limiter = anyio.CapacityLimiter(TILE_THREADS)
+
     async def tiles(request: Request) -> Response:
         try:
             address = tile_address(request_path(request)[len("/tiles/"):])
@@ -101,7 +109,7 @@ def db_tiles_route(source: DbTileSource) -> Route:
         payload = source.peek(address)
         if payload is None:
             try:
-                payload = await run_in_threadpool(source.get, address)
+                payload = await anyio.to_thread.run_sync(source.get, address, limiter=limiter)
             except NotReady as e:
                 log.warning("no current tileset in the database: %s", e)
                 return _unavailable(f"no current tileset in the database: {e}")
@@ -117,9 +125,12 @@ def db_tiles_route(source: DbTileSource) -> Route:
 
 def make_app(tiles_dir: Path | None = None, source: DbTileSource | None = None) -> ASGIApp:
     """The viewer plus the tileset: the files of ``tiles_dir`` (file mode) or ``source`` (DB mode)."""
-    if (tiles_dir is None) == (source is None):
+    if source is not None and tiles_dir is None:
+        tiles = db_tiles_route(source)
+    elif tiles_dir is not None and source is None:
+        tiles = file_route("/tiles/", tiles_dir)
+    else:
         raise ValueError("give exactly one of tiles_dir and source")
-    tiles = file_route("/tiles/", tiles_dir) if tiles_dir is not None else db_tiles_route(source)  # type: ignore[arg-type]
     app = Starlette(routes=[*viewer_routes(), tiles])
     app.router.redirect_slashes = False  # /viewer is a 404 like any other unknown path, not a redirect
     return Cors(app)
