@@ -75,23 +75,19 @@ SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
 # (Starlette on uvicorn, psycopg_pool), issue 16. make bench measures only the code it runs, so both are recorded
 # here: `python -m benchmarks.serve_bench --database-url URL` run from a checkout of each commit, alternately
 # (after, before, after, ...), on one Liechtenstein database built by the pipeline (ingest .. textures), the
-# same client; medians of 5 runs each, on 2026-11-25 while other test suites loaded the machine (load 7-18).
+# same client; medians of 5 runs each, on 2026-11-25 while other test suites loaded the machine (load 4-32).
 SERVER_SPLIT = {
     "runs": 5,
-    # cold is the exporter building glbs (Python, one core); two more alternating pairs measured the server
-    # process's CPU time over a cold pass: 12.2 and 12.3 s before, 12.0 and 12.4 s after
-    "cold_note": "within the load's noise: a cold pass costs the server process the same CPU time in both "
-                 "(12.2-12.3 s before, 12.0-12.4 s after, two more pairs)",
     "before": {"commit": "40af573", "stack": "http.server, hand-written pool",
-               "cold": {"requests": 133, "tiles_per_s": 5.6, "p50_ms": 10414.5, "p99_ms": 12811.2,
-                        "max_ms": 13582.6, "bytes": 113132583, "errors": 0},
-               "warm": {"requests": 42880, "tiles_per_s": 1613.7, "p50_ms": 28.4, "p99_ms": 197.8,
-                        "max_ms": 647.2, "bytes": 36210195840, "errors": 0}},
-    "after": {"commit": "5fbf830", "stack": "Starlette on uvicorn, psycopg_pool",
-              "cold": {"requests": 133, "tiles_per_s": 5.3, "p50_ms": 10955.3, "p99_ms": 13341.2,
-                       "max_ms": 14545.8, "bytes": 113132583, "errors": 0},
-              "warm": {"requests": 42880, "tiles_per_s": 1725.1, "p50_ms": 31.8, "p99_ms": 133.3,
-                       "max_ms": 517.8, "bytes": 36210195840, "errors": 0}},
+               "cold": {"requests": 133, "tiles_per_s": 6.8, "p50_ms": 8689.8, "p99_ms": 12551.3,
+                        "max_ms": 13741.0, "bytes": 113132583, "errors": 0},
+               "warm": {"requests": 42880, "tiles_per_s": 1485.0, "p50_ms": 29.8, "p99_ms": 221.5,
+                        "max_ms": 816.9, "bytes": 36210195840, "errors": 0}},
+    "after": {"commit": "775e741", "stack": "Starlette on uvicorn, psycopg_pool",
+              "cold": {"requests": 133, "tiles_per_s": 7.1, "p50_ms": 8453.0, "p99_ms": 10250.7,
+                       "max_ms": 11459.2, "bytes": 113132583, "errors": 0},
+              "warm": {"requests": 42880, "tiles_per_s": 1716.1, "p50_ms": 35.7, "p99_ms": 99.6,
+                       "max_ms": 1126.8, "bytes": 36210195840, "errors": 0}},
 }
 # Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
 VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step", "buildings_per_s"})
@@ -463,7 +459,7 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
             "`python -m benchmarks.serve_bench --database-url URL` from a checkout of each commit on the same "
             "database (a busy machine: compare them with each other, not with this run): "
             f"warm {rate(bw)} → {rate(aw)} tiles/s, p99 {bw['p99_ms']:.0f} → {aw['p99_ms']:.0f} ms; "
-            f"cold {rate(bc)} → {rate(ac)} tiles/s, {SERVER_SPLIT['cold_note']}."]
+            f"cold {rate(bc)} → {rate(ac)} tiles/s."]
 
 
 def _num(x: float | None) -> str:
