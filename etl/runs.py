@@ -1,4 +1,5 @@
-"""meta.pipeline_run bookkeeping: one row per stage run, written at start and finished at the end."""
+"""meta.pipeline_run bookkeeping: one row per stage run, written at start and finished at the end, with the
+inputs etl/dag.py compares to decide whether the stage is current."""
 
 from __future__ import annotations
 
@@ -46,19 +47,23 @@ class Run:
     run_id: int
     stage: str
     counts: dict[str, object] = field(default_factory=dict)
+    #: what the run wrote outside the database (export), recorded when it ends well
+    output: dict[str, object] | None = None
     started: float = field(default_factory=time.perf_counter)
 
 
 @contextmanager
 def pipeline_run(
     url: str, stage: str, params: dict[str, object], input_file: Path | None = None,
-    input_sha256: str | None = None,
+    input_sha256: str | None = None, inputs: dict[str, object] | None = None,
 ) -> Iterator[Run]:
-    """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row."""
+    """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row.
+    ``inputs`` (etl.dag.inputs) is what a later --if-stale compares."""
     with psycopg.connect(url, autocommit=True) as conn:
         row = conn.execute(
-            """INSERT INTO meta.pipeline_run (stage, status, params, input_file, input_sha256, git_commit, host)
-               VALUES (%s, 'running', %s, %s, %s, %s, %s) RETURNING run_id""",
+            """INSERT INTO meta.pipeline_run (stage, status, params, input_file, input_sha256, git_commit, host,
+                                              inputs)
+               VALUES (%s, 'running', %s, %s, %s, %s, %s, %s) RETURNING run_id""",
             (
                 stage,
                 Jsonb(json.loads(json.dumps(params, default=str))),
@@ -66,6 +71,7 @@ def pipeline_run(
                 input_sha256 or (sha256_file(input_file) if input_file else None),
                 git_commit(),
                 socket.gethostname(),
+                Jsonb(inputs) if inputs is not None else None,
             ),
         ).fetchone()
         assert row is not None
@@ -81,7 +87,8 @@ def pipeline_run(
             )
             raise
         conn.execute(
-            """UPDATE meta.pipeline_run SET status = 'ok', finished_at = now(), duration_s = %s, counts = %s
-               WHERE run_id = %s""",
-            (time.perf_counter() - run.started, Jsonb(run.counts), run.run_id),
+            """UPDATE meta.pipeline_run SET status = 'ok', finished_at = now(), duration_s = %s, counts = %s,
+               output = %s WHERE run_id = %s""",
+            (time.perf_counter() - run.started, Jsonb(run.counts),
+             Jsonb(run.output) if run.output is not None else None, run.run_id),
         )
