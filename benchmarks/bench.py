@@ -71,6 +71,24 @@ STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "expo
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
                  "textures": "buildings", "export": "buildings"}
 SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
+# serve --db before and after exporter/serve.py (http.server, a hand-written pool) became exporter/server/
+# (Starlette on uvicorn, psycopg_pool), issue 16. make bench measures only the code it runs, so both are recorded
+# here: `python -m benchmarks.serve_bench --database-url URL` run from a checkout of each commit, alternately
+# (after, before, after, ...), on one Liechtenstein database built by the pipeline (ingest .. textures), the
+# same client; medians of 5 runs each, on 2026-11-25 while other test suites loaded the machine (load 4-32).
+SERVER_SPLIT = {
+    "runs": 5,
+    "before": {"commit": "40af573", "stack": "http.server, hand-written pool",
+               "cold": {"requests": 133, "tiles_per_s": 6.8, "p50_ms": 8689.8, "p99_ms": 12551.3,
+                        "max_ms": 13741.0, "bytes": 113132583, "errors": 0},
+               "warm": {"requests": 42880, "tiles_per_s": 1485.0, "p50_ms": 29.8, "p99_ms": 221.5,
+                        "max_ms": 816.9, "bytes": 36210195840, "errors": 0}},
+    "after": {"commit": "775e741", "stack": "Starlette on uvicorn, psycopg_pool",
+              "cold": {"requests": 133, "tiles_per_s": 7.1, "p50_ms": 8453.0, "p99_ms": 10250.7,
+                       "max_ms": 11459.2, "bytes": 113132583, "errors": 0},
+              "warm": {"requests": 42880, "tiles_per_s": 1716.1, "p50_ms": 35.7, "p99_ms": 99.6,
+                       "max_ms": 1126.8, "bytes": 36210195840, "errors": 0}},
+}
 # Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
 VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step", "buildings_per_s"})
 
@@ -413,18 +431,35 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
     r = next((x for x in results if x.server), None)
     if r is None or r.server is None:
         return []
-    rows = []
-    for key in ("cold", "warm"):
-        m = r.server[key]
-        rows.append([key, f"{m['requests']:,}", f"{m['tiles_per_s']:,.0f}", f"{m['p50_ms']:.1f}",
-                     f"{m['p99_ms']:.1f}", f"{m['max_ms']:.1f}", f"{m['bytes'] / 1e6:.1f}", str(m["errors"])])
+
+    def rate(m: dict[str, Any]) -> str:
+        x = m["tiles_per_s"]
+        return f"{x:,.1f}" if x < 100 else f"{x:,.0f}"
+
+    def row(cache: str, server: str, m: dict[str, Any]) -> list[str]:
+        return [cache, server, f"{m['requests']:,}", rate(m), f"{m['p50_ms']:.1f}", f"{m['p99_ms']:.1f}",
+                f"{m['max_ms']:.1f}", f"{m['bytes'] / 1e6:.1f}", str(m["errors"])]
+
+    rows = [row(key, "this run", r.server[key]) for key in ("cold", "warm")]
+    for side in ("before", "after"):
+        rec = SERVER_SPLIT[side]
+        rows += [row(key, f"{rec['commit']} {rec['stack']} (recorded, {side} the split)", rec[key])
+                 for key in ("cold", "warm")]
+    bw, aw = SERVER_SPLIT["before"]["warm"], SERVER_SPLIT["after"]["warm"]
+    bc, ac = SERVER_SPLIT["before"]["cold"], SERVER_SPLIT["after"]["cold"]
     warm = r.server["warm"]["tiles_per_s"]
     return ["", f"## Server ({r.name}, {r.server['tiles']} tiles)", "",
             SERVER_NOTE.format(rounds=5, target=SERVER_TARGET), "",
-            *markdown_table(["cache", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent", "errors"],
-                            rows, "lrrrrrrr"), "",
+            *markdown_table(["cache", "server", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent",
+                             "errors"], rows, "llrrrrrrr"), "",
             f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: "
-            f"{pass_mark(warm >= SERVER_TARGET)}."]
+            f"{pass_mark(warm >= SERVER_TARGET)}.", "",
+            "Before and after the server moved from http.server to Starlette on uvicorn (exporter/server/, issue "
+            f"16): the recorded rows, medians of {SERVER_SPLIT['runs']} alternating runs each of "
+            "`python -m benchmarks.serve_bench --database-url URL` from a checkout of each commit on the same "
+            "database (a busy machine: compare them with each other, not with this run): "
+            f"warm {rate(bw)} → {rate(aw)} tiles/s, p99 {bw['p99_ms']:.0f} → {aw['p99_ms']:.0f} ms; "
+            f"cold {rate(bc)} → {rate(ac)} tiles/s."]
 
 
 def _num(x: float | None) -> str:

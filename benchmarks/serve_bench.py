@@ -31,7 +31,7 @@ from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
-from exporter.serve import spawned
+from benchmarks.servers import spawned
 
 BROWSER_HEADERS = {"Accept-Encoding": "gzip, deflate, br"}
 

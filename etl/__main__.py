@@ -253,7 +253,8 @@ def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
 
 def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
     if args.db:
-        from exporter.serve import reader_url, serve_db
+        from exporter.server.reader import reader_url
+        from exporter.server.run import serve_db
 
         serve_db(reader_url(_url(settings)), args.host, args.port, lod=args.lod,
                  base_height=settings.base_height_m, cache_bytes=int(args.cache_mb * 2**20))
@@ -261,7 +262,7 @@ def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
     if args.lod is not None:
         print("serve: --lod needs --db (a tileset directory holds the LOD it was exported with)", file=sys.stderr)
         return 2
-    from exporter.serve import serve
+    from exporter.server.run import serve
 
     serve(Path(args.dir).resolve(), args.host, args.port)
     return 0

@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -25,23 +26,16 @@ import psycopg
 import pytest
 from psycopg import sql
 
+from benchmarks.servers import spawned, threaded
 from core.settings import Settings
 from etl.migrate import migrate_and_reload
-from exporter.serve import (
-    READER_ROLE,
-    BadPath,
-    ByteLru,
-    Payload,
-    accepts_gzip,
-    etag_matches,
-    make_db_server,
-    make_payload,
-    reader_url,
-    server_url,
-    spawned,
-    tile_address,
-)
-from tests.conftest import PREFIX, REPO, City, _with_db
+from exporter.server.app import make_app
+from exporter.server.cache import ByteLru
+from exporter.server.paths import BadPath, tile_address
+from exporter.server.payload import Payload, accepts_gzip, etag_matches, make_payload
+from exporter.server.reader import READER_ROLE, reader_url
+from exporter.server.source import DbTileSource
+from tests.conftest import PREFIX, REPO, City, _with_db, run_etl
 
 BASE_HEIGHT = Settings.from_env().base_height_m
 
@@ -171,18 +165,15 @@ def test_reader_url() -> None:
 
 
 @contextmanager
-def running(url: str, **options: Any) -> Iterator[tuple[Any, str]]:
-    """An in-process DB-mode server on a free port, serving on a thread; yields (server, base URL)."""
+def running(url: str, **options: Any) -> Iterator[tuple[DbTileSource, str]]:
+    """An in-process DB-mode server on a free port, serving on a thread; yields (its tile source, base URL)."""
     options.setdefault("base_height", BASE_HEIGHT)
-    server = make_db_server(url, "127.0.0.1", 0, **options)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
+    source = DbTileSource(url, **options)
     try:
-        yield server, server_url(server)
+        with threaded(make_app(source=source)) as base:
+            yield source, base
     finally:
-        server.shutdown()
-        server.server_close()
-        thread.join(10)
+        source.close()
 
 
 class Client:
@@ -228,12 +219,12 @@ def fixtures_city(city: Callable[[str], City]) -> City:
     return city("fixtures")
 
 
-@pytest.fixture(scope="module")
-def outage_url(fixtures_city: City, server_url: str) -> Iterator[str]:
-    """A copy of the fixtures city's database, for the outage test to drop. Made before any server of this
-    module connects to the city's database (CREATE DATABASE ... TEMPLATE needs the source to be idle)."""
-    name = f"{PREFIX}_serve_outage"
-    src = psycopg.conninfo.conninfo_to_dict(fixtures_city.url)["dbname"]
+@contextmanager
+def city_copy(city: City, server_url: str, suffix: str) -> Iterator[str]:
+    """A copy of ``city``'s database (dropped after), for a test that drops or changes it. Made before any server
+    of this module connects to the city's database (CREATE DATABASE ... TEMPLATE needs the source to be idle)."""
+    name = f"{PREFIX}_serve_{suffix}"
+    src = psycopg.conninfo.conninfo_to_dict(city.url)["dbname"]
     with psycopg.connect(server_url, autocommit=True) as admin:
         admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
         deadline = time.monotonic() + 30
@@ -246,20 +237,36 @@ def outage_url(fixtures_city: City, server_url: str) -> Iterator[str]:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.5)
-    yield _with_db(server_url, name)
-    with psycopg.connect(server_url, autocommit=True) as admin:
-        admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
+    try:
+        yield _with_db(server_url, name)
+    finally:
+        with psycopg.connect(server_url, autocommit=True) as admin:
+            admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
 
 
 @pytest.fixture(scope="module")
-def db_server(fixtures_city: City, outage_url: str) -> Iterator[tuple[Any, str]]:
-    """The DB-mode server on the fixtures city, as the reader role (outage_url first: see there)."""
+def outage_url(fixtures_city: City, server_url: str) -> Iterator[str]:
+    """A copy of the fixtures city for the outage test to drop."""
+    with city_copy(fixtures_city, server_url, "outage") as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def rerun_url(fixtures_city: City, server_url: str) -> Iterator[str]:
+    """A copy of the fixtures city for the re-run test to change."""
+    with city_copy(fixtures_city, server_url, "rerun") as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def db_server(fixtures_city: City, outage_url: str, rerun_url: str) -> Iterator[tuple[DbTileSource, str]]:
+    """The DB-mode server on the fixtures city, as the reader role (the copies first: see city_copy)."""
     with running(reader_url(fixtures_city.url, environ={})) as s:
         yield s
 
 
 @pytest.mark.db
-def test_every_tile_byte_for_byte_the_file_export(db_server: tuple[Any, str], fixtures_city: City) -> None:
+def test_every_tile_byte_for_byte_the_file_export(db_server: tuple[DbTileSource, str], fixtures_city: City) -> None:
     server, base = db_server
     files = fixtures_city.tiles
     c = Client(base)
@@ -291,7 +298,7 @@ def test_every_tile_byte_for_byte_the_file_export(db_server: tuple[Any, str], fi
 
 
 @pytest.mark.db
-def test_etag_304_and_cache(db_server: tuple[Any, str], fixtures_city: City) -> None:
+def test_etag_304_and_cache(db_server: tuple[DbTileSource, str], fixtures_city: City) -> None:
     server, base = db_server
     uri = content_uris(json.loads((fixtures_city.tiles / "tileset.json").read_bytes()))[-1]
     c = Client(base)
@@ -303,11 +310,11 @@ def test_etag_304_and_cache(db_server: tuple[Any, str], fixtures_city: City) -> 
             assert etag == f'"{hashlib.sha256(body).hexdigest()[:32]}"', "strong, from the bytes"
             assert headers["cache-control"] == "no-cache" and "Accept-Encoding" in headers["vary"]
 
-            before = server.source.stats()
+            before = server.stats()
             status, headers, body = c.get(path, If_None_Match=etag)
             assert (status, body) == (304, b"")
             assert headers["etag"] == etag and headers["access-control-allow-origin"] == "*"
-            after = server.source.stats()
+            after = server.stats()
             assert after["builds"] == before["builds"], "a revalidation does not rebuild the tile"
 
             assert c.get(path, If_None_Match='"0000", ' + etag)[0] == 304
@@ -316,16 +323,16 @@ def test_etag_304_and_cache(db_server: tuple[Any, str], fixtures_city: City) -> 
             status, headers, body = c.get(path, "HEAD")
             assert status == 200 and body == b"" and headers["etag"] == etag and int(headers["content-length"]) > 0
 
-        builds = server.source.stats()["builds"]
-        hits = server.source.stats()["hits"]
+        builds = server.stats()["builds"]
+        hits = server.stats()["hits"]
         assert c.get(f"/tiles/{uri}")[0] == 200
-        assert server.source.stats()["builds"] == builds and server.source.stats()["hits"] == hits + 1
+        assert server.stats()["builds"] == builds and server.stats()["hits"] == hits + 1
     finally:
         c.close()
 
 
 @pytest.mark.db
-def test_gzip_negotiated(db_server: tuple[Any, str], fixtures_city: City) -> None:
+def test_gzip_negotiated(db_server: tuple[DbTileSource, str], fixtures_city: City) -> None:
     _, base = db_server
     files = fixtures_city.tiles
     c = Client(base)
@@ -367,7 +374,7 @@ def test_gzip_negotiated(db_server: tuple[Any, str], fixtures_city: City) -> Non
     ("content/%ff/0/0.glb", 400),  # not UTF-8
     ("content/0/0/0.glb%2fextra", 400),
 ])
-def test_bad_addresses_are_400_or_404(db_server: tuple[Any, str], rel: str, status: int) -> None:
+def test_bad_addresses_are_400_or_404(db_server: tuple[DbTileSource, str], rel: str, status: int) -> None:
     _, base = db_server
     path = "/tiles/" + rel.replace("\x00", "%00").replace("\\", "%5C")
     c = Client(base)
@@ -382,7 +389,7 @@ def test_bad_addresses_are_400_or_404(db_server: tuple[Any, str], rel: str, stat
 
 
 @pytest.mark.db
-def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[Any, str]) -> None:
+def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbTileSource, str]) -> None:
     """32 threads fetch every tile at once from a fresh server: every answer is right, each tile is built once,
     and the server never holds more connections than its pool."""
     files = fixtures_city.tiles
@@ -425,15 +432,15 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[Any
         stop.set()
         watcher.join(10)
         assert errors == []
-        assert server.source.stats()["builds"] == len(uris) - 1, "single flight: each glb built exactly once"
+        assert server.stats()["builds"] == len(uris) - 1, "single flight: each glb built exactly once"
         # the module's other server holds its own pool on the same database
-        assert peak[0] <= 3 + db_server[0].source.pool.size
+        assert peak[0] <= 3 + db_server[0].reader.pool.max_size
 
 
 @pytest.mark.db
-def test_server_connection_cannot_write(db_server: tuple[Any, str], fixtures_city: City) -> None:
+def test_server_connection_cannot_write(db_server: tuple[DbTileSource, str], fixtures_city: City) -> None:
     server, _ = db_server
-    with server.source.pool.connection() as (conn, _reused):
+    with server.reader.connection() as conn:
         assert conn.execute("SELECT current_user").fetchone()[0] == READER_ROLE
         assert conn.execute("SHOW default_transaction_read_only").fetchone()[0] == "on"
         with pytest.raises(psycopg.errors.ReadOnlySqlTransaction), conn.transaction():
@@ -486,6 +493,54 @@ def test_reader_migration_in_a_second_database(server_url: str) -> None:
     finally:
         with psycopg.connect(server_url, autocommit=True) as admin:
             admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
+
+
+@pytest.mark.db
+def test_a_pipeline_rerun_drops_the_cache(rerun_url: str, tmp_path: Path) -> None:
+    """Cached tiles are served until a pipeline run lands (the generation changes); then they are built again
+    from the database as it is now."""
+    with running(reader_url(rerun_url, environ={}), revalidate_s=0.0) as (server, base):
+        c = Client(base)
+        try:
+            status, _, js = c.get("/tiles/tileset.json")
+            assert status == 200
+            uri = max(content_uris(json.loads(js)), key=lambda u: int(u.split("/")[1]))  # a leaf: named buildings
+            status, _, before = c.get(f"/tiles/{uri}")
+            assert status == 200 and b"renamed by a re-run" not in before
+            builds = server.stats()["builds"]
+            with psycopg.connect(rerun_url) as admin:
+                admin.execute("UPDATE osm.building SET name = 'renamed by a re-run'")
+            # no run recorded yet: the cached bytes, not the database's
+            assert c.get(f"/tiles/{uri}")[2] == before and server.stats()["builds"] == builds
+
+            run_etl(rerun_url, "export", "--out", str(tmp_path / "tiles"))  # a real run: a new generation
+            status, _, after = c.get(f"/tiles/{uri}")
+            assert status == 200 and b"renamed by a re-run" in after
+            assert after == (tmp_path / "tiles" / uri).read_bytes(), "the rebuilt tile is the new export's"
+            assert server.stats()["builds"] == builds + 1
+        finally:
+            c.close()
+
+
+@pytest.mark.db
+def test_connections_killed_under_the_server_are_replaced(fixtures_city: City, server_url: str) -> None:
+    """A restart or a terminated backend kills the pooled connections: the next request is still answered, on a
+    fresh connection, not a 503."""
+    dbname = psycopg.conninfo.conninfo_to_dict(fixtures_city.url)["dbname"]
+    with running(reader_url(fixtures_city.url, environ={}), revalidate_s=0.0) as (server, base):
+        c = Client(base)
+        try:
+            for _ in range(3):
+                assert c.get("/tiles/tileset.json")[0] == 200
+                with psycopg.connect(server_url, autocommit=True) as admin:
+                    killed = admin.execute(
+                        "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity"
+                        " WHERE usename = %s AND datname = %s", (READER_ROLE, dbname)).fetchone()[0]
+                assert killed >= 1
+                status, _, body = c.get("/tiles/tileset.json")
+                assert status == 200, body[:300]
+        finally:
+            c.close()
 
 
 @pytest.mark.db

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import hashlib
 import http.client
-import threading
 from collections.abc import Callable
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -16,13 +15,16 @@ import numpy as np
 import psycopg
 import pytest
 
+from benchmarks.servers import threaded
 from core.semantics import SEM_WALL, SEM_WINDOW
 from core.settings import Settings
 from core.wkb import decode_triangles
 from etl.geom import atlas as A
 from exporter.checks import check_tileset
 from exporter.gltf import read_glb
-from exporter.serve import make_db_server, reader_url, server_url
+from exporter.server.app import make_app
+from exporter.server.reader import reader_url
+from exporter.server.source import DbTileSource
 from tests.conftest import helsinki, run_etl, validate_glb
 
 S = Settings()
@@ -195,22 +197,19 @@ def test_window_panels_show_the_painted_windows(textured, conn_of) -> None:
 
 def test_the_db_server_serves_the_textured_files(textured) -> None:
     url, out, _ = textured
-    server = make_db_server(reader_url(url, environ={}), "127.0.0.1", 0, base_height=S.base_height_m)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
+    source = DbTileSource(reader_url(url, environ={}), base_height=S.base_height_m)
     try:
-        u = urlsplit(server_url(server))
-        c = http.client.HTTPConnection(u.hostname, u.port, timeout=60)
-        for glb in sorted(out.rglob("*.glb")):
-            c.request("GET", "/tiles/" + glb.relative_to(out).as_posix())
-            r = c.getresponse()
-            body = r.read()
-            assert r.status == 200 and body == glb.read_bytes(), glb
-        c.close()
+        with threaded(make_app(source=source)) as base:
+            u = urlsplit(base)
+            c = http.client.HTTPConnection(u.hostname, u.port, timeout=60)
+            for glb in sorted(out.rglob("*.glb")):
+                c.request("GET", "/tiles/" + glb.relative_to(out).as_posix())
+                r = c.getresponse()
+                body = r.read()
+                assert r.status == 200 and body == glb.read_bytes(), glb
+            c.close()
     finally:
-        server.shutdown()
-        server.server_close()
-        thread.join(10)
+        source.close()
 
 
 def test_units_past_their_time_limit_are_recorded_as_failed_not_lost(textured, conn_of) -> None:

@@ -20,7 +20,7 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from exporter.serve import spawned
+from benchmarks.servers import spawned
 
 REPO = Path(__file__).resolve().parents[2]
 DRIVER = REPO / "tests" / "e2e" / "viewer_e2e.mjs"

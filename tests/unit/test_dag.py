@@ -30,7 +30,7 @@ def test_each_stage_is_its_module_closure_its_sql_and_its_settings() -> None:
     for code in map(stage_code, GRAPH):
         # the command line and the bookkeeping are not a stage's code; the settings' values are compared instead
         assert not {"etl/__main__.py", "etl/runs.py", "etl/dag.py", "core/settings.py",
-                    "exporter/serve.py"} & code.python.keys()
+                    "exporter/server/app.py"} & code.python.keys()
         assert "pg_port" not in code.settings
     assert "sql/lod/outline_remainder.sql" in lod.sql
     # named in Python (api.buildings_for_tile) and through its SQL (tiles.lod2_features)
@@ -70,7 +70,7 @@ def _touched(before: dict[str, StageCode], root: Path) -> list[str]:
     ("core/wkb.py", ["lod", "generalize", "textures", "export"]),
     ("etl/geom/facade.py", ["lod", "generalize", "textures"]),
     ("exporter/gltf.py", ["export"]),
-    ("exporter/serve.py", []),
+    ("exporter/server/app.py", []),
     ("etl/__main__.py", []),
 ])
 def test_a_python_edit_touches_exactly_the_stages_that_import_it(tmp_path: Path, edit: str,
