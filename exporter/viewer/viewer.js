@@ -45,6 +45,11 @@
       citylod.tileLoads += 1;
       log('tile loaded', tile.content ? tile.content.url : '(no content)');
     });
+    tileset.tileVisible.addEventListener((tile) => {
+      if (!tile.content) return;
+      const t = tally(tile.content);
+      for (const k in t) frameKinds[k] += t[k];
+    });
     tileset.tileFailed.addEventListener((e) => {
       citylod.tileFailures += 1;
       console.error('[citylod] tile failed', e.url, e.message);
@@ -135,6 +140,31 @@
   setExaggeration(new URLSearchParams(window.location.search).get('exaggerate') === '1');
 
   // --- status line -----------------------------------------------------------------------------------------
+  // What the drawn tiles hold, by the exporter's `kind` property: a far tile's features are blocks (buildings
+  // merged), so "features" alone would count a block of forty houses as one building. Each content is tallied
+  // once (WeakMap); tileVisible fires once per drawn tile per frame, so the frame's sums are final at postRender.
+  const KINDS = ['building', 'part', 'block'];
+  const tallies = new WeakMap();
+  let frameKinds = { building: 0, part: 0, block: 0, other: 0 };
+  let shownKinds = { ...frameKinds };
+
+  function tally(content) {
+    let t = tallies.get(content);
+    if (!t) {
+      t = { building: 0, part: 0, block: 0, other: 0 };
+      for (let i = 0; i < content.featuresLength; i++) {
+        const kind = content.getFeature(i).getProperty('kind');
+        t[KINDS.includes(kind) ? kind : 'other'] += 1;
+      }
+      tallies.set(content, t);
+    }
+    return t;
+  }
+
+  scene.preRender.addEventListener(() => {
+    frameKinds = { building: 0, part: 0, block: 0, other: 0 };
+  });
+
   // Statistics are not public API in CesiumJS, hence the defensive reads.
   function stats() {
     const ts = citylod.tileset;
@@ -144,21 +174,32 @@
       tilesWithContent: st.numberOfTilesWithContentReady || 0,
       triangles: st.numberOfTrianglesSelected || 0,
       features: st.numberOfFeaturesSelected || 0,
+      kinds: { ...shownKinds }, // features of the drawn tiles by kind (building, part, block, other)
       pending: (st.numberOfPendingRequests || 0) + (st.numberOfTilesProcessing || 0),
       allTilesLoaded: citylod.allTilesLoaded,
       tileFailures: citylod.tileFailures,
     };
   }
 
+  function kindsText(k) {
+    const fmt = (n) => n.toLocaleString('en');
+    const parts = [`${fmt(k.building)} buildings`];
+    if (k.part) parts.push(`${fmt(k.part)} building parts`);
+    parts.push(`${fmt(k.block)} blocks (merged buildings)`);
+    if (k.other) parts.push(`${fmt(k.other)} other features`);
+    return parts.join(', ') + ' shown';
+  }
+
   let lastStatus = 0;
   scene.postRender.addEventListener(() => {
+    shownKinds = frameKinds;
     const now = performance.now();
     if (!citylod.tileset || now - lastStatus < 500) return; // the DOM need not change every frame
     lastStatus = now;
     const s = stats();
     const fmt = (n) => n.toLocaleString('en');
     statusEl.textContent = `${fmt(s.tilesWithContent)} tiles loaded · ${fmt(s.triangles)} triangles · ` +
-      `${fmt(s.features)} buildings shown` + (s.pending ? ` · loading ${s.pending}…` : '') +
+      kindsText(s.kinds) + (s.pending ? ` · loading ${s.pending}…` : '') +
       (s.tileFailures ? ` · ${s.tileFailures} failed` : '');
   });
 

@@ -142,6 +142,16 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
 
     assert res["tilesWithContent"] > 0, context
     assert res["triangles"] > 0, context
+    # the status line counts what it names: buildings, parts and blocks of the drawn tiles, adding up to the
+    # features CesiumJS selected; the overview of a whole city draws merged blocks, which are not buildings
+    for view in (res["overview"], res["far"], res):
+        kinds = view["kinds"]
+        assert sum(kinds.values()) == view["features"] > 0 and kinds["other"] == 0, (view, context)
+    for view in (res["overview"], res["far"]):
+        kinds = view["kinds"]
+        assert f"{kinds['building']:,} buildings" in view["status"], view["status"]
+        assert f"{kinds['block']:,} blocks (merged buildings) shown" in view["status"], view["status"]
+    assert res["far"]["kinds"]["block"] > 0, res["far"]
     picked = res["picked"]
     assert picked, f"nothing picked at {osm_type} {osm_id}\n{context}"
     assert int(picked["osm_id"]) == osm_id, context

@@ -50,6 +50,22 @@ try {
 
   await page.waitForFunction(() => window.citylod.allTilesLoaded || window.citylod.error, null, WAIT);
   note('first allTilesLoaded', JSON.stringify(await page.evaluate(() => window.citylod.stats())));
+  // The status line and the counts behind it, at the overview and from far away (where far tiles draw blocks).
+  // The line is refreshed at most every 500 ms: wait for the line of the counts taken.
+  const statusNow = () => page.evaluate(async () => {
+    for (;;) {
+      const s = window.citylod.stats();
+      await new Promise((resolve) => setTimeout(resolve, 600));
+      const again = window.citylod.stats();
+      if (JSON.stringify(s.kinds) === JSON.stringify(again.kinds)) {
+        return { ...again, status: document.getElementById('status').textContent };
+      }
+    }
+  });
+  result.overview = await statusNow();
+  const far = await page.evaluate(([a, b, t]) => window.citylod.lookAt(a, b, 0, 25000, t), [lon, lat, timeout]);
+  if (!far.loaded) problems.push(`tiles still loading ${far.ms} ms after the far lookAt`);
+  result.far = await statusNow();
 
   // The renderer string from a scratch canvas (same GPU process as CesiumJS's context).
   result.webgl = await page.evaluate(() => {
