@@ -90,7 +90,7 @@ SERVER_SPLIT = {
                        "max_ms": 1126.8, "bytes": 36210195840, "errors": 0}},
 }
 # Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
-VOLATILE_COUNTS = frozenset({"seconds", "out", "seconds_by_step", "buildings_per_s"})
+VOLATILE_COUNTS = frozenset({"seconds", "directory", "seconds_by_step", "buildings_per_s"})
 
 
 # --- measuring one child process ----------------------------------------------------------------------------

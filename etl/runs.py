@@ -1,5 +1,6 @@
 """meta.pipeline_run bookkeeping: one row per stage run, written at start and finished at the end, with the
-inputs etl/dag.py compares to decide whether the stage is current."""
+inputs etl/dag.py compares to decide whether the stage is current; a run is ok only with its balance
+(in = out + rejected) in its counts."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from pathlib import Path
 import psycopg
 from psycopg.types.json import Jsonb
 
+from core.progress import BalanceError
 from core.settings import REPO
 
 
@@ -40,6 +42,17 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
         while block := fh.read(chunk):
             h.update(block)
     return h.hexdigest()
+
+
+def check_balance(stage: str, counts: dict[str, object]) -> None:
+    """A run ends well only with its balance recorded and adding up: ``in = out + rejected``
+    (core.progress.Balance.counts)."""
+    try:
+        n_in, n_out, rejected = (int(counts[k]) for k in ("in", "out", "rejected"))  # type: ignore[call-overload]
+    except (KeyError, TypeError, ValueError):
+        raise BalanceError(f"{stage} recorded no balance (in, out, rejected) in its counts") from None
+    if n_in != n_out + rejected:
+        raise BalanceError(f"{stage}: in {n_in:,} != out {n_out:,} + rejected {rejected:,}")
 
 
 @dataclass
@@ -78,6 +91,7 @@ def pipeline_run(
         run = Run(run_id=row[0], stage=stage)
         try:
             yield run
+            check_balance(stage, run.counts)
         except BaseException as exc:
             conn.execute(
                 """UPDATE meta.pipeline_run SET status = 'failed', finished_at = now(), duration_s = %s,

@@ -47,7 +47,7 @@ from psycopg.rows import dict_row
 
 from core.db import connect, working_srid
 from core.geodesy import region_box
-from core.progress import Progress, summary
+from core.progress import Balance, Progress, summary
 from core.settings import Settings
 from core.wkb import decode_triangles, encode_triangles_batch
 
@@ -306,22 +306,30 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()
+        # every building (an outline with its parts) has its generalized footprint and solid; before commit
+        fp_rows = cur.execute(
+            """SELECT count(*) FILTER (WHERE f.status LIKE 'kept_original%%'), count(*) FILTER (WHERE m.building_id
+                          IS NOT NULL)
+               FROM gen.footprint f LEFT JOIN gen.building_mesh m ON m.building_id = f.building_id
+                                                                   AND m.gen_level = 2""").fetchone()
+        assert fp_rows is not None
+        kept, with_solid = int(fp_rows[0]), int(fp_rows[1])
+        balance = Balance("buildings", int(n_groups), {"simplified": with_solid - kept, "kept as mapped": kept})
         cur.execute("ANALYZE gen.footprint")
         cur.execute("ANALYZE gen.building_mesh")
         cur.execute("ANALYZE gen.block")
     wall = time.perf_counter() - t0
     result: dict[str, object] = {
-        "buildings": n_groups, "tolerance_m": tol,
+        **balance.counts(), "buildings": n_groups, "tolerance_m": tol,
         "footprints": fp, "decimation": dec, "blocks": blk,
         "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
     }
     summary(
-        "generalize",
-        f"{n_groups:,} buildings: footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, "
-        f"{dec['decimated']:,} LOD2 meshes decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings",
-        wall,
-        n_groups,
+        "generalize", balance,
+        f"footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, {dec['decimated']:,} LOD2 meshes "
+        f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings",
+        wall, n_groups,
     )
     return result

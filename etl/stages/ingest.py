@@ -23,7 +23,7 @@ import osmium
 import osmium.geom
 import psycopg
 
-from core.progress import Progress, summary
+from core.progress import Balance, Progress, summary
 from core.settings import Settings
 
 from ..tags import BuildingTags, building_kind, parse_building_tags
@@ -238,16 +238,13 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
     assert loaded is not None and repaired is not None and srid is not None
     n_rejected = sum(n for _, n in rejected)
     n_in = int(staged[0])
-    if n_in != counts.candidates or n_in != loaded[0] + n_rejected:
-        raise RuntimeError(
-            f"ingest lost objects: {counts.candidates} candidates read, {n_in} staged, "
-            f"{loaded[0]} loaded + {n_rejected} rejected"
-        )
+    if n_in != counts.candidates:
+        raise RuntimeError(f"ingest lost objects: {counts.candidates} candidates read, {n_in} staged")
+    balance = Balance("buildings and parts", n_in, {"loaded": int(loaded[0])}, n_rejected)
     seconds = time.perf_counter() - t0
     result: dict[str, object] = {
-        "in": n_in,
+        **balance.counts(),
         "loaded": int(loaded[0]),
-        "rejected": n_rejected,
         "repaired": int(repaired[0]),
         "buildings": int(by_kind.get("building", 0)),
         "parts": int(by_kind.get("part", 0)),
@@ -262,10 +259,8 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
     reasons = ", ".join(f"{r} {n}" for r, n in rejected) or "none"
     print(f"  working CRS: EPSG:{srid[0]} ({srid[1]}); rejects: {reasons}", file=sys.stderr)
     summary(
-        "ingest",
-        f"in {n_in:,} = loaded {loaded[0]:,} ({by_kind.get('building', 0):,} buildings, "
-        f"{by_kind.get('part', 0):,} parts; {repaired[0]:,} repaired) + rejected {n_rejected:,}",
-        seconds,
-        n_in,
+        "ingest", balance,
+        f"{by_kind.get('building', 0):,} buildings, {by_kind.get('part', 0):,} parts, {repaired[0]:,} repaired",
+        seconds, n_in,
     )
     return result

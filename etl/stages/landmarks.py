@@ -26,7 +26,7 @@ import psycopg
 import shapely
 
 from core.db import working_srid
-from core.progress import summary
+from core.progress import Balance, summary
 from core.settings import Settings
 
 from ..geom import landmarks as lm
@@ -124,15 +124,16 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
                                 int(rank[i]), int(level[i]), bool(is_landmark[i]), band[i], float(radius[i]),
                                 *intervals[i]))
         cur.execute("CALL lm.flag_landmarks()")
+        # every drawn building is scored (the lod stage recorded the ones it could not draw); checked before commit
         drawn = cur.execute("SELECT lod.drawn_buildings()").fetchone()[0]  # type: ignore[index]
+        scored = cur.execute("SELECT count(*) FROM lm.building").fetchone()[0]  # type: ignore[index]
+        balance = Balance("drawn buildings", int(drawn), {"scored": int(scored)})
         cur.execute("ANALYZE lm.building")
-    if drawn != n:  # every drawn building is scored (the lod stage recorded the ones it could not draw)
-        raise RuntimeError(f"landmarks lost buildings: {drawn} drawn, {n} scored")
     top = ids[np.argsort(rank)[:10]].tolist()
     seconds = time.perf_counter() - t0
     n_lm = int(is_landmark.sum())
-    summary("landmarks", f"{n:,} buildings scored, {int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
+    summary("landmarks", balance, f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
             f"(level >= {min_level})", seconds, n)
-    return {"buildings": n, "levels": int(level.max(initial=0)), "landmark_min_level": min_level,
+    return {**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)), "landmark_min_level": min_level,
             "landmarks": n_lm, "top10": top, "weights": w, "seconds": round(seconds, 3),
             "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}

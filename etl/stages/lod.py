@@ -31,7 +31,7 @@ import shapely
 from psycopg.rows import dict_row
 
 from core.db import connect, working_srid
-from core.progress import Progress, summary
+from core.progress import Balance, Progress, summary
 from core.semantics import N_SEMANTICS, SEM_ROOF, SEM_WALL
 from core.settings import Settings
 from core.wkb import encode_triangles_batch
@@ -462,26 +462,20 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
             if failure:
                 raise failure[0]
         cur.execute("ANALYZE lod.building_mesh")
-    if counts["buildings"] + counts["rejected"] + hidden != total:
-        raise RuntimeError(
-            f"lod lost buildings: {total} in, {counts['buildings']} drawn + {hidden} hidden"
-            f" + {counts['rejected']} rejected"
-        )
+    balance = Balance("buildings and parts", total,
+                      {"drawn": counts["buildings"], "outlines drawn by their parts": hidden}, counts["rejected"])
     wall = time.perf_counter() - t0
     nb = max(counts["buildings"], 1)
     result: dict[str, object] = {
-        "in": total, **counts, "hidden_by_parts": hidden, "seconds": round(wall, 3),
+        **counts, **balance.counts(), "hidden_by_parts": hidden, "seconds": round(wall, 3),
         "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         **{f"triangles_per_building_lod{lod}": round(counts[f"triangles_lod{lod}"] / nb, 1) for lod in LODS},
         "lod2_closed_pct": round(100.0 * (1 - counts["lod2_not_closed"] / nb), 3),
     }
     summary(
-        "lod",
-        f"in {total:,} = {counts['buildings']:,} drawn ({counts['pitched_roofs']:,} pitched roofs) + {hidden:,} "
-        f"outlines drawn by their parts + rejected {counts['rejected']:,} | LOD2 closed "
-        f"{result['lod2_closed_pct']}% | triangles LOD1 {counts['triangles_lod1']:,}, "
-        f"LOD2 {counts['triangles_lod2']:,}, LOD3 {counts['triangles_lod3']:,}",
-        wall,
-        total,
+        "lod", balance,
+        f"{counts['pitched_roofs']:,} pitched roofs, LOD2 closed {result['lod2_closed_pct']}% | triangles LOD1 "
+        f"{counts['triangles_lod1']:,}, LOD2 {counts['triangles_lod2']:,}, LOD3 {counts['triangles_lod3']:,}",
+        wall, total,
     )
     return result

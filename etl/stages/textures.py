@@ -41,7 +41,7 @@ from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
 from core.db import connect
-from core.progress import Progress, summary
+from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
 from core.wkb import decode_triangles
@@ -365,9 +365,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                 progress.update(res.features)
         if totals["features"] != expected:
             raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
-        if totals["textured"] + totals["failed"] != totals["features"]:
-            raise RuntimeError(f"features in {totals['features']} != textured {totals['textured']} + failed "
-                               f"{totals['failed']}")
+        # every feature of every tile textured or in tex.failure with its reason; checked before commit
+        balance = Balance("features", int(expected), {"textured": int(totals["textured"])}, int(totals["failed"]))
         cur.execute("ANALYZE tex.page")
         cur.execute("ANALYZE tex.feature_uv")
     seconds = time.perf_counter() - t0
@@ -379,15 +378,15 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                                                                    round(b["max_texels_per_metre"], 3)],
               "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
     summary(
-        "textures",
-        f"{totals['textured']:,} features textured ({totals['failed']:,} failed) in {len(tiles):,} tiles: "
-        f"{totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB, utilization {100 * util:.1f} %, "
+        "textures", balance,
+        f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB, "
+        f"utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)",
         seconds,
         buildings,
     )
-    return {**totals, "tiles": len(tiles), "units": len(work), "units_lost": lost, "workers": workers,
-            "utilization": round(util, 4),
+    return {**totals, **balance.counts(), "tiles": len(tiles), "units": len(work), "units_lost": lost,
+            "workers": workers, "utilization": round(util, 4),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

@@ -163,7 +163,7 @@ def test_rerun_gives_the_same_database(new_db, conn_of, tmp_path) -> None:
     run_etl(url, "ingest", "--osm", str(src))
     first = _snapshot(conn_of(url))
     proc = run_etl(url, "ingest", "--osm", str(src))
-    assert "in 33 = loaded 26" in proc.stdout  # the one-line summary
+    assert "ingest: in 33 buildings and parts = 26 loaded + rejected 7 |" in proc.stdout  # the one-line summary
     assert _snapshot(conn_of(url)) == first
 
 
