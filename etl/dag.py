@@ -75,9 +75,10 @@ def sha256_bytes(data: bytes) -> str:
 
 
 # --- the code a stage runs: read from the sources -----------------------------------------------------------
-def _modules(root: Path) -> dict[str, Path]:
+def project_modules(root: Path = REPO, packages: tuple[str, ...] = _PACKAGES) -> dict[str, Path]:
+    """Module name -> source file of every module of ``packages`` under ``root``."""
     out = {}
-    for pkg in _PACKAGES:
+    for pkg in packages:
         for path in sorted((root / pkg).rglob("*.py")):
             parts = list(path.relative_to(root).with_suffix("").parts)
             if parts[-1] == "__init__":
@@ -90,7 +91,7 @@ _IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(\.*)([\w.]*)[ \t]+import[ \t]+(\([^)
                      re.M)
 
 
-def _imports(name: str, path: Path, known: set[str]) -> set[str]:
+def module_imports(name: str, path: Path, known: set[str]) -> set[str]:
     """The project modules ``name`` imports, anywhere in the file (lazy imports in functions too). A regular
     expression over the lines, not ast: parsing and walking every module cost ~0.3 s a stage; a docstring line
     that reads like an import only adds a module, it never drops one."""
@@ -124,7 +125,7 @@ def _with_packages(module: str) -> Iterator[str]:
 
 def python_closure(module: str, root: Path = REPO) -> list[Path]:
     """The source files of ``module`` and of every project module it imports, transitively."""
-    mods = _modules(root)
+    mods = project_modules(root)
     known = set(mods)
     seen: set[str] = set()
     todo = [m for m in _with_packages(module) if m in known]
@@ -133,7 +134,7 @@ def python_closure(module: str, root: Path = REPO) -> list[Path]:
         if m in seen:
             continue
         seen.add(m)
-        for dep in _imports(m, mods[m], known):
+        for dep in module_imports(m, mods[m], known):
             todo.extend(p for p in _with_packages(dep) if p in known and p not in seen)
     return sorted(mods[m] for m in seen)
 
@@ -166,7 +167,7 @@ class StageCode:
 def stage_code(stage: str, root: Path = REPO) -> StageCode:
     """What defines ``stage`` in the sources under ``root`` (a few dozen small files: milliseconds)."""
     files = python_closure(MODULES[stage], root)
-    settings_file = _modules(root)[_SETTINGS_MODULE]
+    settings_file = project_modules(root)[_SETTINGS_MODULE]
     files = [f for f in files if f != settings_file]
     texts = [f.read_text() for f in files]
     words = set().union(*(re.findall(r"\w+", t) for t in texts))

@@ -1,13 +1,15 @@
 """The import graph points one way: core <- stages (etl) <- exporter/server <- CLI <- benchmarks.
 
 Every import of the project's own modules is read from the source (function-level imports included, since a
-lazy import is still a dependency) and checked against the layers, and the module graph must have no cycle.
+lazy import is still a dependency; the reader is etl/dag.py's, which decides what code a stage runs) and checked
+against the layers, and the module graph must have no cycle.
 """
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
+
+from etl.dag import module_imports, project_modules
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("core", "etl", "exporter", "benchmarks")
@@ -22,46 +24,12 @@ def layer(module: str) -> int:
     return {"core": 0, "etl": 1, "exporter": 2, "benchmarks": 4}[module.split(".")[0]]
 
 
-def modules() -> dict[str, Path]:
-    out = {}
-    for pkg in PACKAGES:
-        for path in sorted((REPO / pkg).rglob("*.py")):
-            parts = list(path.relative_to(REPO).with_suffix("").parts)
-            if parts[-1] == "__init__":
-                parts.pop()
-            out[".".join(parts)] = path
-    return out
-
-
-def imports(name: str, path: Path, known: set[str]) -> set[str]:
-    """The project modules ``name`` imports (``from pkg import mod`` counts as pkg.mod when that is a module)."""
-    is_pkg = path.name == "__init__.py"
-    out: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = name.split(".") if is_pkg else name.split(".")[:-1]
-                base = base[: len(base) - (node.level - 1)]
-                mod = ".".join(base + ([node.module] if node.module else []))
-            else:
-                mod = node.module or ""
-            targets = [f"{mod}.{a.name}" if f"{mod}.{a.name}" in known else mod for a in node.names]
-        else:
-            continue
-        for t in targets:
-            while t and t not in known:
-                t = t.rpartition(".")[0]
-            if t and t != name:
-                out.add(t)
-    return out
-
-
 def graph() -> dict[str, set[str]]:
-    mods = modules()
+    """Module -> the project modules it imports (etl/dag.py's reader, which also decides what code a stage
+    runs)."""
+    mods = project_modules(REPO, PACKAGES)
     known = set(mods)
-    return {m: imports(m, p, known) for m, p in mods.items()}
+    return {m: module_imports(m, p, known) - {m} for m, p in mods.items()}
 
 
 def test_imports_point_down_the_layers() -> None:
@@ -71,16 +39,16 @@ def test_imports_point_down_the_layers() -> None:
     assert not upward, "imports against the layers:\n" + "\n".join(upward)
 
 
-def test_no_import_cycles() -> None:
-    g = graph()
+def cycles(g: dict[str, set[str]]) -> list[list[str]]:
+    """Every cycle a depth-first walk of ``g`` closes, as the path round it."""
     state: dict[str, int] = {}
-    cycles: list[list[str]] = []
+    found: list[list[str]] = []
 
     def visit(m: str, stack: list[str]) -> None:
         state[m] = 1
         for d in sorted(g[m]):
             if state.get(d) == 1:
-                cycles.append(stack[stack.index(d):] + [d])
+                found.append(stack[stack.index(d):] + [d])
             elif d not in state:
                 visit(d, stack + [d])
         state[m] = 2
@@ -88,16 +56,25 @@ def test_no_import_cycles() -> None:
     for m in sorted(g):
         if m not in state:
             visit(m, [m])
-    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+    return found
+
+
+def test_no_import_cycles() -> None:
+    found = cycles(graph())
+    assert not found, "import cycles:\n" + "\n".join(" -> ".join(c) for c in found)
 
 
 def test_the_checker_sees_a_cycle_and_an_upward_import(tmp_path) -> None:
     # the two rules above on a made-up module pair, so a broken parser cannot pass them vacuously
     a = tmp_path / "a.py"
     a.write_text("from exporter import serve\nimport core.db\n")
-    assert imports("etl.a", a, {"etl.a", "exporter", "exporter.serve", "core.db"}) == {"exporter.serve", "core.db"}
+    known = {"etl.a", "exporter", "exporter.serve", "core.db"}
+    assert module_imports("etl.a", a, known) == {"exporter.serve", "core.db"}
     assert layer("exporter.serve") > layer("etl.a")
     rel = tmp_path / "b.py"
     rel.write_text("def f():\n    from ..geom import atlas\n    from .. import workers\n")
-    assert imports("etl.stages.b", rel, {"etl.geom.atlas", "etl.workers", "etl.geom", "etl"}) == {
+    assert module_imports("etl.stages.b", rel, {"etl.geom.atlas", "etl.workers", "etl.geom", "etl"}) == {
         "etl.geom.atlas", "etl.workers"}
+    # the loop benchmarks/ had: bench -> report_textures -> view_bench -> bench
+    loop = {"b.bench": {"b.report"}, "b.report": {"b.view", "b.bench"}, "b.view": {"b.bench"}, "core": set()}
+    assert cycles(loop) == [["b.bench", "b.report", "b.bench"], ["b.bench", "b.report", "b.view", "b.bench"]]
