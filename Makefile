@@ -21,7 +21,7 @@ SETUP_NODE := node_modules/.installed
         test-unit test-extracts bench report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
-	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-12s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
+	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-21s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
 	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database) (DATABASE_URL to use another PostGIS)"
 	@echo "  a stage runs the stages it reads first, and only when its inputs changed; FORCE=1 reruns the stages named"
 

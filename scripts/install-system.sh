@@ -47,4 +47,4 @@ apt_get() {
 }
 apt_get update -qq
 apt_get install -y -qq "${missing[@]}" >/dev/null
-# The Debian package creates and starts a system cluster on 5432; citylod runs its own under var/pg.
+# The Debian package also creates and starts a system cluster on 5432, left alone: citylod runs its own under var/pg.
