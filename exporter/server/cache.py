@@ -24,23 +24,24 @@ class ByteLru:
         self._lock = threading.Lock()
         self.hits = self.misses = self.evictions = 0
 
+    def _hit(self, key: Hashable) -> Payload | None:
+        """The cached value, now the most recently used (a hit), or None; under the lock."""
+        item = self._items.get(key)
+        if item is not None:
+            self._items.move_to_end(key)
+            self.hits += 1
+        return item
+
     def peek(self, key: Hashable) -> Payload | None:
         """The cached value (a hit), or None without counting a miss: the caller goes on to get_or_build."""
         with self._lock:
-            item = self._items.get(key)
-            if item is not None:
-                self._items.move_to_end(key)
-                self.hits += 1
-            return item
+            return self._hit(key)
 
     def get_or_build(self, key: Hashable, build: Callable[[], Payload]) -> Payload:
         """The cached value, else ``build()``'s, built once however many threads ask for it at the same time.
         Blocks: never call it on the event loop."""
         with self._lock:
-            item = self._items.get(key)
-            if item is not None:
-                self._items.move_to_end(key)
-                self.hits += 1
+            if (item := self._hit(key)) is not None:
                 return item
             fut = self._inflight.get(key)
             owner = fut is None
