@@ -38,7 +38,6 @@ from psycopg.conninfo import conninfo_to_dict
 
 from benchmarks import report_textures, view_bench
 from benchmarks.common import (
-    DEMO_OSM,
     HEADLINE,
     LOG_DIR,
     OUT_ROOT,
@@ -55,6 +54,7 @@ from benchmarks.common import (
 )
 from core import cluster
 from core.settings import REPO, Settings
+from etl.stages.fetch import DEMO_OSM
 
 # Liechtenstein first: it is the benchmark extract the headline figures quote.
 DEFAULT_EXTRACTS = (

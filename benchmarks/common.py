@@ -21,7 +21,6 @@ from psycopg.conninfo import conninfo_to_dict
 from core.settings import REPO
 
 SHARED_OSM = Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm"
-DEMO_OSM = REPO / "data" / "Helsinki.osm.pbf"
 HEADLINE = "liechtenstein_2022-07-24"
 
 OUT_ROOT = REPO / "build" / "bench"

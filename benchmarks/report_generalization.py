@@ -40,7 +40,6 @@ import psycopg
 import shapely
 
 from benchmarks.common import (
-    DEMO_OSM,
     SHARED_OSM,
     drop_db,
     extract_name,
@@ -57,6 +56,7 @@ from etl.geom.check import weld as weld_rows
 from etl.geom.decimate import decimate
 from etl.geom.hausdorff import hausdorff
 from etl.geom.simplify import PIN_DISTANCE, simplify_footprints
+from etl.stages.fetch import DEMO_OSM
 
 EXTRACTS = {
     "munich": SHARED_OSM / "munich_altstadt.osm.pbf",

@@ -6,6 +6,7 @@ successful run recorded with today's (etl/dag.py) and skips, in one line, when t
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -14,7 +15,7 @@ from pathlib import Path
 from core import cluster
 from core.settings import REPO, Settings
 
-DEMO_OSM = REPO / "data" / "Helsinki.osm.pbf"
+from .stages.fetch import DEMO_OSM
 
 
 def _url(settings: Settings) -> str:
@@ -66,7 +67,7 @@ def cmd_config(args: argparse.Namespace, settings: Settings) -> int:
 def cmd_fetch_demo(args: argparse.Namespace, settings: Settings) -> int:
     from .stages.fetch import fetch_demo
 
-    print(fetch_demo(DEMO_OSM))
+    print(fetch_demo())
     return 0
 
 
@@ -116,78 +117,24 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
-def cmd_lod(args: argparse.Namespace, settings: Settings) -> int:
+#: Stages that open connections of their own besides the one they are given (a reader, worker processes).
+_NEEDS_URL = ("lod", "generalize", "textures")
+
+
+def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
+    """lod, landmarks, tiles, generalize, textures: tables in, tables out, recorded in meta.pipeline_run."""
     from core.db import connect
 
     from .runs import pipeline_run
 
+    stage = args.command
     url = _url(settings)
-    if (inputs := _inputs_unless_current(url, "lod", settings, args)) is None:
+    if (inputs := _inputs_unless_current(url, stage, settings, args)) is None:
         return 0
-    from .stages import lod
+    module = importlib.import_module(f"etl.stages.{stage}")  # after the check: a skip imports no numpy
 
-    with pipeline_run(url, "lod", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
-        run.counts = lod.run(conn, url, settings)
-    return 0
-
-
-def cmd_tiles(args: argparse.Namespace, settings: Settings) -> int:
-    from core.db import connect
-
-    from .runs import pipeline_run
-
-    url = _url(settings)
-    if (inputs := _inputs_unless_current(url, "tiles", settings, args)) is None:
-        return 0
-    from .stages import tiles
-
-    with pipeline_run(url, "tiles", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
-        run.counts = tiles.run(conn, settings)
-    return 0
-
-
-def cmd_landmarks(args: argparse.Namespace, settings: Settings) -> int:
-    from core.db import connect
-
-    from .runs import pipeline_run
-
-    url = _url(settings)
-    if (inputs := _inputs_unless_current(url, "landmarks", settings, args)) is None:
-        return 0
-    from .stages import landmarks
-
-    with pipeline_run(url, "landmarks", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
-        run.counts = landmarks.run(conn, settings)
-    return 0
-
-
-def cmd_generalize(args: argparse.Namespace, settings: Settings) -> int:
-    from core.db import connect
-
-    from .runs import pipeline_run
-
-    url = _url(settings)
-    if (inputs := _inputs_unless_current(url, "generalize", settings, args)) is None:
-        return 0
-    from .stages import generalize
-
-    with pipeline_run(url, "generalize", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
-        run.counts = generalize.run(conn, url, settings)
-    return 0
-
-
-def cmd_textures(args: argparse.Namespace, settings: Settings) -> int:
-    from core.db import connect
-
-    from .runs import pipeline_run
-
-    url = _url(settings)
-    if (inputs := _inputs_unless_current(url, "textures", settings, args)) is None:
-        return 0
-    from .stages import textures
-
-    with pipeline_run(url, "textures", settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
-        run.counts = textures.run(conn, url, settings)
+    with pipeline_run(url, stage, settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
+        run.counts = module.run(conn, url, settings) if stage in _NEEDS_URL else module.run(conn, settings)
     return 0
 
 
@@ -295,12 +242,12 @@ def main(argv: list[str] | None = None) -> int:
 
     ing = stage("ingest", cmd_ingest, "OSM file -> osm.building (+ osm.reject)")
     ing.add_argument("--osm", default=str(DEMO_OSM), help="input .osm.pbf/.osm (default: the demo extract)")
-    stage("lod", cmd_lod, "osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)")
-    stage("landmarks", cmd_landmarks, "lod.building_mesh -> lm.building (saliency, voting hierarchy) and "
+    stage("lod", cmd_stage, "osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)")
+    stage("landmarks", cmd_stage, "lod.building_mesh -> lm.building (saliency, voting hierarchy) and "
           "osm.building.protected")
-    stage("tiles", cmd_tiles, "lod.building_mesh -> tiles.tile quadtree")
-    stage("generalize", cmd_generalize, "tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors")
-    stage("textures", cmd_textures, "tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv")
+    stage("tiles", cmd_stage, "lod.building_mesh -> tiles.tile quadtree")
+    stage("generalize", cmd_stage, "tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors")
+    stage("textures", cmd_stage, "tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv")
     exp = stage("export", cmd_export, "tiles -> 3D Tiles 1.1 (tileset.json + glb)")
     exp.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"),
                      help="output directory (replaced only if empty or a citylod tileset)")

@@ -33,6 +33,7 @@ from pathlib import Path
 import psycopg
 
 from core.settings import REPO, Settings
+from core.tiles3d import content_uris
 
 from .migrate import discover_sql
 
@@ -271,14 +272,6 @@ def tileset_output(out: Path) -> dict[str, object]:
     return {"tileset_sha256": sha256_bytes((out / "tileset.json").read_bytes())}
 
 
-def _content_uris(tile: dict) -> Iterator[str]:
-    for c in [tile.get("content")] + tile.get("contents", []):
-        if isinstance(c, dict) and "uri" in c:
-            yield c["uri"]
-    for child in tile.get("children", []):
-        yield from _content_uris(child)
-
-
 def output_problems(out: Path, recorded: dict[str, object] | None) -> list[str]:
     """Why the export directory ``out`` is no longer what the run recorded wrote (empty: it is)."""
     ts = out / "tileset.json"
@@ -287,7 +280,7 @@ def output_problems(out: Path, recorded: dict[str, object] | None) -> list[str]:
     data = ts.read_bytes()
     if not recorded or recorded.get("tileset_sha256") != sha256_bytes(data):
         return [f"{ts} is not the one it wrote"]
-    missing = [u for u in _content_uris(json.loads(data).get("root", {})) if not (out / u).is_file()]
+    missing = [u for u in content_uris(json.loads(data)) if not (out / u).is_file()]
     if missing:
         return [f"{len(missing)} content files missing from {out} ({missing[0]}, ...)"]
     return []

