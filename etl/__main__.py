@@ -92,7 +92,28 @@ def _export_options(args: argparse.Namespace) -> tuple[Path, dict[str, object]]:
     """The output directory and what export records of its options and of the stages it reads."""
     out = Path(args.out).resolve()
     # a one-LOD tileset has no textures (exporter/export.py): it reads up to generalize
-    return out, {"options": {"out": str(out), "lod": args.lod}, "reads": ("generalize",) if args.lod else None}
+    return out, {"options": {"out": str(out), "lod": args.lod, **_stream(args).as_dict()},
+                 "reads": ("generalize",) if args.lod else None}
+
+
+def _stream(args: argparse.Namespace):  # -> exporter.stream.StreamOptions
+    from exporter.stream import StreamOptions
+
+    return StreamOptions(geometry=args.geometry, textures=args.textures, tiling=args.tiling)
+
+
+def _stream_arguments(p: argparse.ArgumentParser) -> None:
+    from exporter.stream import GEOMETRY, TEXTURES, TILING
+
+    p.add_argument("--geometry", choices=GEOMETRY, default=GEOMETRY[0],
+                   help="compact: quantized, meshopt-compressed (KHR_mesh_quantization, EXT_meshopt_compression); "
+                        "plain: float32 (default: %(default)s)")
+    p.add_argument("--textures", choices=TEXTURES, default=TEXTURES[0],
+                   help="ktx2: Basis Universal with mipmaps (KHR_texture_basisu); webp: EXT_texture_webp "
+                        "(default: %(default)s)")
+    p.add_argument("--tiling", choices=TILING, default=TILING[0],
+                   help="implicit: implicitTiling with subtree files; explicit: every tile in tileset.json "
+                        "(default: %(default)s)")
 
 
 def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
@@ -148,9 +169,10 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
         return 0
     from exporter.export import export_tileset
 
-    params = {**settings.as_dict(), "out": str(out), "lod": args.lod}
+    stream = _stream(args)
+    params = {**settings.as_dict(), "out": str(out), "lod": args.lod, **stream.as_dict()}
     with pipeline_run(url, "export", params, inputs=inputs) as run:
-        run.counts = export_tileset(url, out, settings, lod=args.lod)
+        run.counts = export_tileset(url, out, settings, lod=args.lod, stream=stream)
         run.output = tileset_output(out)
     return 0
 
@@ -203,7 +225,7 @@ def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
         from exporter.server.reader import reader_url
         from exporter.server.run import serve_db
 
-        serve_db(reader_url(_url(settings)), args.host, args.port, lod=args.lod,
+        serve_db(reader_url(_url(settings)), args.host, args.port, lod=args.lod, stream=_stream(args),
                  base_height=settings.base_height_m, cache_bytes=int(args.cache_mb * 2**20))
         return 0
     if args.lod is not None:
@@ -254,12 +276,14 @@ def main(argv: list[str] | None = None) -> int:
     exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
                      help="one level of detail for every building (1 block, 2 roofs, 3 windows and doors) instead "
                           "of the generalized hierarchy (default: blocks far away down to LOD3 near)")
+    _stream_arguments(exp)
 
     st = sub.add_parser("status", help="which stages are current, and why the others are not (what make export "
                                        "would run)")
     st.add_argument("--osm", default=str(DEMO_OSM), help="the OSM file ingest would read")
     st.add_argument("--out", default=str(REPO / "build" / "tiles" / "demo"), help="the directory export would write")
     st.add_argument("--lod", type=int, choices=(1, 2, 3), default=None, help="export's --lod")
+    _stream_arguments(st)
     st.set_defaults(fn=cmd_status)
 
     srv = sub.add_parser("serve", help="serve the tileset (a directory, or --db straight from the database) and "
@@ -273,6 +297,7 @@ def main(argv: list[str] | None = None) -> int:
     srv.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
                      help="with --db: one level of detail for every building, as `export --lod` (default: the "
                           "generalized hierarchy)")
+    _stream_arguments(srv)
     srv.add_argument("--cache-mb", type=float, default=256.0, help="with --db: tile cache budget (MiB)")
     srv.add_argument("--host", default="127.0.0.1")
     srv.add_argument("--port", type=int, default=8765, help="0 picks a free port")

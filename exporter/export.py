@@ -36,6 +36,7 @@ from core.wkb import decode_triangles
 
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
 from .gltf import Image, Primitive, Property, write_glb
+from .stream import COMPACT, StreamOptions
 from .tileset import TileRecord, build_tileset, region_centre
 
 # A tile's features as the glb holds them (api.export_features: api.buildings_for_tile's rows with ECEF meshes and
@@ -135,8 +136,8 @@ def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[
     return part(-1), [(p, part(p)) for p in range(n_pages) if np.any(tri_page == p)]
 
 
-def build_tile_glb(rows: list[dict], region: tuple[float, ...],
-                   textures: TileTextures | None = None) -> tuple[bytes, int]:
+def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTextures | None = None,
+                   stream: StreamOptions = COMPACT, rec: TileRecord | None = None) -> tuple[bytes, int]:
     """glb bytes and triangle count for the feature rows (dicts with the columns of api.export_features) of one tile;
     with ``textures``, the features that have UVs are drawn with their atlas pages."""
     tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
@@ -230,26 +231,28 @@ def load_records(conn: psycopg.Connection) -> list[TileRecord]:
         ]
 
 
-def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int | None) -> bytes:
+def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int | None,
+                  stream: StreamOptions = COMPACT) -> bytes:
     """tileset.json as written to disk and served (same bytes either way)."""
     dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
     version = dataset[0][:16] if dataset and dataset[0] else ""
     return json.dumps(build_tileset(records, tileset_version=version, single_lod=lod is not None), indent=1).encode()
 
 
-def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None) -> tuple[bytes, int, int]:
+def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None,
+             stream: StreamOptions = COMPACT) -> tuple[bytes, int, int]:
     """(glb bytes, features, triangles) of one tile's content; textured when the textures stage made pages for
     it (the generalized hierarchy only: ``lod`` tilesets hold other meshes than the stage textured)."""
     with conn.cursor(row_factory=dict_row) as cur:
         rows = cur.execute(_FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y,
                                        "lod": lod}).fetchall()
     textures = load_textures(conn, rec.level, rec.x, rec.y) if lod is None else None
-    glb, tri = build_tile_glb(rows, rec.region, textures)
+    glb, tri = build_tile_glb(rows, rec.region, textures, stream, rec)
     return glb, len(rows), tri
 
 
 def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, workers: int,
-                  progress: Progress, lod: int | None) -> tuple[int, int, int]:
+                  progress: Progress, lod: int | None, stream: StreamOptions) -> tuple[int, int, int]:
     """Write every tile's glb; tiles are independent, so ``workers`` threads each with their own connection
     share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
     local = threading.local()
@@ -261,7 +264,7 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
             local.conn = connect(url)
             with lock:
                 conns.append(local.conn)
-        glb, n, tri = tile_glb(local.conn, rec, base_height, lod)
+        glb, n, tri = tile_glb(local.conn, rec, base_height, lod, stream)
         assert rec.content_uri is not None
         path = out / rec.content_uri
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -322,7 +325,8 @@ def replaceable(path: Path) -> bool:
     return isinstance(asset, dict) and str(asset.get("generator", "")).startswith("citylod")
 
 
-def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None) -> dict[str, object]:
+def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
+                   stream: StreamOptions = COMPACT) -> dict[str, object]:
     """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
     every building at that one level of detail (1 block, 2 roofs, 3 facades)."""
     if lod not in (None, 1, 2, 3):
@@ -337,7 +341,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     with connect(url) as conn:
         records = load_records(conn)
         check_current(conn, records, lod)
-        js = tileset_bytes(conn, records, lod)
+        js = tileset_bytes(conn, records, lod, stream)
     tiles = [r for r in records if r.is_leaf or lod is None]
     expected = sum(r.n_features if lod else r.content_features for r in tiles)  # type: ignore[misc]
     if partial.exists():
@@ -346,7 +350,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "features", total=expected)
     n_features, n_triangles, n_bytes = _export_tiles(
-        url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod)
+        url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod, stream)
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
     (partial / "tileset.json").write_bytes(js)
@@ -365,7 +369,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
         buildings,
     )
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
-    return {**balance.counts(), "lod": lod or "all", "buildings": buildings, "features": n_features,
+    return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
             "tiles": len(records), "glb": len(tiles), "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "directory": str(out)}

@@ -23,6 +23,7 @@ import psycopg
 from core.tiles3d import content_uris
 
 from ..export import check_current, load_records, tile_glb, tileset_bytes
+from ..stream import COMPACT, StreamOptions
 from ..tileset import TileRecord
 from .cache import ByteLru
 from .paths import TILESET
@@ -58,10 +59,11 @@ class DbTileSource:
     """tileset.json and tile glbs from the database at ``url`` (the reader role's), cached."""
 
     def __init__(self, url: str, lod: int | None = None, base_height: float = 0.0, cache_bytes: int = 256 << 20,
+                 stream: StreamOptions = COMPACT,
                  pool_size: int | None = None, revalidate_s: float = 1.0, acquire_timeout: float = 30.0) -> None:
         if lod not in (None, 1, 2, 3):
             raise ValueError(f"lod must be 1, 2, 3 or None, not {lod}")
-        self.lod, self.base_height, self.revalidate_s = lod, base_height, revalidate_s
+        self.lod, self.base_height, self.revalidate_s, self.stream = lod, base_height, revalidate_s, stream
         self.reader = Reader(url, pool_size or max(2, min(8, 2 * (os.cpu_count() or 1))), acquire_timeout)
         self.cache = ByteLru(cache_bytes)
         self._snap: Snapshot | None = None
@@ -77,7 +79,7 @@ class DbTileSource:
             records = load_records(conn)
             try:
                 check_current(conn, records, self.lod)
-                js = tileset_bytes(conn, records, self.lod)
+                js = tileset_bytes(conn, records, self.lod, self.stream)
             except (RuntimeError, ValueError) as e:  # no tiles, stale tiles, generalize not run
                 raise NotReady(str(e)) from e
             by_uri = {r.content_uri: r for r in records if r.content_uri}
@@ -138,7 +140,7 @@ class DbTileSource:
                 def read(conn: psycopg.Connection) -> bytes:
                     if _generation(conn) != snap.generation:
                         raise _Changed
-                    return tile_glb(conn, rec, self.base_height, self.lod)[0]
+                    return tile_glb(conn, rec, self.base_height, self.lod, self.stream)[0]
 
                 glb = self.reader.read(read)
                 with self._count_lock:
