@@ -100,7 +100,9 @@ async function fileFetch(url) {
 async function options() {
   return {
     core: {worker: false, fetch: fileFetch, CDN: null, useLocalLibraries: true},
-    modules: {basisEncoder: await basisModule('basis_encoder'), basis: await basisModule('basis_transcoder')},
+    // LOADERSGL_DEFAULT_DECODERS=1 leaves them out: loaders.gl then fetches its own (the test of the guard)
+    modules: process.env.LOADERSGL_DEFAULT_DECODERS === '1' ? {}
+      : {basisEncoder: await basisModule('basis_encoder'), basis: await basisModule('basis_transcoder')},
     // any target is a real transcode; RGBA8 is the one Node can look at (a GPU client picks ASTC/BC7/ETC)
     basis: {format: 'rgba32'},
     gltf: {loadBuffers: true, loadImages: true, decompressMeshes: true},
