@@ -287,10 +287,10 @@ def test_loadersgl_reads_every_tile_of_the_export(exports: dict[str, Path], name
     loaded = sorted(c["uri"] for c in rep["contents"])
     assert loaded == glbs and len(glbs) > 0  # every tile, each once, and nothing the export did not write
     tileset = json.loads((tiles / "tileset.json").read_text())
-    if rep["implicit"]:
-        subtrees = sorted(p.relative_to(tiles).as_posix() for p in tiles.rglob("*.subtree"))
-        assert rep["subtrees"] == subtrees and subtrees
-    else:
+    subtrees = sorted(p.relative_to(tiles).as_posix() for p in tiles.rglob("*.subtree"))
+    assert rep["subtrees"] == subtrees  # implicit tiling: every subtree file read (explicit: none written)
+    assert bool(subtrees) == rep["implicit"]
+    if not subtrees:
         assert loaded == content_uris(tileset)
         assert rep["tiles"] == count_tiles(tileset["root"])
 

@@ -233,7 +233,8 @@ async function cmdTileset(file) {
   const base = path.dirname(tilesetPath);
   const tileset = await load(tilesetPath, Tiles3DLoader, {...opts, '3d-tiles': {...opts['3d-tiles'], isTileset: true}});
   const raw = JSON.parse(fs.readFileSync(tilesetPath, 'utf8'));
-  const report = {asset: raw.asset, implicit: Boolean(raw.root?.implicitTiling), tiles: 0, contents: [],
+  const report = {asset: raw.asset, implicit: JSON.stringify(raw).includes('"implicitTiling"'), tiles: 0,
+    contents: [],
     subtrees: [], errors: []};
   for (const [tile, depth] of tilesOf(tileset.root)) {
     report.tiles += 1;
