@@ -47,6 +47,7 @@ from core.settings import Settings
 from core.wkb import decode_triangles
 
 from ..geom import atlas as A
+from ..geom import ktx2 as K
 from ..geom import texturing as X
 from ..workers import Lost, imap_isolated
 
@@ -59,9 +60,10 @@ BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.build
 _FEATURES = "SELECT * FROM tex.tile_features(%s, %s, %s)"
 _FEATURE_IDS = "SELECT feature_kind, building_id, osm_type, osm_id FROM tex.tile_features(%s, %s, %s)"  # no meshes
 _PAGE_COLUMNS = ("level", "x", "y", "page_no", "format", "mime", "width", "height", "n_bytes", "bytes",
-                 "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects")
+                 "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects",
+                 "ktx2", "ktx2_n_bytes", "ktx2_levels")
 _PAGE_TYPES = ("int2", "int4", "int4", "int2", "text", "text", "int4", "int4", "int4", "bytea", "float4", "float4",
-               "float4", "int4", "int4", "int2", "bytea")
+               "float4", "int4", "int4", "int2", "bytea", "bytea", "int4", "int2")
 _UV_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "n_triangles", "page", "uv")
 _UV_TYPES = ("int2", "int4", "int4", "text", "int8", "int4", "bytea", "bytea")
 _FAIL_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "osm_type", "osm_id", "reason", "detail")
@@ -89,8 +91,10 @@ class Result:
     uvs: list[tuple] = field(default_factory=list)
     failures: list[tuple] = field(default_factory=list)
     features: int = 0
+    ktx2_failed: int = 0  # features among ``failures`` textured, but on a page without KTX2
     stats: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
+    ktx2_seconds: float = 0.0
 
 
 def resolution(geometric_error: float, settings: Settings) -> tuple[float, float]:
@@ -240,18 +244,33 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     if tt is not None:
         rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
         util = tt.layout.utilization
+        refused: dict[int, str] = {}
         for p, img in enumerate(tt.pages):
             data, mime = A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD)
+            t1 = time.perf_counter()
+            try:
+                k2: bytes | None = K.encode(img, settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
+                                            settings.tex_ktx2_timeout_s)
+            except K.EncodeError as e:  # this page stays WebP only; its features get vertex colours in KTX2
+                k2, refused[p] = None, str(e)
+            res.ktx2_seconds += time.perf_counter() - t1
             h, w = img.shape[:2]
             res.pages.append((*key, p, FORMAT, mime, w, h, len(data), data, float(util[p]), rho, distance,
                               len(rects[p]), int(tt.layout.scaled[tt.layout.page == p].sum()), pad,
-                              rects[p].astype("<i4").tobytes()))
+                              rects[p].astype("<i4").tobytes(), k2, len(k2) if k2 else None,
+                              max(w, h).bit_length() if k2 else None))
         off = np.concatenate([[0], np.cumsum(counts)])
+        bad = np.array(sorted(refused), np.int64)
         for j, i in enumerate(good):
             r = rows[i]
             sl = slice(off[j], off[j + 1])
             res.uvs.append((*key, r["feature_kind"], int(r["building_id"]), int(counts[j]),
                             tt.tri_page[sl].astype("<i2").tobytes(), tt.tri_uv[sl].astype("<f4").tobytes()))
+            hit = np.intersect1d(tt.tri_page[sl], bad) if len(bad) else bad
+            if len(hit):
+                first = int(hit[0])
+                res.failures.append(_failure(key, r, K.EncodeError.reason, f"page {first}: {refused[first]}"))
+                res.ktx2_failed += 1
         res.stats = tt.stats
     res.seconds = time.perf_counter() - t0
     return res
@@ -318,8 +337,9 @@ def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Sett
 
 def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
-    if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size % 4:
-        raise ValueError(f"tex_page_size must be a multiple of 4 in 16..{A.MAX_PAGE_SIZE}")
+    if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
+        raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
+    K.binary()  # no encoder is an installation problem, not a bad page: stop before any work ("run make setup")
     if settings.tex_max_texels_per_metre <= 0:
         raise ValueError("tex_max_texels_per_metre must be > 0")
     tiles = conn.cursor(row_factory=class_row(Tile)).execute("SELECT * FROM tex.tiles_to_texture()").fetchall()
@@ -333,8 +353,10 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     progress = Progress("textures", "features", total=expected)
     by_band: dict[int, dict[str, float]] = {}
     lost = 0
-    totals = dict.fromkeys(("features", "textured", "failed", "pages", "bytes", "page_texels", "content_texels",
-                            "rendered_texels", "copied", "resized", "flat", "sheets", "scaled", "panels_mapped"), 0)
+    totals = dict.fromkeys(("features", "textured", "failed", "ktx2_failed", "pages", "bytes", "ktx2_pages",
+                            "ktx2_bytes", "page_texels", "content_texels", "rendered_texels", "copied", "resized",
+                            "flat", "sheets", "scaled", "panels_mapped"), 0)
+    ktx2_seconds = 0.0
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure")
         for unit, out in zip(work, _map_units(work, url, settings, workers), strict=True):
@@ -355,9 +377,13 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                     b[k] += v
                 totals["features"] += res.features
                 totals["textured"] += len(res.uvs)
-                totals["failed"] += len(res.failures)
+                totals["failed"] += len(res.failures) - res.ktx2_failed
+                totals["ktx2_failed"] += res.ktx2_failed
                 totals["pages"] += len(res.pages)
                 totals["bytes"] += n_bytes
+                totals["ktx2_pages"] += sum(1 for p in res.pages if p[17] is not None)
+                totals["ktx2_bytes"] += sum(p[18] or 0 for p in res.pages)
+                ktx2_seconds += res.ktx2_seconds
                 totals["page_texels"] += page_texels
                 for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
                           "panels_mapped"):
@@ -365,8 +391,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                 progress.update(res.features)
         if totals["features"] != expected:
             raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
-        # every feature of every tile textured or in tex.failure with its reason; checked before commit
-        balance = Balance("features", int(expected), {"textured": int(totals["textured"])}, int(totals["failed"]))
+        # every feature of every tile textured or in tex.failure with its reason; checked before commit. A feature
+        # on a page the KTX2 encoder refused is textured in WebP only (and in tex.failure as ktx2_encode_failed)
+        balance = Balance("features", int(expected), {
+            "textured": int(totals["textured"] - totals["ktx2_failed"]),
+            "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
         cur.execute("ANALYZE tex.page")
         cur.execute("ANALYZE tex.feature_uv")
     seconds = time.perf_counter() - t0
@@ -379,7 +408,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
               "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
     summary(
         "textures", balance,
-        f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB, "
+        f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB WebP, "
+        f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({ktx2_seconds:.1f} s encoding in the workers), "
         f"utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)",
@@ -387,6 +417,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         buildings,
     )
     return {**totals, **balance.counts(), "tiles": len(tiles), "units": len(work), "units_lost": lost,
-            "workers": workers, "utilization": round(util, 4),
+            "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}
