@@ -19,7 +19,8 @@ Design choices:
   * **Bounded pages**: nothing is ever larger than ``page_size`` (512 by default as in the thesis, at most
     4096); a texture that would not fit is shrunk to fit and flagged ``scaled``; more pages when needed. Each
     page is then cropped to the area in use, rounded up to a multiple of 4 texels (block-compressed formats
-    need that, and two 2x reductions stay exact). Each chart sits in a gutter of ``padding`` texels filled
+    need that, and two 2x reductions stay exact), or to a power of two a side (``pot``, what the textures stage
+    uses: KTX2 carries a full mip chain). Each chart sits in a gutter of ``padding`` texels filled
     with its own edge texels, so bilinear filtering and the first log2(padding) mip levels never bleed in
     a neighbour's colour.
   * **Two packers with one output**: ``shelf`` (heights descending, best-fitting open shelf on any page,
@@ -266,12 +267,9 @@ def _crop(page: np.ndarray, right: np.ndarray, bottom: np.ndarray, n_pages: int,
     return np.minimum(np.maximum(dims, 4), page_size)
 
 
-def _shelf(slots: np.ndarray, page_size: int, page_height: int | None = None) -> tuple[np.ndarray, np.ndarray,
-                                                                                   np.ndarray]:
-    """Shelf packing of (k, 2) slot sizes on pages page_size wide and page_height (default page_size) high:
-    tallest first; each slot goes on the open shelf (any page) it fits with the least height to spare, else
-    on a new shelf under the last one of the first page with room."""
-    height = page_size if page_height is None else page_height
+def _shelf(slots: np.ndarray, page_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shelf packing of (k, 2) slot sizes: tallest first; each slot goes on the open shelf (any page) it fits
+    with the least height to spare, else on a new shelf under the last one of the first page with room."""
     k = len(slots)
     order = np.lexsort((-slots[:, 0], -slots[:, 1]))
     page = np.zeros(k, dtype=np.int64)
@@ -290,7 +288,7 @@ def _shelf(slots: np.ndarray, page_size: int, page_height: int | None = None) ->
         if fits.size:
             s = int(fits[np.argmin(sh_h[fits])])  # heights only shrink, so the least spare height wins
         else:
-            p = next((j for j, top in enumerate(page_top) if top + h <= height), len(page_top))
+            p = next((j for j, top in enumerate(page_top) if top + h <= page_size), len(page_top))
             if p == len(page_top):
                 page_top.append(0)
             if n == cap:
@@ -357,35 +355,13 @@ def _xatlas(slots: np.ndarray, page_size: int, brute_force: bool) -> tuple[np.nd
     return page, org[:, 0], org[:, 1]
 
 
-def _pot_repack(slots: np.ndarray, page: np.ndarray, x: np.ndarray, y: np.ndarray, dims: np.ndarray,
-                page_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each page repacked (shelf) into the smallest power-of-two rectangle that holds its slots, when that is
-    smaller than its power-of-two crop: a page filled to 260 texels down would otherwise double to 512 (on
-    Liechtenstein the plain next-power-of-two crop costs 1.6x the texels, the repack 1.2x). Candidates by
-    area, squarer first; the first the shelf packer fits wins. In place on copies of x, y; returns the dims."""
-    x, y, dims = x.copy(), y.copy(), dims.copy()
-    sizes = 2 ** np.arange(2, int(math.log2(page_size)) + 1)
-    for p in range(len(dims)):
-        sel = np.flatnonzero(page == p)
-        s = slots[sel]
-        need = int((s[:, 0] * s[:, 1]).sum())
-        cur = int(dims[p, 0] * dims[p, 1])
-        cands = sorted(((int(w), int(h)) for w in sizes for h in sizes
-                        if need <= w * h < cur and w >= s[:, 0].max() and h >= s[:, 1].max()),
-                       key=lambda c: (c[0] * c[1], abs(math.log2(c[0] / c[1])), -c[0]))
-        for w, h in cands:
-            pg, px, py = _shelf(s, w, h)
-            if pg.max() == 0:
-                x[sel], y[sel], dims[p] = px, py, (w, h)
-                break
-    return x, y, dims
-
-
 def layout(sizes: np.ndarray | Sequence[tuple[int, int]], page_size: int = PAGE_SIZE, packer: str = "shelf",
            padding: int = 2, brute_force: bool = False, pot: bool = False) -> Layout:
     """Place textures of ``sizes`` (k, 2) = (width, height) texels on pages of at most page_size a side.
-    ``pot``: pages with power-of-two sides (KTX2 mip chains; CesiumJS also resizes a mipmapped NPOT WebP page
-    to the next power of two itself), each repacked into the smallest one that holds it (_pot_repack)."""
+    ``pot``: crop pages to the next power of two a side (KTX2 mip chains halve each side exactly; CesiumJS
+    resizes a mipmapped NPOT WebP page to the next power of two itself). The shelf packer fills a page's width
+    first, so only its height rounds up: on Liechtenstein 1.04x the texels of multiple-of-4 crops (a repack
+    into the smallest power-of-two rectangle that holds a page's charts gained nothing there, measured)."""
     _check_page_size(page_size, padding)
     if pot and page_size & (page_size - 1):
         raise ValueError(f"page_size must be a power of two for power-of-two pages, got {page_size}")
@@ -409,8 +385,6 @@ def layout(sizes: np.ndarray | Sequence[tuple[int, int]], page_size: int = PAGE_
     if np.any(sx < 0) or np.any(sy < 0) or np.any(sx + slots[:, 0] > page_size) or np.any(sy + slots[:, 1] > page_size):
         raise RuntimeError(f"{packer} placed a texture outside its page")
     dims = _crop(page, sx + slots[:, 0], sy + slots[:, 1], n_pages, page_size, pot)
-    if pot:
-        sx, sy, dims = _pot_repack(slots, page, sx, sy, dims, page_size)
     return Layout(page=page, x=sx + padding, y=sy + padding, w=fitted[:, 0], h=fitted[:, 1], scaled=scaled,
                   page_dims=dims, padding=padding, packer=packer, seconds=seconds)
 

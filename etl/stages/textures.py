@@ -12,7 +12,10 @@ meshes, in the same triangle order, as the exporter writes):
   have larger errors and so get coarser textures: the multi-resolution atlases of the thesis.
 * charts, pages and UVs: etl/geom/texturing.py (walls with the LOD3 openings painted where the panels are,
   roof faces, xatlas for curved roofs, a flat-colour palette for what is too small to show a pattern),
-  pages <= tex_page_size, WebP (OpenImageIO has no KTX2 writer).
+  pages <= tex_page_size with power-of-two sides.
+* encodings: every page twice, as WebP (OpenImageIO) and as KTX2 (etl/geom/ktx2.py: basisu, ETC1S, full mip
+  chain), in the workers, so an export picks either (--textures ktx2|webp) without running the stage again
+  and is no slower for it (what it costs: the comment at KTX2 settings below).
 * a LOD2 tile and the leaves below it are one unit of work sharing a chart cache: the leaves' walls and
   roofs are the LOD2 tile's, at the same resolution wherever the LOD2 tile's rule reaches the cap (on
   Liechtenstein, all of them), so they are copied, and downsampled through OpenImageIO when the parent
@@ -21,7 +24,9 @@ meshes, in the same triangle order, as the exporter writes):
 One broken feature never stops the run: a tile that fails is textured again without the features that fail
 alone, and those are listed in tex.failure (they keep their vertex colours). A unit whose worker hangs (past
 tex_unit_timeout_s) or dies in native code is lost alone: its features go to tex.failure as texturing_hung or
-texturing_crashed, and its stacks to stderr (etl/workers.py). Features in = textured + failed.
+texturing_crashed, and its stacks to stderr (etl/workers.py). A page the KTX2 encoder refuses (exit, time-out,
+no KTX2 written) keeps its WebP; its features are listed in tex.failure as ktx2_encode_failed and drawn with
+vertex colours in KTX2 exports. Features in = textured + textured in WebP only + failed.
 """
 
 from __future__ import annotations
@@ -53,6 +58,12 @@ from ..workers import Lost, imap_isolated
 
 FORMAT = "webp"
 WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these pages (measured)
+# KTX2 settings (core.settings tex_ktx2_*), measured on 16 Liechtenstein pages of 512 x 512, level 0 of the ETC1
+# transcode against the page (WebP q90 for scale: 363 kB, PSNR 39.6 dB, mean abs diff 1.49 of 255): basisu -q 64
+# 208 kB, 35.2 dB, 2.43; -q 128 257 kB, 35.2 dB, 2.42; -q 32 180 kB, 34.8 dB, 2.49; -comp_level 0 6 % more bytes
+# for ~10 % less time. The error is ETC1S's block format, not its codebook size: -q above 64 buys bytes only.
+# Encoding costs ~0.3 s a page (basisu, one thread): the stage took 342 s with it against 97 s without on
+# Liechtenstein (636 pages, 2 workers on a shared, loaded machine), for KTX2 pages of 0.42x the WebP bytes.
 BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.building ids
 
 # The stage reads tex.tiles_to_texture (Tile rows), tex.tile_features (a tile's features, the same meshes in the

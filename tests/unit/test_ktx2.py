@@ -63,7 +63,7 @@ def test_basisu_writes_etc1s_srgb_with_a_full_mip_chain(w: int, h: int) -> None:
     assert k["transfer"] == KHR_DF_TRANSFER_SRGB
     # every level down to 1x1: log2(max side) + 1, each inside the file, the largest first in the index
     assert k["levels"] == int(np.log2(max(w, h))) + 1
-    assert all(0 < off and off + n <= len(data) and n > 0 for off, n, _ in k["level_index"])
+    assert all(off > 0 and off + n <= len(data) and n > 0 for off, n, _ in k["level_index"])
     assert k["sgd"][1] > 0 and k["sgd"][0] + k["sgd"][1] <= len(data)  # BasisLZ global codebooks
     assert K.header(data) == K.Header(0, w, h, k["levels"], K.SUPERCOMPRESSION_BASISLZ)
     # KHR_texture_basisu wants images with glTF's orientation: rows top down, columns left to right
