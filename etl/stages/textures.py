@@ -62,8 +62,9 @@ WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these
 # transcode against the page (WebP q90 for scale: 363 kB, PSNR 39.6 dB, mean abs diff 1.49 of 255): basisu -q 64
 # 208 kB, 35.2 dB, 2.43; -q 128 257 kB, 35.2 dB, 2.42; -q 32 180 kB, 34.8 dB, 2.49; -comp_level 0 6 % more bytes
 # for ~10 % less time. The error is ETC1S's block format, not its codebook size: -q above 64 buys bytes only.
-# Encoding costs ~0.3 s a page (basisu, one thread): the stage took 342 s with it against 97 s without on
-# Liechtenstein (636 pages, 2 workers on a shared, loaded machine), for KTX2 pages of 0.42x the WebP bytes.
+# Encoding costs ~0.35 s a 512 x 512 page (basisu, one thread): on Liechtenstein (636 pages, 2 workers on a
+# shared machine under load 6-7) the stage took 411 s with it against 97 s without, for 13.0 MB of KTX2
+# pages against 39.0 MB of WebP.
 BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.building ids
 
 # The stage reads tex.tiles_to_texture (Tile rows), tex.tile_features (a tile's features, the same meshes in the
