@@ -470,7 +470,7 @@ def compare_packers(tiles: dict[tuple[int, int, int], TileStats], page_size: int
                                "charts": len(sizes), "padding": pad,
                                "stored": {"pages": t.pages, "utilization": round(t.content_texels / t.page_texels, 4)}}
         for packer in A.PACKERS:
-            lay = A.layout(sizes, page_size, packer, pad)
+            lay = A.layout(sizes, page_size, packer, pad, pot=True)  # the stage's pages: powers of two a side
             area = int((lay.page_dims[:, 0] * lay.page_dims[:, 1]).sum())
             ok = _check_layout(lay, sizes, page_size)
             row[packer] = {"pages": lay.n_pages, "page_texels": area, "utilization": round(lay.total_utilization, 4),

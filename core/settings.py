@@ -100,8 +100,8 @@ class Settings:
     lm_max_scale: float = 3.0
 
     # --- textures (etl/stages/textures.py; the resolution rule is etl/geom/atlas.py texels_per_metre) -------
-    #: Largest atlas page side in texels (the thesis' 512; a multiple of 4 up to 4096). Pages are cropped to
-    #: what they hold, and a tile gets as many pages as its charts need.
+    #: Largest atlas page side in texels (the thesis' 512; a power of two, 16 to 4096). Pages are cropped to
+    #: the smallest power-of-two rectangle that holds them, and a tile gets as many pages as its charts need.
     tex_page_size: int = 512
     #: Screen pixels per texel at the nearest distance a tile is drawn from (1 = no magnification there).
     tex_px_per_texel: float = 1.0
@@ -127,6 +127,13 @@ class Settings:
     tex_packer: str = "shelf"
     #: WebP quality (0-100) of the atlas pages.
     tex_quality: int = 90
+    #: Basis Universal ETC1S quality (basisu -q, 1-255: the codebook sizes) of the KTX2 pages. 64: the PSNR of
+    #: 128 (35.2 dB on Liechtenstein's pages; ETC1S' block format sets it) for 0.81x the bytes.
+    tex_ktx2_quality: int = 64
+    #: basisu -comp_level (0-6): encoder effort.
+    tex_ktx2_comp_level: int = 1
+    #: A page basisu has not encoded after this many seconds is refused (tex.failure ktx2_encode_failed).
+    tex_ktx2_timeout_s: float = 60.0
     #: Worker processes (0: one per CPU core, at most 4; 1 runs in the stage's own process).
     tex_workers: int = 0
     #: A unit of work (a LOD2 tile and its leaves) still running after this many seconds is hung, not slow (the

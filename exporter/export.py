@@ -42,7 +42,7 @@ from .tileset import TileRecord, build_tileset, region_centre
 # A tile's features as the glb holds them (api.export_features: api.buildings_for_tile's rows with ECEF meshes and
 # the landmark metadata), its atlas pages and UVs (api.tile_pages, api.tile_uvs); rows read by column name.
 _FEATURES = "SELECT * FROM api.export_features(%(level)s, %(x)s, %(y)s, %(lod)s, %(base)s)"
-_PAGES = "SELECT page_no, mime, bytes FROM api.tile_pages(%s, %s, %s)"
+_PAGES = "SELECT page_no, mime, bytes FROM api.tile_pages(%s, %s, %s, %s)"
 _UVS = "SELECT feature_kind, feature_id, n_triangles, page, uv FROM api.tile_uvs(%s, %s, %s)"
 
 OSM_TYPE = {"W": "way", "R": "relation", "B": "block"}
@@ -103,20 +103,27 @@ class TileTextures:
     uvs: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]  # (m,) int16 page, (m, 3, 2) float32 uv
 
 
-def load_textures(conn: psycopg.Connection, level: int, x: int, y: int) -> TileTextures | None:
-    """The tile's textures (tex.page, tex.feature_uv), None when the textures stage has not textured it."""
+def load_textures(conn: psycopg.Connection, level: int, x: int, y: int,
+                  fmt: str = COMPACT.textures) -> TileTextures | None:
+    """The tile's textures (tex.page in ``fmt``, ktx2 or webp, and tex.feature_uv), None when the textures stage
+    has not textured it. A feature with a triangle on a page that has no KTX2 (the encoder refused it: tex.failure
+    ktx2_encode_failed) is drawn with vertex colours in a ktx2 export: its UVs are left out."""
     with conn.cursor(row_factory=dict_row) as cur:
-        pages = cur.execute(_PAGES, (level, x, y)).fetchall()
+        pages = cur.execute(_PAGES, (level, x, y, fmt)).fetchall()
         if not pages:
             return None
         if [p["page_no"] for p in pages] != list(range(len(pages))):
             raise RuntimeError(f"tex.page of tile {level}/{x}/{y} is not numbered 0..{len(pages) - 1}")
+        missing = np.array([p["page_no"] for p in pages if p["bytes"] is None], np.int16)
         uvs = {}
         for u in cur.execute(_UVS, (level, x, y)):
+            page = np.frombuffer(bytes(u["page"]), "<i2").copy()
+            if len(missing) and np.isin(page, missing).any():
+                continue
             uvs[(u["feature_kind"], int(u["feature_id"]))] = (
-                np.frombuffer(bytes(u["page"]), "<i2").copy(),
-                np.frombuffer(bytes(u["uv"]), "<f4").reshape(u["n_triangles"], 3, 2))
-    return TileTextures([Image(bytes(p["bytes"]), p["mime"]) for p in pages], uvs)
+                page, np.frombuffer(bytes(u["uv"]), "<f4").reshape(u["n_triangles"], 3, 2))
+    # a page without bytes is used by no UV left, so build_tile_glb never embeds it
+    return TileTextures([Image(bytes(p["bytes"] or b""), p["mime"]) for p in pages], uvs)
 
 
 def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[int, ContentArrays]]]:
@@ -246,7 +253,7 @@ def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod:
     with conn.cursor(row_factory=dict_row) as cur:
         rows = cur.execute(_FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y,
                                        "lod": lod}).fetchall()
-    textures = load_textures(conn, rec.level, rec.x, rec.y) if lod is None else None
+    textures = load_textures(conn, rec.level, rec.x, rec.y, stream.textures) if lod is None else None
     glb, tri = build_tile_glb(rows, rec.region, textures, stream, rec)
     return glb, len(rows), tri
 

@@ -4,9 +4,9 @@ Pure: arrays in, bytes out. An untextured tile is one primitive with POSITION, N
 ``_FEATURE_ID_0``; the feature ids index an ``EXT_structural_metadata`` property table (one row per building
 or part) through ``EXT_mesh_features``, which is what CesiumJS reads when a feature is picked or styled.
 A textured tile (the textures stage's atlas pages) has one primitive per page, with TEXCOORD_0 instead of
-COLOR_0 and one material whose baseColorTexture is the page (WebP through EXT_texture_webp, required: no
-fallback image), plus the vertex-coloured primitive for what has no texture; every primitive carries the
-feature ids of its own vertices against the one property table.
+COLOR_0 and one material whose baseColorTexture is the page (KTX2 through KHR_texture_basisu or WebP through
+EXT_texture_webp, required: no fallback image), plus the vertex-coloured primitive for what has no texture;
+every primitive carries the feature ids of its own vertices against the one property table.
 Spec notes honoured here: bufferViews start on 8-byte boundaries (metadata requirement), vertex attributes are
 4-byte aligned (feature ids as FLOAT, exact up to 2^24), POSITION carries min/max, normals are unit length.
 """
@@ -62,7 +62,11 @@ class Image:
     """An encoded texture image stored in the glb's buffer (an atlas page)."""
 
     data: bytes
-    mime: str  # image/webp, image/png or image/jpeg
+    mime: str  # image/ktx2 (KHR_texture_basisu), image/webp (EXT_texture_webp), image/png or image/jpeg
+
+
+#: images that glTF core does not know: the extension that carries each, required (no fallback image)
+IMAGE_EXTENSIONS = {"image/webp": "EXT_texture_webp", "image/ktx2": "KHR_texture_basisu"}
 
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
@@ -220,16 +224,18 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "buffers": [{"byteLength": len(b.bin)}],
     }
     if textured:
-        # WebP only through EXT_texture_webp, required: the pages exist in no other format (no fallback)
-        webp = [im.mime == "image/webp" for im in images]
+        # WebP and KTX2 only through their extensions, required: the pages exist in no other format (no fallback)
+        ext = [IMAGE_EXTENSIONS.get(im.mime) for im in images]
         gltf["images"] = [{"bufferView": v, "mimeType": im.mime} for v, im in zip(image_views, images, strict=True)]
+        # KTX2 pages carry their full mip chain; WebP pages get theirs from the client (CesiumJS generates them)
         gltf["samplers"] = [{"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE,
                              "wrapT": CLAMP_TO_EDGE}]
-        gltf["textures"] = [{"sampler": 0, "extensions": {"EXT_texture_webp": {"source": i}}} if w
-                            else {"sampler": 0, "source": i} for i, w in enumerate(webp)]
-        if any(webp):
-            gltf["extensionsUsed"] = [*gltf["extensionsUsed"], "EXT_texture_webp"]  # type: ignore[misc]
-            gltf["extensionsRequired"] = ["EXT_texture_webp"]
+        gltf["textures"] = [{"sampler": 0, "extensions": {e: {"source": i}}} if e else {"sampler": 0, "source": i}
+                            for i, e in enumerate(ext)]
+        used = sorted({e for e in ext if e})
+        if used:
+            gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *used]  # type: ignore[misc]
+            gltf["extensionsRequired"] = used
     return _pack(gltf, bytes(b.bin))
 
 

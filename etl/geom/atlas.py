@@ -19,7 +19,8 @@ Design choices:
   * **Bounded pages**: nothing is ever larger than ``page_size`` (512 by default as in the thesis, at most
     4096); a texture that would not fit is shrunk to fit and flagged ``scaled``; more pages when needed. Each
     page is then cropped to the area in use, rounded up to a multiple of 4 texels (block-compressed formats
-    need that, and two 2x reductions stay exact). Each chart sits in a gutter of ``padding`` texels filled
+    need that, and two 2x reductions stay exact), or to a power of two a side (``pot``, what the textures stage
+    uses: KTX2 carries a full mip chain). Each chart sits in a gutter of ``padding`` texels filled
     with its own edge texels, so bilinear filtering and the first log2(padding) mip levels never bleed in
     a neighbour's colour.
   * **Two packers with one output**: ``shelf`` (heights descending, best-fitting open shelf on any page,
@@ -357,8 +358,13 @@ def _xatlas(slots: np.ndarray, page_size: int, brute_force: bool) -> tuple[np.nd
 def layout(sizes: np.ndarray | Sequence[tuple[int, int]], page_size: int = PAGE_SIZE, packer: str = "shelf",
            padding: int = 2, brute_force: bool = False, pot: bool = False) -> Layout:
     """Place textures of ``sizes`` (k, 2) = (width, height) texels on pages of at most page_size a side.
-    ``pot``: crop pages to powers of two (WebGL 1 clients; CesiumJS on WebGL 2, its default, takes any size)."""
+    ``pot``: crop pages to the next power of two a side (KTX2 mip chains halve each side exactly; CesiumJS
+    resizes a mipmapped NPOT WebP page to the next power of two itself). The shelf packer fills a page's width
+    first, so only its height rounds up: on Liechtenstein 1.04x the texels of multiple-of-4 crops (a repack
+    into the smallest power-of-two rectangle that holds a page's charts gained nothing there, measured)."""
     _check_page_size(page_size, padding)
+    if pot and page_size & (page_size - 1):
+        raise ValueError(f"page_size must be a power of two for power-of-two pages, got {page_size}")
     if packer not in PACKERS:
         raise ValueError(f"unknown packer {packer!r} ({' or '.join(PACKERS)})")
     fitted, scaled = fit_sizes(np.asarray(sizes).reshape(-1, 2), page_size, padding)

@@ -67,6 +67,7 @@ class Params:
     min_chart_texels: int = 16  # smaller charts (or thinner than 2 texels) become flat palette colours
     xatlas_min_planes: int = 24  # roofs with more planar faces than this get xatlas charts
     palette_width: int = 16  # palette chart width in texels (rows added as needed)
+    pot: bool = True  # pages cropped to powers of two a side (KTX2 mip chains; the WebP pages share the layout)
 
 
 @dataclass(frozen=True)
@@ -624,9 +625,9 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
         tri_local[flat] = np.stack([((slot % pw) + 0.5) / pw, ((slot // pw) + 0.5) / ph], axis=-1)[:, None, :]
 
     if not len(kinds):
-        lay = A.layout(np.zeros((0, 2), np.int64), params.page_size, params.packer, params.padding)
+        lay = A.layout(np.zeros((0, 2), np.int64), params.page_size, params.packer, params.padding, pot=params.pot)
         return TileTexture([], lay, kinds, np.full(m, -1, np.int16), np.zeros((m, 3, 2), np.float32), stats)
-    lay = A.layout(px, params.page_size, params.packer, params.padding)
+    lay = A.layout(px, params.page_size, params.packer, params.padding, pot=params.pot)
     ins = _insets(lay, kinds)
     req = _requests(kinds, req_style, size_m, req_open, ins, styles)
     # pixels differ with the inset: it is part of the cache key

@@ -12,7 +12,10 @@ meshes, in the same triangle order, as the exporter writes):
   have larger errors and so get coarser textures: the multi-resolution atlases of the thesis.
 * charts, pages and UVs: etl/geom/texturing.py (walls with the LOD3 openings painted where the panels are,
   roof faces, xatlas for curved roofs, a flat-colour palette for what is too small to show a pattern),
-  pages <= tex_page_size, WebP (OpenImageIO has no KTX2 writer).
+  pages <= tex_page_size with power-of-two sides.
+* encodings: every page twice, as WebP (OpenImageIO) and as KTX2 (etl/geom/ktx2.py: basisu, ETC1S, full mip
+  chain), in the workers, so an export picks either (--textures ktx2|webp) without running the stage again
+  and is no slower for it (what it costs: the comment at KTX2 settings below).
 * a LOD2 tile and the leaves below it are one unit of work sharing a chart cache: the leaves' walls and
   roofs are the LOD2 tile's, at the same resolution wherever the LOD2 tile's rule reaches the cap (on
   Liechtenstein, all of them), so they are copied, and downsampled through OpenImageIO when the parent
@@ -21,7 +24,9 @@ meshes, in the same triangle order, as the exporter writes):
 One broken feature never stops the run: a tile that fails is textured again without the features that fail
 alone, and those are listed in tex.failure (they keep their vertex colours). A unit whose worker hangs (past
 tex_unit_timeout_s) or dies in native code is lost alone: its features go to tex.failure as texturing_hung or
-texturing_crashed, and its stacks to stderr (etl/workers.py). Features in = textured + failed.
+texturing_crashed, and its stacks to stderr (etl/workers.py). A page the KTX2 encoder refuses (exit, time-out,
+no KTX2 written) keeps its WebP; its features are listed in tex.failure as ktx2_encode_failed and drawn with
+vertex colours in KTX2 exports. Features in = textured + textured in WebP only + failed.
 """
 
 from __future__ import annotations
@@ -47,11 +52,19 @@ from core.settings import Settings
 from core.wkb import decode_triangles
 
 from ..geom import atlas as A
+from ..geom import ktx2 as K
 from ..geom import texturing as X
 from ..workers import Lost, imap_isolated
 
 FORMAT = "webp"
 WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these pages (measured)
+# KTX2 settings (core.settings tex_ktx2_*), measured on 16 Liechtenstein pages of 512 x 512, level 0 of the ETC1
+# transcode against the page (WebP q90 for scale: 363 kB, PSNR 39.6 dB, mean abs diff 1.49 of 255): basisu -q 64
+# 208 kB, 35.2 dB, 2.43; -q 128 257 kB, 35.2 dB, 2.42; -q 32 180 kB, 34.8 dB, 2.49; -comp_level 0 6 % more bytes
+# for ~10 % less time. The error is ETC1S's block format, not its codebook size: -q above 64 buys bytes only.
+# Encoding costs ~0.35 s a 512 x 512 page (basisu, one thread): on Liechtenstein (636 pages, 2 workers on a
+# shared machine under load 6-7) the stage took 411 s with it against 97 s without, for 13.0 MB of KTX2
+# pages against 39.0 MB of WebP.
 BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.building ids
 
 # The stage reads tex.tiles_to_texture (Tile rows), tex.tile_features (a tile's features, the same meshes in the
@@ -59,9 +72,10 @@ BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.build
 _FEATURES = "SELECT * FROM tex.tile_features(%s, %s, %s)"
 _FEATURE_IDS = "SELECT feature_kind, building_id, osm_type, osm_id FROM tex.tile_features(%s, %s, %s)"  # no meshes
 _PAGE_COLUMNS = ("level", "x", "y", "page_no", "format", "mime", "width", "height", "n_bytes", "bytes",
-                 "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects")
+                 "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects",
+                 "ktx2", "ktx2_n_bytes", "ktx2_levels")
 _PAGE_TYPES = ("int2", "int4", "int4", "int2", "text", "text", "int4", "int4", "int4", "bytea", "float4", "float4",
-               "float4", "int4", "int4", "int2", "bytea")
+               "float4", "int4", "int4", "int2", "bytea", "bytea", "int4", "int2")
 _UV_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "n_triangles", "page", "uv")
 _UV_TYPES = ("int2", "int4", "int4", "text", "int8", "int4", "bytea", "bytea")
 _FAIL_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "osm_type", "osm_id", "reason", "detail")
@@ -89,8 +103,10 @@ class Result:
     uvs: list[tuple] = field(default_factory=list)
     failures: list[tuple] = field(default_factory=list)
     features: int = 0
+    ktx2_failed: int = 0  # features among ``failures`` textured, but on a page without KTX2
     stats: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
+    ktx2_seconds: float = 0.0
 
 
 def resolution(geometric_error: float, settings: Settings) -> tuple[float, float]:
@@ -240,18 +256,33 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     if tt is not None:
         rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
         util = tt.layout.utilization
+        refused: dict[int, str] = {}
         for p, img in enumerate(tt.pages):
             data, mime = A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD)
+            t1 = time.perf_counter()
+            try:
+                k2: bytes | None = K.encode(img, settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
+                                            settings.tex_ktx2_timeout_s)
+            except K.EncodeError as e:  # this page stays WebP only; its features get vertex colours in KTX2
+                k2, refused[p] = None, str(e)
+            res.ktx2_seconds += time.perf_counter() - t1
             h, w = img.shape[:2]
             res.pages.append((*key, p, FORMAT, mime, w, h, len(data), data, float(util[p]), rho, distance,
                               len(rects[p]), int(tt.layout.scaled[tt.layout.page == p].sum()), pad,
-                              rects[p].astype("<i4").tobytes()))
+                              rects[p].astype("<i4").tobytes(), k2, len(k2) if k2 else None,
+                              max(w, h).bit_length() if k2 else None))
         off = np.concatenate([[0], np.cumsum(counts)])
+        bad = np.array(sorted(refused), np.int64)
         for j, i in enumerate(good):
             r = rows[i]
             sl = slice(off[j], off[j + 1])
             res.uvs.append((*key, r["feature_kind"], int(r["building_id"]), int(counts[j]),
                             tt.tri_page[sl].astype("<i2").tobytes(), tt.tri_uv[sl].astype("<f4").tobytes()))
+            hit = np.intersect1d(tt.tri_page[sl], bad) if len(bad) else bad
+            if len(hit):
+                first = int(hit[0])
+                res.failures.append(_failure(key, r, K.EncodeError.reason, f"page {first}: {refused[first]}"))
+                res.ktx2_failed += 1
         res.stats = tt.stats
     res.seconds = time.perf_counter() - t0
     return res
@@ -318,8 +349,9 @@ def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Sett
 
 def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
-    if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size % 4:
-        raise ValueError(f"tex_page_size must be a multiple of 4 in 16..{A.MAX_PAGE_SIZE}")
+    if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
+        raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
+    K.binary()  # no encoder is an installation problem, not a bad page: stop before any work ("run make setup")
     if settings.tex_max_texels_per_metre <= 0:
         raise ValueError("tex_max_texels_per_metre must be > 0")
     tiles = conn.cursor(row_factory=class_row(Tile)).execute("SELECT * FROM tex.tiles_to_texture()").fetchall()
@@ -333,8 +365,10 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     progress = Progress("textures", "features", total=expected)
     by_band: dict[int, dict[str, float]] = {}
     lost = 0
-    totals = dict.fromkeys(("features", "textured", "failed", "pages", "bytes", "page_texels", "content_texels",
-                            "rendered_texels", "copied", "resized", "flat", "sheets", "scaled", "panels_mapped"), 0)
+    totals = dict.fromkeys(("features", "textured", "failed", "ktx2_failed", "pages", "bytes", "ktx2_pages",
+                            "ktx2_bytes", "page_texels", "content_texels", "rendered_texels", "copied", "resized",
+                            "flat", "sheets", "scaled", "panels_mapped"), 0)
+    ktx2_seconds = 0.0
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure")
         for unit, out in zip(work, _map_units(work, url, settings, workers), strict=True):
@@ -355,9 +389,13 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                     b[k] += v
                 totals["features"] += res.features
                 totals["textured"] += len(res.uvs)
-                totals["failed"] += len(res.failures)
+                totals["failed"] += len(res.failures) - res.ktx2_failed
+                totals["ktx2_failed"] += res.ktx2_failed
                 totals["pages"] += len(res.pages)
                 totals["bytes"] += n_bytes
+                totals["ktx2_pages"] += sum(1 for p in res.pages if p[17] is not None)
+                totals["ktx2_bytes"] += sum(p[18] or 0 for p in res.pages)
+                ktx2_seconds += res.ktx2_seconds
                 totals["page_texels"] += page_texels
                 for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
                           "panels_mapped"):
@@ -365,8 +403,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                 progress.update(res.features)
         if totals["features"] != expected:
             raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
-        # every feature of every tile textured or in tex.failure with its reason; checked before commit
-        balance = Balance("features", int(expected), {"textured": int(totals["textured"])}, int(totals["failed"]))
+        # every feature of every tile textured or in tex.failure with its reason; checked before commit. A feature
+        # on a page the KTX2 encoder refused is textured in WebP only (and in tex.failure as ktx2_encode_failed)
+        balance = Balance("features", int(expected), {
+            "textured": int(totals["textured"] - totals["ktx2_failed"]),
+            "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
         cur.execute("ANALYZE tex.page")
         cur.execute("ANALYZE tex.feature_uv")
     seconds = time.perf_counter() - t0
@@ -379,7 +420,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
               "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
     summary(
         "textures", balance,
-        f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB, "
+        f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB WebP, "
+        f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({ktx2_seconds:.1f} s encoding in the workers), "
         f"utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)",
@@ -387,6 +429,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         buildings,
     )
     return {**totals, **balance.counts(), "tiles": len(tiles), "units": len(work), "units_lost": lost,
-            "workers": workers, "utilization": round(util, 4),
+            "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

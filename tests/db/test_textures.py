@@ -26,6 +26,7 @@ from exporter.server.app import make_app
 from exporter.server.reader import reader_url
 from exporter.server.source import DbTileSource
 from tests.conftest import helsinki, run_etl, validate_glb
+from tests.unit.test_ktx2 import IDENTIFIER, assert_ktx2_report, read_ktx2
 
 S = Settings()
 
@@ -43,6 +44,14 @@ def textured(new_db: Callable[[str], str], tmp_path_factory: pytest.TempPathFact
         counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
                               "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
     return url, out, counts
+
+
+@pytest.fixture(scope="module")
+def webp_export(textured: tuple[str, Path, dict], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same database exported with --textures webp (the default export above is KTX2)."""
+    out = tmp_path_factory.mktemp("textures-webp") / "helsinki"
+    run_etl(textured[0], "export", "--out", str(out), "--textures", "webp")
+    return out
 
 
 def pages(conn: psycopg.Connection) -> list[tuple]:
@@ -140,12 +149,34 @@ def test_a_second_run_gives_the_same_bytes(textured, conn_of) -> None:
     assert digest() == before
 
 
-def test_export_validates_with_one_material_per_page(textured, conn_of) -> None:
+def test_every_page_is_stored_as_webp_and_as_ktx2_with_its_mip_chain(textured, conn_of) -> None:
+    conn = conn_of(textured[0])
+    rows = conn.execute("SELECT width, height, format, bytes, ktx2, ktx2_n_bytes, ktx2_levels FROM tex.page").fetchall()
+    assert rows
+    for w, h, fmt, webp, k2, n, levels in rows:
+        assert w & (w - 1) == 0 and h & (h - 1) == 0  # powers of two a side
+        assert fmt == "webp" and A.decode_image(bytes(webp), "webp").shape[:2] == (h, w)
+        k = read_ktx2(bytes(k2))
+        assert len(k2) == n and (k["width"], k["height"]) == (w, h)
+        assert k["levels"] == levels == max(w, h).bit_length()  # every level down to 1 x 1
+        assert k["scheme"] == 1 and k["color_model"] == 163 and k["transfer"] == 2  # ETC1S BasisLZ, sRGB
+    counts = textured[2]
+    assert counts["ktx2_pages"] == counts["pages"] == len(rows) and counts["ktx2_failed"] == 0
+    assert counts["ktx2_bytes"] == sum(r[5] for r in rows)
+
+
+@pytest.mark.parametrize("fmt", ["ktx2", "webp"])
+def test_export_validates_with_one_material_per_page(fmt, textured, webp_export, conn_of) -> None:
     url, out, _ = textured
+    out = out if fmt == "ktx2" else webp_export
     conn = conn_of(url)
     report = validate_glb(out)
-    assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
+    if fmt == "ktx2":
+        assert_ktx2_report(report)
+    else:
+        assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
+    ext, mime = {"ktx2": ("KHR_texture_basisu", "image/ktx2"), "webp": ("EXT_texture_webp", "image/webp")}[fmt]
     n_pages = dict(((r[0], r[1], r[2]), r[3]) for r in conn.execute(
         "SELECT level, x, y, count(*) FROM tex.page GROUP BY 1, 2, 3"))
     features = textured_tiles = 0
@@ -159,8 +190,14 @@ def test_export_validates_with_one_material_per_page(textured, conn_of) -> None:
             textured_tiles += 1
             materials = {p["material"] for p in with_texture}
             assert len(materials) == len(with_texture)  # one material per page, never per building
-            assert gltf["extensionsRequired"] == ["EXT_texture_webp"]
-            assert all(gltf["images"][i]["mimeType"] == "image/webp" for i in range(len(gltf["images"])))
+            assert gltf["extensionsRequired"] == [ext]
+            assert all(im["mimeType"] == mime for im in gltf["images"])
+            assert all(set(t["extensions"]) == {ext} for t in gltf["textures"])
+            if fmt == "ktx2":
+                _, binary = read_glb(glb.read_bytes())
+                for im in gltf["images"]:
+                    view = gltf["bufferViews"][im["bufferView"]]
+                    assert binary[view["byteOffset"]:view["byteOffset"] + 12] == IDENTIFIER
         features += gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["count"]
         assert len(prims) == len(gltf["materials"]) <= n_pages.get((level, x, y), 0) + 1
     assert textured_tiles == len(n_pages)
@@ -235,6 +272,44 @@ def test_units_past_their_time_limit_are_recorded_as_failed_not_lost(textured, c
     assert missing == 0
     run_etl(url, "textures")  # back to the module's textured state
     assert conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0] == counts["failed"]
+
+
+def test_pages_the_ktx2_encoder_refuses_stay_webp_and_their_features_get_vertex_colours(textured, conn_of,
+                                                                                         tmp_path) -> None:
+    """An encoder that fails on every page: the stage still ends well, every page keeps its WebP, every textured
+    feature is in tex.failure as ktx2_encode_failed (in = textured + textured in WebP only + rejected), a KTX2
+    export draws them with vertex colours and validates, a WebP export is textured as before."""
+    url, _, counts = textured
+    conn = conn_of(url)
+    fake = tmp_path / "basisu"
+    fake.write_text("#!/bin/sh\necho 'ERROR: refused' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    try:
+        run_etl(url, "textures", env={"CITYLOD_BASISU": str(fake)})
+        run = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
+                           "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+        n = counts["textured"]
+        assert n > 0 and run["ktx2_failed"] == n and run["ktx2_pages"] == 0 and run["pages"] == counts["pages"]
+        assert (run["textured"], run["failed"]) == (counts["textured"], counts["failed"])
+        assert run["out_by_kind"] == {"textured": 0, "textured in WebP only": n}
+        assert run["in"] == run["out"] + run["rejected"] == counts["features"]
+        reasons = dict((r[0], r[1:]) for r in conn.execute(
+            "SELECT reason, count(*), bool_and(detail LIKE '%basisu exit 1%') FROM tex.failure GROUP BY 1"))
+        assert reasons.pop("ktx2_encode_failed") == (n, True)
+        assert sum(r[0] for r in reasons.values()) == counts["failed"]
+        assert conn.execute("SELECT count(*) FROM tex.page WHERE ktx2 IS NULL AND bytes IS NOT NULL").fetchone()[0] \
+            == counts["pages"]
+        ktx2, webp = tmp_path / "ktx2", tmp_path / "webp"
+        run_etl(url, "export", "--out", str(ktx2), "--textures", "ktx2")
+        run_etl(url, "export", "--out", str(webp), "--textures", "webp")
+        report = validate_glb(ktx2)
+        assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
+        assert not any("images" in read_glb(g.read_bytes())[0] for g in ktx2.rglob("*.glb"))  # vertex colours
+        assert sum("images" in read_glb(g.read_bytes())[0] for g in webp.rglob("*.glb")) == len(
+            {(r[0], r[1], r[2]) for r in pages(conn)})
+    finally:
+        run_etl(url, "textures")  # back to the module's textured state
+    assert conn.execute("SELECT count(*) FROM tex.page WHERE ktx2 IS NULL").fetchone()[0] == 0
 
 
 def test_generalizing_again_makes_the_textures_stale(textured, tmp_path) -> None:

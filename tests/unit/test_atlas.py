@@ -92,6 +92,14 @@ def test_utilization_hand_case() -> None:
     assert lay.total_utilization == pytest.approx(124 / 192)
     pot = layout([[6, 4], [10, 10]], page_size=64, packer="shelf", padding=0, pot=True)
     assert pot.page_dims.tolist() == [[16, 16]] and pot.utilization.tolist() == pytest.approx([124 / 256])
+    # pages of at most page_size a side can only be powers of two when page_size is one
+    with pytest.raises(ValueError, match="power of two"):
+        layout([[6, 4]], page_size=96, packer="shelf", padding=0, pot=True)
+    tall = layout([[100, 30]] * 40, page_size=256, packer="shelf", padding=1, pot=True)
+    # 102 x 32 slots, 16 a page: the last page holds 8 in 204 x 128 texels, cropped to 256 x 128
+    assert tall.page_dims.tolist() == [[256, 256], [256, 256], [256, 128]]
+    assert (tall.x + tall.w + 1 <= tall.page_dims[tall.page, 0]).all()
+    assert (tall.y + tall.h + 1 <= tall.page_dims[tall.page, 1]).all()
 
 
 def test_new_page_when_full_and_last_page_cropped() -> None:

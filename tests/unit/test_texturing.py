@@ -57,6 +57,9 @@ def test_every_corner_lands_in_its_chart_on_a_bounded_page(padding: int) -> None
     tt = X.texture_tile(tri, feat, sem, styles(), 4.0, X.Params(page_size=128, padding=padding))
     assert tt.layout.n_pages >= 3  # 37k texels of charts: several 128 x 128 pages, strips cut to fit
     assert all(p.shape[0] <= 128 and p.shape[1] <= 128 for p in tt.pages) and tt.stats["scaled"] == 0
+    # every side a power of two (the KTX2 pages' full mip chains), the page's pixels exactly that size
+    assert all(s & (s - 1) == 0 for p in tt.pages for s in p.shape[:2])
+    assert [p.shape[1::-1] for p in tt.pages] == [tuple(d) for d in tt.layout.page_dims.tolist()]
     assert (tt.tri_page >= 0).all() and tt.tri_page.max() < len(tt.pages)
     dims = tt.layout.page_dims[tt.tri_page].astype(float)
     px = tt.tri_uv * dims[:, None, :]  # texel coordinates of every corner
