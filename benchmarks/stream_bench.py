@@ -181,6 +181,12 @@ def cesium_camera(cam: Camera, name: str) -> dict[str, Any]:
             "pitch": cam.pitch, "fovDeg": fov, "width": width, "height_px": cam.viewport_height}
 
 
+def failed(reason: str) -> dict[str, Any]:
+    """A measurement that could not be made at all, as section_lines shows it."""
+    err = {"error": _error(RuntimeError(reason))}
+    return {v: {"all": err, "lod1": err, "client": err} for v in VARIANTS}
+
+
 def _ratio(a: float | None, b: float | None) -> float | None:
     return a / b if a is not None and b else None
 
