@@ -367,12 +367,16 @@ def read_rgb(path: Path) -> np.ndarray:
     return np.asarray(buf.get_pixels(oiio.UINT8))
 
 
+def _view(client: dict[str, Any], cam: str) -> dict[str, Any]:
+    return client.get("views", {}).get(cam) or {"error": client.get("error", "not measured")}
+
+
 def compare_shots(res: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """The compact stream's screenshot against the plain one's, per camera."""
     out: dict[str, dict[str, Any]] = {}
     for cam in CAMERAS:
         try:
-            a, b = (res[v]["client"]["views"][cam] for v in ("compact", "plain"))
+            a, b = (_view(res[v].get("client") or {}, cam) for v in ("compact", "plain"))
             if "error" in a or "error" in b:
                 raise RuntimeError("a view failed: " + (a.get("error") or b.get("error")))
             out[cam] = {**mean_abs_diff(read_rgb(Path(a["screenshot"])), read_rgb(Path(b["screenshot"]))),

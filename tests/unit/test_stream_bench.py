@@ -181,3 +181,42 @@ def test_section_records_failures_without_crashing() -> None:
     text = "\n".join(sb.section_lines([("x", res)]))
     assert "failed: export exited 1" in text and "failed: not exported" in text
     assert sb.section_lines([]) == []
+
+
+def test_bench_report_has_the_stream_section() -> None:
+    from benchmarks import bench
+
+    res = bench.ExtractResult(path=Path(f"{bench.HEADLINE}.osm.pbf"))
+    for st in bench.STAGES:
+        res.stages[st].append(bench.Sample(1.0, 10.0, {"in": 5, "buildings": 5, "features": 5}))
+    res.o2p.append(bench.Sample(0.5, 10.0))
+    res.stream = {"compact": _variant(2600, 300, 400_000, 12.0, 40e6),
+                  "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6), "pixels": {}}
+    text = bench.render([res], {"cores": "2"}, 1, "python -m benchmarks.bench")
+    assert "\n## Stream\n" in text and text.index("## Stream") < text.index("## How to read this")
+    assert f"| {bench.HEADLINE} | compact | 2,600 | 0.19× | **pass** |" in text
+    res.stream = sb.failed("psql: connection refused")
+    assert "failed: psql: connection refused" in bench.render([res], {"cores": "2"}, 1, "x")
+
+
+def test_compare_shots_reads_pngs_and_records_failed_clients(tmp_path: Path) -> None:
+    import OpenImageIO as oiio  # noqa: N813
+
+    paths = []
+    for name, value in (("a", 10), ("b", 40)):
+        img = np.full((6, 8, 4), value, np.uint8)
+        img[..., 3] = 255
+        buf = oiio.ImageBuf(oiio.ImageSpec(8, 6, 4, oiio.UINT8))
+        buf.set_pixels(oiio.ROI(), img)
+        assert buf.write(str(tmp_path / f"{name}.png"))
+        paths.append(str(tmp_path / f"{name}.png"))
+    views = [{cam: {"name": cam, "loaded": True, "screenshot": p} for cam in sb.CAMERAS} for p in paths]
+    res = {"compact": {"client": {"views": views[0]}}, "plain": {"client": {"views": views[1]}}}
+    out = sb.compare_shots(res)
+    assert out["street"]["mad"] == 30.0 and out["street"]["differing"] == 1.0
+    res["compact"]["client"] = {"error": "driver exit 1: Chromium crashed"}
+    res["plain"]["client"]["views"]["overview"] = {"name": "overview", "error": "3 tiles failed to load"}
+    out = sb.compare_shots(res)
+    assert "Chromium crashed" in out["street"]["error"] and "Chromium crashed" in out["overview"]["error"]
+    res["compact"] = {}
+    assert "not measured" in sb.compare_shots(res)["street"]["error"]
