@@ -31,6 +31,7 @@ database it built).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -120,8 +121,9 @@ def glb_split(data: bytes) -> dict[str, int]:
     buffers = doc.get("buffers", [])
     views = doc.get("bufferViews", [])
 
-    def stored(i: int) -> bool:  # the glb's own BIN chunk: a buffer without a uri
-        return 0 <= i < len(buffers) and "uri" not in buffers[i]
+    def stored(i: int) -> bool:  # the glb's BIN chunk is buffer 0 without a uri (a meshopt fallback has none)
+        return i == 0 and bool(buffers) and "uri" not in buffers[0] and not any(
+            buffers[0].get("extensions", {}).get(ext, {}).get("fallback") for ext in MESHOPT)
 
     def view_bytes(v: int) -> int:
         view = views[v]
@@ -561,8 +563,11 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
             if "error" in p:
                 rows.append([name, cam, _fail(p["error"]), "–", "–"])
             else:
+                shots = Path(p["compact"]).parent.parent
+                with contextlib.suppress(ValueError):
+                    shots = shots.relative_to(REPO)
                 rows.append([name, cam, f"{p['mad']:.2f}", f"{100 * p['differing']:.2f} %",
-                             f"{Path(p['compact']).parent.parent.name}/…/{cam}.png"])
+                             f"{shots}/{{compact,plain}}/{cam}.png"])
     if rows:
         out += ["", "### Compact against plain, pixel by pixel", "", PIXEL_NOTE.format(t=DIFF_THRESHOLD), "",
                 *markdown_table(["extract", "camera", "mean abs diff (0-255)", "pixels differing", "screenshots"],
