@@ -552,8 +552,9 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
                                  f"≤ {TARGET_TEXTURE_MEMORY}× (street)"], rows, "llllrrrrrl")]
         if gpu:
             fmts = ", ".join(f"{k.upper()} {'yes' if gpu.get(k) else 'no'}" for k in ("astc", "etc", "s3tc", "bc7"))
-            out += ["", f"GPU texture formats the context exposes: {fmts}; KTX2/Basis transcodable: "
-                        f"{'yes' if gpu.get('supportsBasis') else 'no'}; extensions: "
+            out += ["", f"GPU texture formats CesiumJS detects (what it transcodes KTX2 to): {fmts}; KTX2/Basis: "
+                        f"{'yes' if gpu.get('supportsBasis') else 'no'}; compressed-texture extensions the WebGL "
+                        "context exposes: "
                         f"{', '.join(gpu.get('compressedExtensions') or []) or 'none'}; renderer: "
                         f"{gpu.get('renderer')} (WebGL {'2' if gpu.get('webgl2') else '1'})."]
 

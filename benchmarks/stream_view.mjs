@@ -54,7 +54,10 @@ async function measureView([cam, timeoutMs]) {
   });
   const failuresBefore = window.citylod.tileFailures;
   const first = await window.citylodCommon.settle(scene, () => tileset, timeoutMs);
-  // Whatever earlier views (and the viewer's opening overview) loaded and this view does not use goes now.
+  // What the session holds on arrival (the viewer's opening overview and earlier views included), for context;
+  // then whatever this view does not use goes.
+  const held = { texturesByteLength: tileset.statistics.texturesByteLength,
+    geometryByteLength: tileset.statistics.geometryByteLength };
   tileset.trimLoadedTiles();
   await frames(3);
   const settled = await window.citylodCommon.settle(scene, () => tileset, timeoutMs);
@@ -72,6 +75,7 @@ async function measureView([cam, timeoutMs]) {
     trianglesSelected: st.numberOfTrianglesSelected,
     featuresSelected: st.numberOfFeaturesSelected,
     tilesSelected: st.selected,
+    held,
     memoryAdjustedScreenSpaceError: tileset.memoryAdjustedScreenSpaceError,
     drawingBuffer: [scene.drawingBufferWidth, scene.drawingBufferHeight],
     fovyDeg: Cesium.Math.toDegrees(viewer.camera.frustum.fovy),
