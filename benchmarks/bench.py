@@ -9,9 +9,11 @@ the same file with a flex style (benchmarks/osm2pgsql/buildings.lua) into ``city
 reference loader.
 
 On the generalized database of the last repeat: triangles per view (overview and street cameras against every
-building at LOD3, benchmarks/view_bench.py) and the texture atlases (benchmarks/report_textures.py ``measure``:
-utilization, pages and bytes per band, draw calls against one texture per building, shelf against xatlas) for
-every extract, and for the benchmark extract the tile server under 64 concurrent clients, cold and warm cache
+building at LOD3, benchmarks/view_bench.py), the texture atlases (benchmarks/report_textures.py ``measure``:
+utilization, pages and bytes per band, draw calls against one texture per building, shelf against xatlas) and
+the stream (benchmarks/stream_bench.py ``measure``: the compact stream against today's, both exported again
+from that database: bytes, export seconds, CesiumJS memory and screenshots at the street and overview cameras)
+for every extract, and for the benchmark extract the tile server under 64 concurrent clients, cold and warm cache
 (benchmarks/serve_bench.py ``measure_db``). Last, the latency of api.lod_for_view at ~100k and ~1M buildings
 on two cached bench-only databases replicated from the benchmark extract (``view_bench.scale``; built once,
 ~15 minutes, then reused while the code is unchanged).
@@ -36,7 +38,7 @@ from typing import Any
 import psycopg
 from psycopg.conninfo import conninfo_to_dict
 
-from benchmarks import report_textures, view_bench
+from benchmarks import report_textures, stream_bench, view_bench
 from benchmarks.common import (
     HEADLINE,
     LOG_DIR,
@@ -155,6 +157,7 @@ class ExtractResult:
     views: dict[str, Any] | None = None  # view_bench.triangles_per_view
     server: dict[str, Any] | None = None  # serve_bench.measure_db (benchmark extract only)
     textures: dict[str, Any] | None = None  # report_textures.measure
+    stream: dict[str, Any] | None = None  # stream_bench.measure
 
     @property
     def name(self) -> str:
@@ -199,7 +202,7 @@ class ExtractResult:
         return statistics.median(s.seconds for s in self.o2p)
 
 
-def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True) -> ExtractResult:
+def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, stream: bool = True) -> ExtractResult:
     res = ExtractResult(path=path)
     url = cluster.database_url(BENCH_DB)
     o2p_url = cluster.database_url(O2P_DB)
@@ -241,6 +244,13 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True) 
     res.textures = report_textures.measure(url)
     log(f"{res.name} textures: utilization {res.textures['totals']['utilization']}, overview "
         f"{res.textures['views']['overview']['draw_call_ratio']}x fewer draw calls than one texture per building")
+    if stream:
+        # the database this run built, exported again per stream (interleaved, `repeat` times)
+        try:
+            res.stream = stream_bench.measure(url, res.name, repeat=repeat)
+        except Exception as e:  # noqa: BLE001 - reported in the Stream table, the bench goes on
+            res.stream = stream_bench.failed(str(e))
+            log(f"{res.name} stream: FAILED {e}")
     if server and res.name == HEADLINE:
         res.server = measure_server(url, logs / "serve_bench.log")
         w, c = res.server["warm"], res.server["cold"]
@@ -595,6 +605,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     lines += ["", "## Output", "", OUTPUT_NOTE, "", *markdown_table(header, rows, "lrrrrrrr")]
     lines += _views_section(results)
     lines += _textures_section(results, head)
+    lines += stream_bench.section_lines([(r.name, r.stream) for r in results if r.stream])
     lines += _server_section(results)
     lines += _scale_section(scale)
 
@@ -626,6 +637,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--files", nargs="+", type=Path, help="OSM extracts (default: ../shared/data/osm + demo)")
     p.add_argument("--keep", action="store_true", help=f"keep {BENCH_DB} and {O2P_DB} afterwards")
     p.add_argument("--no-server", action="store_true", help="skip the serve --db load test")
+    p.add_argument("--no-stream", action="store_true",
+                   help="skip the Stream section (compact vs plain exports, CesiumJS in headless Chromium)")
     p.add_argument("--scale-json", type=Path,
                    help="take the latency at scale from this output of `python -m benchmarks.view_bench scale` "
                         "(a run on a quiet machine) instead of measuring it here")
@@ -647,7 +660,7 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --repeat {args.repeat}"
     if args.files:
         command += " --files " + " ".join(str(f) for f in args.files)
-    for flag in ("no_server", "no_scale"):
+    for flag in ("no_server", "no_stream", "no_scale"):
         if getattr(args, flag):
             command += " --" + flag.replace("_", "-")
     if args.scale_json:
@@ -658,7 +671,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         for f in files:
-            results.append(bench_extract(f, args.repeat, admin_url, server=not args.no_server))
+            results.append(bench_extract(f, args.repeat, admin_url, server=not args.no_server,
+                                         stream=not args.no_stream))
         mach = machine(cluster.database_url(BENCH_DB))
         head = next((f for f in files if extract_name(f) == HEADLINE), None)
         if args.scale_json:
