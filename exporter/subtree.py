@@ -33,7 +33,8 @@ def morton(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Quadtree Morton index: the bits of x and y interleaved, x in the lower bit of each pair."""
     x, y = np.asarray(x, np.int64), np.asarray(y, np.int64)
     out = np.zeros(np.broadcast(x, y).shape, np.int64)
-    for b in range(31):
+    top = int(max(x.max(initial=0), y.max(initial=0)))
+    for b in range(top.bit_length()):
         out |= ((x >> b) & 1) << (2 * b) | ((y >> b) & 1) << (2 * b + 1)
     return out
 
@@ -46,20 +47,41 @@ def subtree_roots(keys: np.ndarray, subtree_levels: int) -> np.ndarray:
     return np.stack([root_lv, keys[:, 1] >> shift, keys[:, 2] >> shift], axis=1)
 
 
-def subtree_bytes_estimate(keys: np.ndarray, subtree_levels: int, row_bytes: int) -> tuple[int, int]:
-    """(files, bytes) the subtrees of ``keys`` would take with ``subtree_levels`` (bitstreams at full length,
-    ``row_bytes`` of metadata per tile, ~200 bytes of header and JSON per file)."""
-    n_sub = len(np.unique(subtree_roots(keys, subtree_levels), axis=0))
-    bits = level_offset(subtree_levels) * 2 + (1 << (2 * subtree_levels))
-    return n_sub, n_sub * (200 + bits // 8) + len(keys) * row_bytes
+def subtree_sizes(keys: np.ndarray, subtree_levels: int, row_bytes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(roots (m, 3), bytes (m,)) of the subtree files ``keys`` (n, 3: level, x, y) make with ``subtree_levels``,
+    estimated: ~500 bytes of header and JSON, the availability bitstreams that are not
+    constant (content shares the tiles' when equal) and ``row_bytes`` of metadata per tile."""
+    roots = subtree_roots(keys, subtree_levels)
+    uniq, count = np.unique(roots, axis=0, return_counts=True)
+    n_bits = level_offset(subtree_levels)
+    tile_bits = np.where(count == n_bits, 0, -(-n_bits // 64) * 8)
+    # the subtrees just below each one: roots at level + subtree_levels under it
+    deep = uniq[uniq[:, 0] >= subtree_levels]
+    up = np.c_[deep[:, 0] - subtree_levels, deep[:, 1] >> subtree_levels, deep[:, 2] >> subtree_levels]
+    parent, n_child = np.unique(up, axis=0, return_counts=True)
+    children = np.zeros(len(uniq), np.int64)
+    if len(parent):
+        pos = {tuple(k): i for i, k in enumerate(uniq.tolist())}
+        children[[pos[tuple(k)] for k in parent.tolist()]] = n_child
+    n_child_bits = 1 << (2 * subtree_levels)
+    child_bits = np.where((children == 0) | (children == n_child_bits), 0, -(-n_child_bits // 64) * 8)
+    return uniq, 500 + tile_bits + child_bits + count * row_bytes
 
 
-def choose_subtree_levels(keys: np.ndarray, row_bytes: int, file_cost: int = 16_384) -> int:
-    """subtreeLevels for a tree: the fewest bytes plus ``file_cost`` per file (a request costs about as much
-    as that many bytes), between 2 and 10 levels (a full 10-level bitstream is 44 kB)."""
-    best = min(range(2, 11), key=lambda s: (lambda f, b: b + f * file_cost)(*subtree_bytes_estimate(keys, s,
-                                                                                                    row_bytes)))
-    return int(best)
+def choose_subtree_levels(keys: np.ndarray, row_bytes: int, root_budget: int = 65_536,
+                          file_cost: int = 4_096) -> int:
+    """subtreeLevels for a tree: the fewest bytes plus ``file_cost`` per file (a request costs about as much as
+    that many bytes), among the levels (2 to 10) whose root subtree, the first thing a client fetches, stays
+    within ``root_budget`` bytes. A small city gets one subtree file; the ~1M bench city a root subtree of
+    ~10 kB and a few hundred small ones, each fetched when the traversal reaches it."""
+    best, best_cost = 2, float("inf")
+    for s in range(2, 11):
+        roots, size = subtree_sizes(keys, s, row_bytes)
+        root = size[np.flatnonzero(np.all(roots == 0, axis=1))].sum()
+        cost = size.sum() + len(size) * file_cost
+        if root <= root_budget and cost < best_cost:
+            best, best_cost = s, cost
+    return best
 
 
 def _bitstream(bits: np.ndarray) -> dict[str, int] | bytes:

@@ -195,17 +195,25 @@ def build_implicit(records: Iterable[TileRecord], tileset_version: str = "", sin
     error = np.array([r.geometric_error for r in recs], np.float64)
     content = np.array([r.is_leaf or not single_lod for r in recs], bool)
     roots = subtree_roots(keys, levels)
-    # each subtree's tiles, and the subtrees starting right below it
+    # each subtree's tiles (grouped by a sort), and the subtrees starting right below it
     uniq, inverse = np.unique(roots, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
-    parent_of = np.full_like(uniq, -1)
-    deep = uniq[:, 0] > 0
-    parent_of[deep] = subtree_roots(np.c_[uniq[deep, 0] - 1, uniq[deep, 1] >> 1, uniq[deep, 2] >> 1], levels)
+    by_sub = np.argsort(inverse, kind="stable")
+    tile_bounds = np.searchsorted(inverse[by_sub], np.arange(len(uniq) + 1))
+    parent_of = np.full(len(uniq), -1, np.int64)
+    deep = np.flatnonzero(uniq[:, 0] > 0)
+    if len(deep):
+        up = subtree_roots(np.c_[uniq[deep, 0] - 1, uniq[deep, 1] >> 1, uniq[deep, 2] >> 1], levels)
+        # the parent subtree's index in uniq (rows sorted lexicographically, as np.unique returns them)
+        index = {k: i for i, k in enumerate(map(tuple, uniq.tolist()))}
+        parent_of[deep] = [index[k] for k in map(tuple, up.tolist())]
+    by_parent = np.argsort(parent_of, kind="stable")
+    child_bounds = np.searchsorted(parent_of[by_parent], np.arange(len(uniq) + 1))
     files: dict[str, bytes] = {}
-    for i, root_key in enumerate(uniq):
-        mine = inverse == i
-        below = uniq[(uniq[:, 0] == root_key[0] + levels) & np.all(parent_of == root_key, axis=1)]
-        lvl, x, y = (int(v) for v in root_key)
+    for i, root_key in enumerate(uniq.tolist()):
+        mine = by_sub[tile_bounds[i]:tile_bounds[i + 1]]
+        below = uniq[by_parent[child_bounds[i]:child_bounds[i + 1]]]
+        lvl, x, y = root_key
         files[SUBTREE_TEMPLATE.format(level=lvl, x=x, y=y)] = write_subtree(
             (lvl, x, y), levels, keys[mine], content[mine], below,
             [("region", region[mine]), ("geometric_error", error[mine])])

@@ -148,14 +148,19 @@ def test_subtree_binary_layout() -> None:
         write_subtree((1, 0, 0), 2, np.array([[2, 2, 0]]), np.array([True]), np.zeros((0, 3), int), [])
 
 
-def test_subtree_levels_grow_with_the_tree() -> None:
+def test_subtree_levels_keep_the_root_subtree_small() -> None:
     small = np.array([[r.level, r.x, r.y] for r in tree(depth=4)])
     assert choose_subtree_levels(small, 56) >= 5  # a small city: one subtree file
-    # a deep, full tree of 12 levels would need a 5 MB bitstream in one file: split
-    deep = np.array([[12, x, x] for x in range(0, 4096, 7)])
-    deep = np.unique(np.concatenate([np.c_[np.full(len(deep), lv), deep[:, 1:] >> (12 - lv)]
+    # a deep tree (13 levels, 1024 leaves): one file would hold 480 kB of metadata; the first subtree a client
+    # fetches stays within the budget, and the files are far fewer than the tiles
+    leaves = np.array([[12, x, y] for x in range(0, 4096, 128) for y in range(0, 4096, 128)])
+    deep = np.unique(np.concatenate([np.c_[np.full(len(leaves), lv), leaves[:, 1:] >> (12 - lv)]
                                      for lv in range(13)]), axis=0)
-    assert 2 <= choose_subtree_levels(deep, 56) <= 10
+    s = choose_subtree_levels(deep, 56, root_budget=65_536)
+    ts, files = build_implicit([TileRecord(int(lv), int(x), int(y), lv == 12, (0.1, 0.1, 0.2, 0.2, 0.0, 1.0),
+                                           0.0 if lv == 12 else 1.0, f"content/{lv}/{x}/{y}.glb")
+                                for lv, x, y in deep.tolist()], subtree_levels=s)
+    assert len(files["subtrees/0/0/0.subtree"]) <= 65_536 and 1 < len(files) < len(deep) / 4
 
 
 def test_implicit_tileset_passes_the_checks(tmp_path) -> None:
