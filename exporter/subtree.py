@@ -68,12 +68,20 @@ def subtree_sizes(keys: np.ndarray, subtree_levels: int, row_bytes: int) -> tupl
     return uniq, 500 + tile_bits + child_bits + count * row_bytes
 
 
-def choose_subtree_levels(keys: np.ndarray, row_bytes: int, root_budget: int = 65_536,
-                          file_cost: int = 4_096) -> int:
-    """subtreeLevels for a tree: the fewest bytes plus ``file_cost`` per file (a request costs about as much as
-    that many bytes), among the levels (2 to 10) whose root subtree, the first thing a client fetches, stays
-    within ``root_budget`` bytes. A small city gets one subtree file; the ~1M bench city a root subtree of
-    ~10 kB and a few hundred small ones, each fetched when the traversal reaches it."""
+def choose_subtree_levels(keys: np.ndarray, row_bytes: int, single_budget: int = 2 << 20,
+                          root_budget: int = 65_536, file_cost: int = 4_096) -> int:
+    """subtreeLevels for a tree (keys (n, 3): level, x, y).
+
+    One subtree for the whole tree when it fits in ``single_budget`` bytes (the ~1M bench city's is 500 kB):
+    a client builds the placeholder of a child subtree, before loading it, from the uniform subdivision of
+    the root region and the root error halved per level (CesiumJS Implicit3DTileContent
+    makePlaceholderChildSubtree), and our tiles are not that subdivision, so a placeholder can be culled while
+    the tiles below it are in view. Deeper trees: the fewest bytes plus ``file_cost`` per file (a request
+    costs about as much as that many bytes), among the levels (2 to 10) whose root subtree, a client's first
+    fetch, stays within ``root_budget`` bytes."""
+    levels = int(keys[:, 0].max()) + 1
+    if subtree_sizes(keys, levels, row_bytes)[1].sum() <= single_budget:
+        return levels
     best, best_cost = 2, float("inf")
     for s in range(2, 11):
         roots, size = subtree_sizes(keys, s, row_bytes)
