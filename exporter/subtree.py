@@ -6,7 +6,7 @@ holds a JSON chunk and a binary chunk with:
     Morton order, level by level (bit i is byte i >> 3, bit i & 7), or ``{"constant": 0|1}`` when all bits
     agree;
   * the tile metadata property table (``tileMetadata``): one row per available tile, in bit order, of the
-    class ``tileset.TILE_CLASS`` (each tile's real bounding region and geometric error, with the metadata
+    class ``tile`` of ``tileset.TILE_SCHEMA`` (each tile's real bounding region and geometric error, with the metadata
     semantics TILE_BOUNDING_REGION and TILE_GEOMETRIC_ERROR: the quadtree is cut in the working CRS and its
     regions are the extents of the meshes, not the uniform subdivision of the root region).
 Every bufferView starts on an 8-byte boundary; the JSON chunk is padded with spaces, the binary with zeros.

@@ -151,13 +151,14 @@ def test_subtree_binary_layout() -> None:
 def test_subtree_levels_one_file_or_a_small_root_subtree() -> None:
     small = np.array([[r.level, r.x, r.y] for r in tree(depth=4)])
     assert choose_subtree_levels(small, 56) == 5  # a city that fits: one subtree file of all its levels
-    # a deep tree (13 levels, 1024 leaves): one file would hold 480 kB of metadata; the first subtree a client
+    # a deep tree (13 levels, 1024 leaves): one file would hold 2.8 MB of tile availability; the first subtree a client
     # fetches stays within the budget, and the files are far fewer than the tiles
     leaves = np.array([[12, x, y] for x in range(0, 4096, 128) for y in range(0, 4096, 128)])
     deep = np.unique(np.concatenate([np.c_[np.full(len(leaves), lv), leaves[:, 1:] >> (12 - lv)]
                                      for lv in range(13)]), axis=0)
-    assert choose_subtree_levels(deep, 56) == 13  # fits in one file of 2 MB
-    s = choose_subtree_levels(deep, 56, single_budget=0, root_budget=65_536)
+    assert choose_subtree_levels(deep, 56, single_budget=4 << 20) == 13  # one file: 2.8 MB of bitstream alone
+    s = choose_subtree_levels(deep, 56)  # over the 2 MB for one file
+    assert s < 13
     ts, files = build_implicit([TileRecord(int(lv), int(x), int(y), lv == 12, (0.1, 0.1, 0.2, 0.2, 0.0, 1.0),
                                            0.0 if lv == 12 else 1.0, f"content/{lv}/{x}/{y}.glb")
                                 for lv, x, y in deep.tolist()], subtree_levels=s)
