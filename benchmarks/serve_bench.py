@@ -32,6 +32,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from benchmarks.servers import spawned
+from core.tiles3d import tileset_files
 
 BROWSER_HEADERS = {"Accept-Encoding": "gzip, deflate, br"}
 
@@ -122,25 +123,25 @@ def _next(work: queue.SimpleQueue[str]) -> str | None:
 
 
 def tile_paths(url_base: str, tileset: str = "/tiles/tileset.json") -> list[str]:
-    """``tileset`` and the absolute path of every content URI it lists (relative URIs resolved against it)."""
+    """``tileset`` and the absolute path of every file it needs (content, and an implicit tileset's subtrees;
+    relative URIs resolved against it)."""
     u = urlsplit(url_base)
-    conn = http.client.HTTPConnection(u.hostname or "127.0.0.1", u.port or 80, timeout=120)
-    try:
-        conn.request("GET", tileset)
-        r = conn.getresponse()
-        body = r.read()
-        if r.status != 200:
-            raise RuntimeError(f"GET {tileset}: {r.status} {body[:200]!r}")
-    finally:
-        conn.close()
     base = tileset.rsplit("/", 1)[0]
-    out, stack = [tileset], [json.loads(body)["root"]]
-    while stack:
-        t = stack.pop()
-        if "content" in t:
-            out.append(f"{base}/{t['content']['uri']}")
-        stack.extend(t.get("children", []))
-    return out
+
+    def get(path: str) -> bytes:
+        conn = http.client.HTTPConnection(u.hostname or "127.0.0.1", u.port or 80, timeout=120)
+        try:
+            conn.request("GET", path)
+            r = conn.getresponse()
+            body = r.read()
+            if r.status != 200:
+                raise RuntimeError(f"GET {path}: {r.status} {body[:200]!r}")
+            return body
+        finally:
+            conn.close()
+
+    files = tileset_files(json.loads(get(tileset)), lambda uri: get(f"{base}/{uri}"))
+    return [tileset] + [f"{base}/{uri}" for uri in files]
 
 
 @contextmanager

@@ -33,7 +33,7 @@ from pathlib import Path
 import psycopg
 
 from core.settings import REPO, Settings
-from core.tiles3d import content_uris
+from core.tiles3d import tileset_files
 
 from .migrate import discover_sql
 
@@ -280,7 +280,11 @@ def output_problems(out: Path, recorded: dict[str, object] | None) -> list[str]:
     data = ts.read_bytes()
     if not recorded or recorded.get("tileset_sha256") != sha256_bytes(data):
         return [f"{ts} is not the one it wrote"]
-    missing = [u for u in content_uris(json.loads(data)) if not (out / u).is_file()]
+    try:  # content, and an implicit tileset's subtrees (read to list its content)
+        uris = tileset_files(json.loads(data), lambda u: (out / u).read_bytes())
+    except (OSError, ValueError) as e:
+        return [f"the tileset in {out} cannot be read: {e}"]
+    missing = [u for u in uris if not (out / u).is_file()]
     if missing:
         return [f"{len(missing)} content files missing from {out} ({missing[0]}, ...)"]
     return []

@@ -13,7 +13,13 @@ requires of tileset.json and tiles, plus the rules a client silently depends on:
   * the top-level geometricError is sized to the tileset's extent (at least half the root volume's
     diagonal): CesiumJS skips the whole tileset, without an error, when it is too small;
   * in every glb content, EXT_mesh_features and EXT_structural_metadata (``check_glb``), which the Khronos
-    glTF-Validator does not check ("unsupported extension").
+    glTF-Validator does not check ("unsupported extension");
+  * an implicit tileset (``implicitTiling``): subdivisionScheme, subtreeLevels, availableLevels, the subtree
+    and content URI templates; every subtree file it reaches parses (header, 8-byte padding and alignment,
+    bufferViews inside the binary chunk, bitstreams long enough, availableCount right, content only on
+    available tiles, every available tile's parent available, the tile property table's class in the
+    tileset's schema and one row per available tile); then the tree it stands for (core/tiles3d.expand, with
+    each tile's TILE_BOUNDING_REGION and TILE_GEOMETRIC_ERROR) is checked like an explicit one.
 Pure Python + numpy; no database.
 """
 
@@ -29,6 +35,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 
 from core.geodesy import geodetic_to_ecef
+from core.tiles3d import expand
 
 from .gltf import SCALAR_DTYPES, accessor_array, read_glb
 
@@ -112,6 +119,34 @@ def _check_bv(bv: object, where: str, problems: list[str]) -> bool:
         if w > e:
             problems.append(f"{where}: region crosses the antimeridian (west > east), unsupported by these checks")
     return True
+
+
+def _check_implicit(root: dict[str, Any], problems: list[str]) -> dict[str, Any] | None:
+    """The root's implicitTiling, or None (with the problems) when it cannot be expanded."""
+    imp = root["implicitTiling"]
+    before = len(problems)
+    if not isinstance(imp, dict):
+        problems.append("root: implicitTiling must be an object")
+        return None
+    if imp.get("subdivisionScheme") not in ("QUADTREE", "OCTREE"):
+        problems.append("root: implicitTiling.subdivisionScheme must be QUADTREE or OCTREE")
+    elif imp["subdivisionScheme"] == "OCTREE":
+        problems.append("root: implicitTiling OCTREE is not checked here (citylod writes QUADTREE)")
+    for k in ("subtreeLevels", "availableLevels"):
+        if not isinstance(imp.get(k), int) or isinstance(imp.get(k), bool) or imp[k] < 1:
+            problems.append(f"root: implicitTiling.{k} must be an integer >= 1")
+    templates = [("implicitTiling.subtrees.uri", (imp.get("subtrees") or {}).get("uri"))]
+    if "content" in root:
+        templates.append(("content.uri", root["content"].get("uri")))
+    for where, uri in templates:
+        if not isinstance(uri, str) or not all(v in uri for v in ("{level}", "{x}", "{y}")):
+            problems.append(f"root: {where} must be a template with {{level}}, {{x}} and {{y}}")
+    if "children" in root:
+        problems.append("root: an implicit root tile must not have children")
+    if "region" not in (root.get("boundingVolume") or {}) \
+            and "box" not in (root.get("boundingVolume") or {}):
+        problems.append("root: an implicit root needs a region or box bounding volume")
+    return None if len(problems) > before else imp
 
 
 def _check_glb(path: Path, where: str, problems: list[str]) -> None:
@@ -265,6 +300,16 @@ def check_tileset(path: Path) -> list[str]:
         return problems
     if root.get("refine") not in ("ADD", "REPLACE"):
         problems.append("root: refine is required on the root tile and must be ADD or REPLACE")
+    if "implicitTiling" in root:
+        implicit = _check_implicit(root, problems)
+        if implicit is None:
+            return problems
+        try:
+            ts = expand(ts, lambda uri: (base / unquote(uri)).read_bytes())
+        except (OSError, ValueError) as e:
+            problems.append(f"root: implicit tiling: {e}")
+            return problems
+        root = ts["root"]
     uris: set[str] = set()
 
     def walk(tile: dict[str, Any], where: str, parent_error: float, parent_bv: dict[str, Any] | None,

@@ -37,7 +37,9 @@ from core.wkb import decode_triangles
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
 from .gltf import Image, Primitive, Property, write_glb
 from .stream import COMPACT, StreamOptions
-from .tileset import TileRecord, build_tileset, region_centre
+from .tileset import TileRecord, build, node_matrix, region_centre
+
+TILESET_JSON = "tileset.json"
 
 # A tile's features as the glb holds them (api.export_features: api.buildings_for_tile's rows with ECEF meshes and
 # the landmark metadata), its atlas pages and UVs (api.tile_pages, api.tile_uvs); rows read by column name.
@@ -144,9 +146,11 @@ def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[
 
 
 def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTextures | None = None,
-                   stream: StreamOptions = COMPACT, rec: TileRecord | None = None) -> tuple[bytes, int]:
+                   stream: StreamOptions = COMPACT, rec: TileRecord | None = None,
+                   node_matrix: list[float] | None = None) -> tuple[bytes, int]:
     """glb bytes and triangle count for the feature rows (dicts with the columns of api.export_features) of one tile;
-    with ``textures``, the features that have UVs are drawn with their atlas pages."""
+    with ``textures``, the features that have UVs are drawn with their atlas pages; ``node_matrix`` places the
+    tile's frame in the root's (tileset.node_matrix)."""
     tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
     counts = np.array([len(t) for t in tris])
     triangles = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
@@ -194,7 +198,8 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
     textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
                           indices=a.indices, uvs=a.uvs, image=k) for k, (_, a) in enumerate(parts)]
     images = [textures.images[p] for p, _ in parts] if textures is not None else []
-    glb = write_glb(prim, "building", "An OSM building or building:part", textured=textured, images=images)
+    glb = write_glb(prim, "building", "An OSM building or building:part", textured=textured, images=images,
+                    node_matrix=node_matrix)
     return glb, len(arr.indices) // 3
 
 
@@ -238,28 +243,41 @@ def load_records(conn: psycopg.Connection) -> list[TileRecord]:
         ]
 
 
+def tileset_files(conn: psycopg.Connection, records: list[TileRecord], lod: int | None,
+                  stream: StreamOptions = COMPACT) -> dict[str, bytes]:
+    """tileset.json and, implicit, its subtree files, by URI, as written to disk and served (same bytes either
+    way)."""
+    dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
+    version = dataset[0][:16] if dataset and dataset[0] else ""
+    ts, files = build(records, tileset_version=version, single_lod=lod is not None, tiling=stream.tiling)
+    # compact JSON: an implicit tileset.json is a few kB either way, an explicit one is the size of the tree
+    return {TILESET_JSON: json.dumps(ts, separators=(",", ":")).encode(), **files}
+
+
 def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int | None,
                   stream: StreamOptions = COMPACT) -> bytes:
     """tileset.json as written to disk and served (same bytes either way)."""
-    dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
-    version = dataset[0][:16] if dataset and dataset[0] else ""
-    return json.dumps(build_tileset(records, tileset_version=version, single_lod=lod is not None), indent=1).encode()
+    return tileset_files(conn, records, lod, stream)[TILESET_JSON]
 
 
 def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None,
-             stream: StreamOptions = COMPACT) -> tuple[bytes, int, int]:
-    """(glb bytes, features, triangles) of one tile's content; textured when the textures stage made pages for
-    it (the generalized hierarchy only: ``lod`` tilesets hold other meshes than the stage textured)."""
+             stream: StreamOptions = COMPACT, root_region: tuple[float, ...] | None = None) -> tuple[bytes, int, int]:
+    """(glb bytes, features, triangles) of one tile's content, placed in the frame of the tileset's root
+    (``root_region``: the root tile's; without it the glb stays in its own tile's frame, no node matrix);
+    textured when the textures stage made pages for it (the generalized hierarchy only: ``lod`` tilesets hold
+    other meshes than the stage textured)."""
     with conn.cursor(row_factory=dict_row) as cur:
         rows = cur.execute(_FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y,
                                        "lod": lod}).fetchall()
     textures = load_textures(conn, rec.level, rec.x, rec.y, stream.textures) if lod is None else None
-    glb, tri = build_tile_glb(rows, rec.region, textures, stream, rec)
+    matrix = node_matrix(rec.region, root_region) if root_region is not None else None
+    glb, tri = build_tile_glb(rows, rec.region, textures, stream, rec, matrix)
     return glb, len(rows), tri
 
 
 def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, workers: int,
-                  progress: Progress, lod: int | None, stream: StreamOptions) -> tuple[int, int, int]:
+                  progress: Progress, lod: int | None, stream: StreamOptions,
+                  root_region: tuple[float, ...]) -> tuple[int, int, int]:
     """Write every tile's glb; tiles are independent, so ``workers`` threads each with their own connection
     share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
     local = threading.local()
@@ -271,7 +289,7 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
             local.conn = connect(url)
             with lock:
                 conns.append(local.conn)
-        glb, n, tri = tile_glb(local.conn, rec, base_height, lod, stream)
+        glb, n, tri = tile_glb(local.conn, rec, base_height, lod, stream, root_region)
         assert rec.content_uri is not None
         path = out / rec.content_uri
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -348,7 +366,8 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     with connect(url) as conn:
         records = load_records(conn)
         check_current(conn, records, lod)
-        js = tileset_bytes(conn, records, lod, stream)
+        files = tileset_files(conn, records, lod, stream)
+    root_region = next(r.region for r in records if r.level == 0)
     tiles = [r for r in records if r.is_leaf or lod is None]
     expected = sum(r.n_features if lod else r.content_features for r in tiles)  # type: ignore[misc]
     if partial.exists():
@@ -357,11 +376,13 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "features", total=expected)
     n_features, n_triangles, n_bytes = _export_tiles(
-        url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod, stream)
+        url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod, stream, root_region)
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
-    (partial / "tileset.json").write_bytes(js)
-    n_bytes += len(js)
+    for uri, data in files.items():  # tileset.json and the subtrees
+        (partial / uri).parent.mkdir(parents=True, exist_ok=True)
+        (partial / uri).write_bytes(data)
+    n_bytes += sum(len(d) for d in files.values())
     (partial / PARTIAL_MARKER).unlink()
     if out.exists():
         shutil.rmtree(out)
@@ -370,13 +391,14 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     buildings = sum(r.n_features for r in records if r.is_leaf)
     summary(
         "export", balance,
-        f"{len(tiles):,} glb tiles, {n_triangles:,} triangles, "
+        f"{len(tiles):,} glb tiles, {len(files) - 1:,} subtrees, {n_triangles:,} triangles, "
         f"{n_bytes / 1e6:.2f} MB ({n_bytes / max(buildings, 1):,.0f} bytes/building) -> {out}",
         seconds,
         buildings,
     )
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
     return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
-            "tiles": len(records), "glb": len(tiles), "triangles": n_triangles, "bytes": n_bytes,
+            "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
+            "tileset_json_bytes": len(files[TILESET_JSON]), "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "directory": str(out)}

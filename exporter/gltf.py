@@ -148,10 +148,12 @@ def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) 
 
 
 def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "",
-              textured: Sequence[Primitive] = (), images: Sequence[Image] = ()) -> bytes:
+              textured: Sequence[Primitive] = (), images: Sequence[Image] = (),
+              node_matrix: Sequence[float] | None = None) -> bytes:
     """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
     primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
-    vertex-coloured primitive; with them an empty ``prim`` is left out."""
+    vertex-coloured primitive; with them an empty ``prim`` is left out. ``node_matrix`` (16 numbers,
+    column-major): the node's transform from the mesh's frame to the frame the tileset places it in."""
     b = _Builder()
     materials: list[dict[str, object]] = []
     primitives: list[dict[str, object]] = []
@@ -211,7 +213,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "extensionsUsed": ["EXT_mesh_features", "EXT_structural_metadata"],
         "scene": 0,
         "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
+        "nodes": [{"mesh": 0} if node_matrix is None else {"mesh": 0, "matrix": _matrix16(node_matrix)}],
         "materials": materials,
         "meshes": [{"primitives": primitives}],
         "extensions": {"EXT_structural_metadata": {
@@ -237,6 +239,12 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
             gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *used]  # type: ignore[misc]
             gltf["extensionsRequired"] = used
     return _pack(gltf, bytes(b.bin))
+
+
+def _matrix16(m: Sequence[float]) -> list[float]:
+    if len(m) != 16 or not np.all(np.isfinite(m)):
+        raise ValueError("node_matrix must be 16 finite numbers")
+    return [float(v) for v in m]
 
 
 def _pack(gltf: dict[str, object], binary: bytes) -> bytes:

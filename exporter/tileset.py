@@ -2,9 +2,17 @@
 
 * Bounding volumes are regions (radians, metres above the WGS84 ellipsoid), which need no transform and nest
   exactly: a parent's region is the union of its children's.
-* Every tile with content carries the transform from its local east-north-up frame (origin at the centre of
-  its region, on the ellipsoid) to its parent's frame (3D Tiles composes transforms down the tree), so each
-  glb stores coordinates in its own tile's frame, y up.
+* Frames: the root carries the transform from the root region's east-north-up frame (origin at its centre, on
+  the ellipsoid) to ECEF, and no other tile has a transform (implicit tiling has none). Each glb stores its
+  mesh in its own tile's east-north-up frame (y up) and its node carries the matrix from that frame to the
+  root's (``node_matrix``), so a glb is the same bytes whatever the tiling.
+* Tiling (``build``): ``explicit`` writes every tile into tileset.json; ``implicit`` writes a 3D Tiles 1.1
+  implicit quadtree (the root with ``implicitTiling``, a content URI template and subtree files, subtree.py).
+  The quadtree is cut in the working CRS and a tile's region is the extent of its meshes, neither being the
+  uniform subdivision of the root region that implicit tiling assumes, so each tile's real region and
+  geometric error travel as subtree tile metadata (semantics TILE_BOUNDING_REGION, TILE_GEOMETRIC_ERROR; the
+  class ``TILE_SCHEMA`` in tileset.json). Our (level, x, y) are the implicit coordinates: x east, y north,
+  children (2x + i, 2y + j), and content/{level}/{x}/{y}.glb is the template.
 * Geometric error: 0 for leaves; above, the value the generalize stage measured (tiles.tile.geometric_error:
   the largest error bound of the tile's content or its children's). The top-level geometricError is at
   least the diagonal of the root region: CesiumJS silently loads nothing when it is too small for the
@@ -23,11 +31,28 @@ from typing import Any, Literal, TypedDict
 
 import numpy as np
 
-from core.geodesy import column_major, enu_to_ecef, geodetic_to_ecef
+from core.geodesy import Y_UP_TO_Z_UP, Z_UP_TO_Y_UP, column_major, enu_to_ecef, geodetic_to_ecef
 
 from . import ATTRIBUTION, __version__
+from .subtree import choose_subtree_levels, subtree_roots, write_subtree
 
 Refine = Literal["ADD", "REPLACE"]
+Tiling = Literal["implicit", "explicit"]
+
+CONTENT_TEMPLATE = "content/{level}/{x}/{y}.glb"
+SUBTREE_TEMPLATE = "subtrees/{level}/{x}/{y}.subtree"
+#: The subtree tile metadata: each tile's real bounding region and geometric error (FLOAT64: a region in
+#: radians needs it, 1e-7 rad of FLOAT32 is 60 cm on the ground).
+TILE_SCHEMA: dict[str, Any] = {"id": "citylod_tiles", "classes": {"tile": {
+    "description": "a tile of the citylod quadtree: its real bounding region and geometric error",
+    "properties": {
+        "region": {"type": "SCALAR", "componentType": "FLOAT64", "array": True, "count": 6,
+                   "semantic": "TILE_BOUNDING_REGION", "description": "west, south, east, north (rad), "
+                   "minimum and maximum height (m above the WGS84 ellipsoid) of the tile's meshes"},
+        "geometric_error": {"type": "SCALAR", "componentType": "FLOAT64", "semantic": "TILE_GEOMETRIC_ERROR",
+                            "description": "metres (tiles.tile.geometric_error)"},
+    }}}}
+_ROW_BYTES = 7 * 8  # one tile's metadata
 
 
 class BoundingVolume(TypedDict, total=False):
@@ -47,12 +72,14 @@ class Tile(TypedDict, total=False):
     content: Content
     children: list[Tile]
     transform: list[float]
+    implicitTiling: dict[str, Any]
 
 
 class Tileset(TypedDict, total=False):
     asset: dict[str, str]
     geometricError: float
     root: Tile
+    schema: dict[str, Any]
     extras: dict[str, Any]
 
 
@@ -88,10 +115,39 @@ def leaf_frame(region: tuple[float, ...] | list[float], base: float = 0.0) -> np
     return enu_to_ecef(lon, lat, base)
 
 
-def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False) -> Tileset:
+def node_matrix(region: tuple[float, ...] | list[float], root_region: tuple[float, ...] | list[float]) -> list[float]:
+    """The glTF node matrix (16 numbers, column-major) of a tile's glb: from the tile's frame (its
+    ``leaf_frame``, y up) to the root's (y up). A client places the glb with root transform @ (y-up to z-up)
+    @ node matrix, which is the tile's own frame @ (y-up to z-up): the old per-tile transform."""
+    rel = np.linalg.solve(leaf_frame(root_region), leaf_frame(region))
+    z_to_y, y_to_z = np.eye(4), np.eye(4)
+    z_to_y[:3, :3], y_to_z[:3, :3] = Z_UP_TO_Y_UP, Y_UP_TO_Z_UP
+    return column_major(z_to_y @ rel @ y_to_z)
+
+
+def _checked(records: Iterable[TileRecord], single_lod: bool) -> dict[tuple[int, int, int], TileRecord]:
     by_key = {(r.level, r.x, r.y): r for r in records}
     if (0, 0, 0) not in by_key:
         raise ValueError("no root tile (0, 0, 0): run the tiles stage first")
+    for key, r in by_key.items():
+        if r.geometric_error is None:
+            raise ValueError(f"tile {key} has no geometric error: run the generalize stage")
+        if (r.is_leaf or not single_lod) and not r.content_uri:
+            raise ValueError(f"tile {key} has no content")
+    return by_key
+
+
+def _top(root: Tile, root_region: tuple[float, ...], tileset_version: str) -> Tileset:
+    top_error = max(region_diagonal(root_region), float(root["geometricError"]))
+    asset = {"version": "1.1", "generator": f"citylod {__version__}"}
+    if tileset_version:
+        asset["tilesetVersion"] = tileset_version
+    return {"asset": asset, "geometricError": math.ceil(top_error), "root": root, "extras": {"copyright": ATTRIBUTION}}
+
+
+def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False) -> Tileset:
+    """The explicit tileset: every tile in the JSON tree."""
+    by_key = _checked(records, single_lod)
     children: dict[tuple[int, int, int], list[tuple[int, int, int]]] = {k: [] for k in by_key}
     for (lvl, x, y) in sorted(by_key):
         if lvl == 0:
@@ -104,34 +160,82 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", sing
                 children[parent].append((lvl, x, y))
                 break
 
-    def tile(key: tuple[int, int, int], parent_world: np.ndarray) -> Tile:
+    def tile(key: tuple[int, int, int]) -> Tile:
         r = by_key[key]
-        if r.geometric_error is None:
-            raise ValueError(f"tile {key} has no geometric error: run the generalize stage")
         t: Tile = {"boundingVolume": {"region": [float(v) for v in r.region]},
-                   "geometricError": float(r.geometric_error)}
-        world = parent_world
+                   "geometricError": float(r.geometric_error)}  # type: ignore[arg-type]
         if r.is_leaf or not single_lod:
-            if not r.content_uri:
-                raise ValueError(f"tile {key} has no content")
-            t["content"] = {"uri": r.content_uri}
-            world = leaf_frame(r.region)
-            t["transform"] = column_major(np.linalg.solve(parent_world, world))
-        kids = children[key]
-        if kids:
-            t["children"] = [tile(k, world) for k in kids]
+            t["content"] = {"uri": r.content_uri}  # type: ignore[typeddict-item]
+        if children[key]:
+            t["children"] = [tile(k) for k in children[key]]
         return t
 
-    root = tile((0, 0, 0), np.eye(4))
-    root["refine"] = "ADD" if single_lod else "REPLACE"
+    root = tile((0, 0, 0))
     root_region = by_key[(0, 0, 0)].region
-    top_error = max(region_diagonal(root_region), float(root["geometricError"]))
-    asset = {"version": "1.1", "generator": f"citylod {__version__}"}
-    if tileset_version:
-        asset["tilesetVersion"] = tileset_version
-    return {
-        "asset": asset,
-        "geometricError": math.ceil(top_error),
-        "root": root,
-        "extras": {"copyright": ATTRIBUTION},
-    }
+    root["refine"] = "ADD" if single_lod else "REPLACE"
+    root["transform"] = column_major(leaf_frame(root_region))
+    return _top(root, root_region, tileset_version)
+
+
+def build_implicit(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False,
+                   subtree_levels: int | None = None) -> tuple[Tileset, dict[str, bytes]]:
+    """The implicit tileset and its subtree files by URI (subtree.py); ``subtree_levels`` chosen from the tree
+    (subtree.choose_subtree_levels) when None."""
+    by_key = _checked(records, single_lod)
+    for key, r in by_key.items():
+        if r.content_uri and r.content_uri != CONTENT_TEMPLATE.format(level=key[0], x=key[1], y=key[2]):
+            raise ValueError(f"tile {key}: content {r.content_uri} does not follow {CONTENT_TEMPLATE}")
+    recs = list(by_key.values())
+    keys = np.array(list(by_key), np.int64).reshape(-1, 3)
+    for (lvl, x, y) in by_key:
+        if lvl and (lvl - 1, x >> 1, y >> 1) not in by_key:
+            raise ValueError(f"tile {(lvl, x, y)} has no parent: implicit tiling needs every ancestor")
+    levels = subtree_levels or choose_subtree_levels(keys, _ROW_BYTES)
+    region = np.array([r.region for r in recs], np.float64).reshape(-1, 6)
+    error = np.array([r.geometric_error for r in recs], np.float64)
+    content = np.array([r.is_leaf or not single_lod for r in recs], bool)
+    roots = subtree_roots(keys, levels)
+    # each subtree's tiles (grouped by a sort), and the subtrees starting right below it
+    uniq, inverse = np.unique(roots, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    by_sub = np.argsort(inverse, kind="stable")
+    tile_bounds = np.searchsorted(inverse[by_sub], np.arange(len(uniq) + 1))
+    parent_of = np.full(len(uniq), -1, np.int64)
+    deep = np.flatnonzero(uniq[:, 0] > 0)
+    if len(deep):
+        up = subtree_roots(np.c_[uniq[deep, 0] - 1, uniq[deep, 1] >> 1, uniq[deep, 2] >> 1], levels)
+        # the parent subtree's index in uniq (rows sorted lexicographically, as np.unique returns them)
+        index = {k: i for i, k in enumerate(map(tuple, uniq.tolist()))}
+        parent_of[deep] = [index[k] for k in map(tuple, up.tolist())]
+    by_parent = np.argsort(parent_of, kind="stable")
+    child_bounds = np.searchsorted(parent_of[by_parent], np.arange(len(uniq) + 1))
+    files: dict[str, bytes] = {}
+    for i, root_key in enumerate(uniq.tolist()):
+        mine = by_sub[tile_bounds[i]:tile_bounds[i + 1]]
+        below = uniq[by_parent[child_bounds[i]:child_bounds[i + 1]]]
+        lvl, x, y = root_key
+        files[SUBTREE_TEMPLATE.format(level=lvl, x=x, y=y)] = write_subtree(
+            (lvl, x, y), levels, keys[mine], content[mine], below,
+            [("region", region[mine]), ("geometric_error", error[mine])])
+    root_rec = by_key[(0, 0, 0)]
+    root: Tile = {"boundingVolume": {"region": [float(v) for v in root_rec.region]},
+                  "geometricError": float(root_rec.geometric_error),  # type: ignore[arg-type]
+                  "refine": "ADD" if single_lod else "REPLACE",
+                  "transform": column_major(leaf_frame(root_rec.region)),
+                  "content": {"uri": CONTENT_TEMPLATE},
+                  "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": levels,
+                                     "availableLevels": int(keys[:, 0].max()) + 1,
+                                     "subtrees": {"uri": SUBTREE_TEMPLATE}}}
+    ts = _top(root, root_rec.region, tileset_version)
+    ts["schema"] = TILE_SCHEMA
+    return ts, files
+
+
+def build(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False,
+          tiling: Tiling = "implicit") -> tuple[Tileset, dict[str, bytes]]:
+    """(tileset.json's dict, the other files it needs by URI: subtrees, implicit only)."""
+    if tiling == "explicit":
+        return build_tileset(records, tileset_version, single_lod), {}
+    if tiling == "implicit":
+        return build_implicit(records, tileset_version, single_lod)
+    raise ValueError(f"tiling must be implicit or explicit, not {tiling!r}")

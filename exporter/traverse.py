@@ -6,7 +6,8 @@ root, a tile inside the view frustum is refined while its screen-space error
     geometricError × viewport height / (distance × 2 tan(fov / 2))
 exceeds the maximum; with REPLACE its visible children are drawn instead of it, with ADD in addition to it.
 Distances and frustum tests use the east-north-up box around each tile's region (geodesy.region_box), the
-same numbers api.lod_for_view reads from tiles.tile.box.
+same numbers api.lod_for_view reads from tiles.tile.box. An implicit tileset is traversed as the explicit tree
+it stands for (core/tiles3d.expand: its subtrees through ``read``).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from core.camera import Camera
 from core.geodesy import box_distance, box_visible, region_box
+from core.tiles3d import Read, expand
 
 
 @dataclass(frozen=True)
@@ -27,8 +29,12 @@ class Drawn:
     sse: float
 
 
-def select(tileset: dict[str, Any], camera: Camera, max_sse: float = 16.0) -> list[Drawn]:
-    """The content a client draws for ``camera``, in traversal order."""
+def select(tileset: dict[str, Any], camera: Camera, max_sse: float = 16.0, read: Read | None = None) -> list[Drawn]:
+    """The content a client draws for ``camera``, in traversal order (``read``: an implicit tileset's files)."""
+    if "implicitTiling" in tileset["root"]:
+        if read is None:
+            raise ValueError("an implicit tileset: pass read to reach its subtrees")
+        tileset = expand(tileset, read)
     pos, planes = camera.position(), camera.planes()
     drawn: list[Drawn] = []
 

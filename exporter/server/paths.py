@@ -50,19 +50,24 @@ TILESET = "tileset.json"
 MAX_TILE_LEVEL = 30
 _INT = r"(0|[1-9][0-9]{0,9})"  # canonical: no sign, no leading zeros, at most 10 digits
 _CONTENT_RE = re.compile(rf"content/{_INT}/{_INT}/{_INT}\.glb")
+_SUBTREE_RE = re.compile(rf"subtrees/{_INT}/{_INT}/{_INT}\.subtree")
 
 
 def tile_address(rel: str) -> str | None:
-    """Classify what follows ``/tiles/`` (decoded): ``tileset.json`` or a canonical ``content/L/X/Y.glb``; None
-    for an address that cannot exist (404). Raises BadPath (400) for anything malformed: '..', NUL, backslashes,
-    a content path that is not three non-negative decimal integers."""
+    """Classify what follows ``/tiles/`` (decoded): ``tileset.json``, a canonical ``content/L/X/Y.glb`` or
+    ``subtrees/L/X/Y.subtree`` (implicit tiling); None for an address that cannot exist (404). Raises BadPath
+    (400) for anything malformed: '..', NUL, backslashes, a tile path that is not three non-negative decimal
+    integers."""
     if "\x00" in rel or "\\" in rel or ".." in rel.split("/"):
         raise BadPath(rel)
     if rel == TILESET:
         return rel
-    if not rel.startswith("content/"):
+    if rel.startswith("content/"):
+        m = _CONTENT_RE.fullmatch(rel)
+    elif rel.startswith("subtrees/"):
+        m = _SUBTREE_RE.fullmatch(rel)
+    else:
         return None
-    m = _CONTENT_RE.fullmatch(rel)
     if m is None:
         raise BadPath(rel)
     level, x, y = (int(g) for g in m.groups())

@@ -1,5 +1,6 @@
-"""The tileset of the DB mode: tileset.json and each tile glb built on request by the exporter's own functions
-(exporter/export.py load_records, check_current, tileset_bytes, tile_glb: the bytes the file export writes),
+"""The tileset of the DB mode: tileset.json, its subtree files (implicit tiling; built with tileset.json from the
+tile records, held in the snapshot) and each tile glb built on request by the exporter's own functions
+(exporter/export.py load_records, check_current, tileset_files, tile_glb: the bytes the file export writes),
 kept in a ByteLru.
 
 The database's *generation* (the latest successful ``meta.pipeline_run`` and the dataset's sha256) is re-read
@@ -22,7 +23,7 @@ import psycopg
 
 from core.tiles3d import content_uris
 
-from ..export import check_current, load_records, tile_glb, tileset_bytes
+from ..export import TILESET_JSON, check_current, load_records, tile_glb, tileset_files
 from ..stream import COMPACT, StreamOptions
 from ..tileset import TileRecord
 from .cache import ByteLru
@@ -46,7 +47,9 @@ class _Changed(Exception):
 class Snapshot:
     generation: tuple[Any, ...]
     tileset: Payload
+    subtrees: dict[str, Payload]  # by URI (implicit tiling), built with tileset.json
     by_uri: dict[str, TileRecord]
+    root_region: tuple[float, ...]
     checked: float  # time.monotonic() of the last check against the database
 
 
@@ -79,16 +82,19 @@ class DbTileSource:
             records = load_records(conn)
             try:
                 check_current(conn, records, self.lod)
-                js = tileset_bytes(conn, records, self.lod, self.stream)
+                files = tileset_files(conn, records, self.lod, self.stream)
             except (RuntimeError, ValueError) as e:  # no tiles, stale tiles, generalize not run
                 raise NotReady(str(e)) from e
+            js = files.pop(TILESET_JSON)
             by_uri = {r.content_uri: r for r in records if r.content_uri}
-            uris = set(content_uris(json.loads(js)))
+            uris = set(content_uris(json.loads(js), files.__getitem__))
             if not uris <= by_uri.keys():
                 missing = sorted(uris - by_uri.keys())[:3]
                 raise NotReady(f"tileset.json references content the tile tree lacks: {missing}")
-            return Snapshot(generation, make_payload(js, "application/json"), {u: by_uri[u] for u in uris},
-                            time.monotonic())
+            root_region = next(r.region for r in records if r.level == 0)
+            return Snapshot(generation, make_payload(js, "application/json"),
+                            {u: make_payload(b, "application/octet-stream") for u, b in files.items()},
+                            {u: by_uri[u] for u in uris}, root_region, time.monotonic())
 
         snap = self.reader.read(read)
         if old is None or snap.generation != old.generation:
@@ -119,12 +125,18 @@ class DbTileSource:
             return None
         if address == TILESET:
             return snap.tileset
+        if address in snap.subtrees:
+            return snap.subtrees[address]
         return self.cache.peek((snap.generation, address)) if address in snap.by_uri else None
 
     def get(self, address: str) -> Payload | None:
-        """tileset.json or the glb at ``address`` (content/L/X/Y.glb); None when the tileset has no such content.
-        Raises NotReady or DbUnavailable."""
-        return self.tileset() if address == TILESET else self.content(address)
+        """tileset.json, a subtree file or the glb at ``address`` (content/L/X/Y.glb); None when the tileset has
+        no such file. Raises NotReady or DbUnavailable."""
+        if address == TILESET:
+            return self.tileset()
+        if address.startswith("subtrees/"):
+            return self.snapshot().subtrees.get(address)
+        return self.content(address)
 
     def tileset(self) -> Payload:
         return self.snapshot().tileset
@@ -140,7 +152,7 @@ class DbTileSource:
                 def read(conn: psycopg.Connection) -> bytes:
                     if _generation(conn) != snap.generation:
                         raise _Changed
-                    return tile_glb(conn, rec, self.base_height, self.lod, self.stream)[0]
+                    return tile_glb(conn, rec, self.base_height, self.lod, self.stream, snap.root_region)[0]
 
                 glb = self.reader.read(read)
                 with self._count_lock:

@@ -182,6 +182,12 @@ def test_export_reruns_for_another_directory_lod_or_missing_files(built: Built, 
     text = run_make(url, *make_export)
     assert re.search(r"^export: stale since run \d+: 1 content files missing .*; running$", text, re.M), text
     assert glb.is_file()
+    # an implicit tileset's content is listed in its subtrees: one missing makes the export stale too
+    subtree = next((out / "subtrees").rglob("*.subtree"))
+    subtree.unlink()
+    text = run_make(url, *make_export)
+    assert re.search(r"^export: stale since run \d+: the tileset in .* cannot be read.*; running$", text, re.M), text
+    assert subtree.is_file()
     (out / "tileset.json").write_text((out / "tileset.json").read_text().replace('"1.1"', '"1.1" '))
     assert reran(url, lambda: run_make(url, *make_export)) == ["export"]
     # a one-LOD export into the same directory replaces it: the hierarchy's export is stale again afterwards

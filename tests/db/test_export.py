@@ -8,11 +8,14 @@ import numpy as np
 import psycopg
 import pytest
 
+from benchmarks.tileset_size import measure
 from core.geodesy import Y_UP_TO_Z_UP
 from core.settings import Settings
+from core.tiles3d import content_uris, expand
 from exporter.checks import check_tileset
 from exporter.export import export_tileset
 from exporter.gltf import accessor_array, property_table, read_glb
+from exporter.stream import StreamOptions
 from tests.conftest import REPO, node_bin, run_etl, validate_glb
 
 # Helsinki is the real city of make test; Munich and London (the extract tier) add parts and materials.
@@ -36,13 +39,79 @@ def test_tileset_passes_the_3d_tiles_checks(city, name) -> None:
 @pytest.mark.parametrize("name", CITIES)
 def test_3d_tiles_tools_parses_the_tileset(city, conn_of, name) -> None:
     c = city(name)
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/parse_tileset.mjs"), str(c.tiles / "tileset.json")],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    out = parse_with_3d_tiles_tools(c.tiles)
     n_tiles = conn_of(c.url).execute("SELECT count(*) FROM tiles.tile").fetchone()[0]
     assert out["tiles"] == n_tiles
     assert out["contentTypes"] == {"CONTENT_TYPE_GLB": n_tiles} and out["unresolved"] == []  # REPLACE: all have content
+    # the default is implicit: 3d-tiles-tools reads every subtree and each tile's real region and error from them
+    assert out["implicit"] and out["subtrees"] == len(list(c.tiles.rglob("*.subtree"))) >= 1
+    assert_final_tiles(conn_of(c.url), out["final"])
+
+
+def assert_final_tiles(conn, final: dict) -> None:
+    """3d-tiles-tools' tiles (after the subtree metadata) have tiles.tile's regions and geometric errors."""
+    rows = conn.execute("SELECT content_uri, region, geometric_error FROM tiles.tile").fetchall()
+    want = {u: (g, r) for u, r, g in rows if u in final}
+    assert len(want) == len(final)
+    for uri, (error, region) in final.items():
+        assert error == pytest.approx(want[uri][0], abs=1e-9) and region == pytest.approx(want[uri][1], abs=1e-12)
+
+
+def parse_with_3d_tiles_tools(tiles) -> dict:
+    proc = subprocess.run([node_bin(), str(REPO / "tests/js/parse_tileset.mjs"), str(tiles / "tileset.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_tileset_size_benchmark_measures_what_export_writes(city) -> None:
+    """benchmarks/tileset_size.py (tile records -> bytes, no glb) gives the sizes of the files the export wrote."""
+    c = city("helsinki")
+    got = measure(c.url)
+    subtrees = list(c.tiles.rglob("*.subtree"))
+    assert got["implicit_tileset_json_bytes"] == (c.tiles / "tileset.json").stat().st_size
+    assert (got["subtrees"], got["subtree_bytes"]) == (len(subtrees), sum(p.stat().st_size for p in subtrees))
+    assert got["subtree_tiles"] == got["tiles"] and got["explicit_tileset_json_bytes"] > 0
+
+
+def test_implicit_and_explicit_tilings_share_every_glb(city, conn_of, tmp_path) -> None:
+    """--tiling explicit writes every tile into tileset.json and no subtrees; the glbs are the same bytes as the
+    implicit export's (one root transform, node matrices), and both tilesets stand for the same tree (Helsinki:
+    a tree of a few levels)."""
+    c = city("helsinki")
+    out = tmp_path / "explicit"
+    counts = export_tileset(c.url, out, Settings.from_env(), stream=StreamOptions(tiling="explicit"))
+    assert counts["subtrees"] == 0 and not list(out.rglob("*.subtree"))
+    implicit = tmp_path / "implicit"
+    export_tileset(c.url, implicit, Settings.from_env(), stream=StreamOptions(tiling="implicit"))
+    glbs = sorted(p.relative_to(out) for p in out.rglob("*.glb"))
+    assert glbs and glbs == sorted(p.relative_to(implicit) for p in implicit.rglob("*.glb"))
+    assert all((out / g).read_bytes() == (implicit / g).read_bytes() for g in glbs)
+    assert check_tileset(out / "tileset.json") == [] and check_tileset(implicit / "tileset.json") == []
+    ts = json.loads((out / "tileset.json").read_text())
+    stack, n = [ts["root"]], 0
+    while stack:
+        t = stack.pop()
+        n += 1
+        assert "transform" not in t or t is ts["root"]
+        stack.extend(t.get("children", []))
+    assert "implicitTiling" not in ts["root"]
+    assert n == conn_of(c.url).execute("SELECT count(*) FROM tiles.tile").fetchone()[0]
+    a, b = parse_with_3d_tiles_tools(out), parse_with_3d_tiles_tools(implicit)
+    assert not a["implicit"] and b["implicit"] and a["tiles"] == b["tiles"] and a["final"] == b["final"]
+    explicit_tree = expand(ts, lambda u: b"")
+    implicit_tree = expand(json.loads((implicit / "tileset.json").read_text()),
+                           lambda u: (implicit / u).read_bytes())
+    assert content_uris(explicit_tree) == content_uris(implicit_tree)
+    # a one-LOD tileset: content at the leaves only (contentAvailability apart from tileAvailability), ADD
+    lod = tmp_path / "lod2"
+    export_tileset(c.url, lod, Settings.from_env(), lod=2)
+    got = parse_with_3d_tiles_tools(lod)
+    leaves = conn_of(c.url).execute("SELECT count(*) FILTER (WHERE is_leaf), count(*) FROM tiles.tile").fetchone()
+    assert (got["contents"], got["tiles"]) == tuple(leaves) and got["implicit"] and leaves[0] < leaves[1]
+    assert json.loads((lod / "tileset.json").read_text())["root"]["refine"] == "ADD"
+    assert check_tileset(lod / "tileset.json") == []
+    assert_final_tiles(conn_of(c.url), got["final"])
 
 
 def tile_of(conn, building_id: int):
@@ -52,18 +121,14 @@ def tile_of(conn, building_id: int):
 
 
 def tile_world(tiles_dir, uri: str) -> np.ndarray:
-    """The 4×4 matrix from the tile's content frame to ECEF: the transforms from the root down, composed."""
-    def find(t, world):
-        if "transform" in t:
-            world = world @ np.array(t["transform"]).reshape(4, 4).T
-        if t.get("content", {}).get("uri") == uri:
-            return world
-        for k in t.get("children", []):
-            if (r := find(k, world)) is not None:
-                return r
-        return None
-
-    return find(json.loads((tiles_dir / "tileset.json").read_text())["root"], np.eye(4))
+    """The 4×4 matrix from a glb's positions to ECEF, as a client composes it: the tileset root's transform (the
+    only one), glTF y-up to 3D Tiles z-up, the glb node's matrix (its tile's frame in the root's)."""
+    root = np.array(json.loads((tiles_dir / "tileset.json").read_text())["root"]["transform"]).reshape(4, 4).T
+    gltf, _ = read_glb((tiles_dir / uri).read_bytes())
+    node = np.array(gltf["nodes"][0].get("matrix", np.eye(4).reshape(-1))).reshape(4, 4).T
+    y_to_z = np.eye(4)
+    y_to_z[:3, :3] = Y_UP_TO_Z_UP
+    return root @ y_to_z @ node
 
 
 @pytest.fixture(scope="module")
@@ -87,14 +152,14 @@ def feature_vertices(tiles_dir, uri: str, osm_id: int):
 
 
 def assert_placed(conn, tiles_dir, base: float = 0.0) -> float:
-    """Exported vertices -> (y-up to z-up) -> tile transform = ECEF; PostGIS ST_Transform(..., 4978) of the same
-    corners must agree to the centimetre. Returns the largest distance found (m)."""
+    """Exported vertices -> node matrix -> (y-up to z-up) -> root transform = ECEF; PostGIS ST_Transform(...,
+    4978) of the same corners must agree to the centimetre. Returns the largest distance found (m)."""
     worst = 0.0
     for osm_id, bottom, top in ((10001, 0.0, 12.0), (11001, 0.0, 12.0), (13003, 5.0, 20.0)):
         uri = tile_of(conn, osm_id)
         verts, props = feature_vertices(tiles_dir, uri, osm_id)
         m = tile_world(tiles_dir, uri)
-        ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
+        ecef = (np.c_[verts, np.ones(len(verts))] @ m.T)[:, :3]
         truth = np.array(conn.execute(
             """SELECT ST_X(p), ST_Y(p), ST_Z(p) FROM (
                    SELECT ST_Transform(ST_Translate(ST_Force3D((ST_DumpPoints(geom_local)).geom), 0, 0, z), 4978) p
@@ -246,8 +311,9 @@ def test_stale_tiles_are_refused(city, new_db, tmp_path) -> None:
 
 
 def test_placement_against_the_osm_file_itself(lod2, conn_of) -> None:
-    """Independent of PostGIS/PROJ: exported vertices, through the tile transform and our own ECEF->geodetic,
-    must land on the fixture's node coordinates (as written in the .osm file) at the tagged heights."""
+    """Independent of PostGIS/PROJ: exported vertices, through the node matrix, the root transform and our own
+    ECEF->geodetic, must land on the fixture's node coordinates (as written in the .osm file) at the tagged
+    heights."""
     import math
     import xml.etree.ElementTree as ET
 
@@ -260,7 +326,7 @@ def test_placement_against_the_osm_file_itself(lod2, conn_of) -> None:
     uri = tile_of(conn_of(url), 10001)
     verts, _ = feature_vertices(tiles, uri, 10001)
     m = tile_world(tiles, uri)
-    ecef = (np.c_[verts @ Y_UP_TO_Z_UP.T, np.ones(len(verts))] @ m.T)[:, :3]
+    ecef = (np.c_[verts, np.ones(len(verts))] @ m.T)[:, :3]
     lon, lat, h = ecef_to_geodetic(ecef).T
     lonlat = np.degrees(np.c_[lon, lat])
     # 1e-8 degrees is about a millimetre here

@@ -12,6 +12,7 @@ import pytest
 
 from core.camera import Camera
 from core.geodesy import region_box
+from core.tiles3d import expand
 from exporter.checks import check_tileset
 from exporter.traverse import select
 from tests.conftest import run_etl
@@ -236,10 +237,11 @@ def test_geometric_error_is_measured_and_monotone(deep, conn_of) -> None:
     assert by_band[0] > by_band[2] > by_band[3] > 0 and by_band[4] == 0
 
 
-def test_tileset_is_replace_with_content_everywhere(deep) -> None:
+def test_tileset_is_replace_with_content_everywhere(deep, conn_of) -> None:
     ts_path = deep[1] / "tileset.json"
     assert check_tileset(ts_path) == []
-    ts = json.loads(ts_path.read_text())
+    # the export is implicit: the tree its subtrees stand for
+    ts = expand(json.loads(ts_path.read_text()), lambda u: (deep[1] / u).read_bytes())
     assert ts["root"]["refine"] == "REPLACE"
 
     def walk(t):
@@ -247,7 +249,9 @@ def test_tileset_is_replace_with_content_everywhere(deep) -> None:
         for k in t.get("children", []):
             yield from walk(k)
 
-    assert all("content" in t for t in walk(ts["root"]))
+    tiles = list(walk(ts["root"]))
+    assert all("content" in t for t in tiles)
+    assert len(tiles) == conn_of(deep[0]).execute("SELECT count(*) FROM tiles.tile").fetchone()[0]
 
 
 def test_protected_buildings_are_never_merged(deep, conn_of, new_db) -> None:
@@ -291,7 +295,7 @@ CAMERAS = [  # Helsinki's centre spans lon 24.935-24.953, lat 60.164-60.179
 def test_lod_for_view_agrees_with_the_tileset_traversal(deep, conn_of, cam) -> None:
     conn = conn_of(deep[0])
     ts = json.loads((deep[1] / "tileset.json").read_text())
-    want = {d.uri: d.sse for d in select(ts, cam)}
+    want = {d.uri: d.sse for d in select(ts, cam, read=lambda u: (deep[1] / u).read_bytes())}
     # every feature of the drawn tiles, as a client loads them (the default culls by feature, tested below)
     rows = conn.execute(
         """SELECT DISTINCT format('content/%%s/%%s/%%s.glb', level, x, y), screen_space_error

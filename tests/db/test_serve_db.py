@@ -28,7 +28,7 @@ from psycopg import sql
 
 from benchmarks.servers import spawned, threaded
 from core.settings import Settings
-from core.tiles3d import content_uris
+from core.tiles3d import content_uris, tileset_files
 from etl.migrate import migrate_and_reload
 from exporter.server.app import make_app
 from exporter.server.cache import ByteLru
@@ -63,10 +63,18 @@ BAD_ADDRESSES = [  # (what follows /tiles/ once percent-decoded, expected status
     ("content/2/4/0.glb", 404),  # x beyond level 2's 4 columns
     ("content/2/0/4.glb", 404),
     ("content/1/2/0.glb", 404),
+    ("subtrees/01/0/0.subtree", 400),  # subtree files (implicit tiling): the same rules
+    ("subtrees/0/0/0.glb", 400),
+    ("subtrees/2/4/0.subtree", 404),
     ("", 404),
     ("nope.json", 404),
     ("tileset.json.gz", 404),
 ]
+
+
+def disk_uris(files) -> list[str]:
+    """The content of the exported tileset in ``files`` (implicit: listed in its subtree files)."""
+    return content_uris(json.loads((files / "tileset.json").read_bytes()), lambda u: (files / u).read_bytes())
 
 
 @pytest.mark.parametrize(("rel", "status"), BAD_ADDRESSES)
@@ -268,13 +276,17 @@ def test_every_tile_byte_for_byte_the_file_export(db_server: tuple[DbTileSource,
         assert headers["access-control-allow-origin"] == "*"
         assert "content-encoding" not in headers  # the client did not ask for gzip
         assert body == (files / "tileset.json").read_bytes()
-        uris = content_uris(json.loads(body))
-        on_disk = sorted(p.relative_to(files).as_posix() for p in files.rglob("*.glb"))
-        assert uris == on_disk and uris, "the tileset lists exactly the exported glb files"
+        # implicit: the content is listed in the subtree files
+        uris = tileset_files(json.loads(body), lambda u: (files / u).read_bytes())
+        on_disk = sorted(p.relative_to(files).as_posix() for p in files.rglob("*")
+                         if p.is_file() and p.name != "tileset.json")
+        assert uris == on_disk and uris, "the tileset lists exactly the exported glb and subtree files"
+        assert any(u.endswith(".subtree") for u in uris) and any(u.endswith(".glb") for u in uris)
         for uri in uris:
             status, headers, body = c.get(f"/tiles/{uri}")
             assert status == 200, (uri, body[:200])
-            assert headers["content-type"] == "model/gltf-binary", uri
+            assert headers["content-type"] == ("model/gltf-binary" if uri.endswith(".glb")
+                                               else "application/octet-stream"), uri
             assert headers["access-control-allow-origin"] == "*", uri
             assert int(headers["content-length"]) == len(body)
             assert body == (files / uri).read_bytes(), f"{uri} differs from the file export"
@@ -291,7 +303,7 @@ def test_every_tile_byte_for_byte_the_file_export(db_server: tuple[DbTileSource,
 @pytest.mark.db
 def test_etag_304_and_cache(db_server: tuple[DbTileSource, str], fixtures_city: City) -> None:
     server, base = db_server
-    uri = content_uris(json.loads((fixtures_city.tiles / "tileset.json").read_bytes()))[-1]
+    uri = disk_uris(fixtures_city.tiles)[-1]
     c = Client(base)
     try:
         for path in ("/tiles/tileset.json", f"/tiles/{uri}"):
@@ -344,7 +356,7 @@ def test_gzip_negotiated(db_server: tuple[DbTileSource, str], fixtures_city: Cit
             assert "content-encoding" not in c.get("/tiles/tileset.json", Accept_Encoding=refuse)[1], refuse
 
         # glb: gzip only when it saves at least 10 %; whatever is sent decodes to the exported bytes
-        for uri in content_uris(json.loads((files / "tileset.json").read_bytes())):
+        for uri in disk_uris(files):
             status, headers, body = c.get(f"/tiles/{uri}", Accept_Encoding="gzip")
             raw = (files / uri).read_bytes()
             if headers.get("content-encoding") == "gzip":
@@ -359,6 +371,7 @@ def test_gzip_negotiated(db_server: tuple[DbTileSource, str], fixtures_city: Cit
 @pytest.mark.parametrize(("rel", "status"), BAD_ADDRESSES + [
     ("content/30/1073741823/1073741823.glb", 404),  # in range, no such tile
     ("content/16/0/0.glb", 404),
+    ("subtrees/5/0/0.subtree", 404),  # no subtree starts at level 5 here
     ("content/0/0/0.glb%00", 400),
     ("%2e%2e/%2e%2e/etc/passwd", 400),
     ("content/%2e%2e/tileset.json", 400),
@@ -384,7 +397,8 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbT
     """32 threads fetch every tile at once from a fresh server: every answer is right, each tile is built once,
     and the server never holds more connections than its pool."""
     files = fixtures_city.tiles
-    uris = ["tileset.json"] + content_uris(json.loads((files / "tileset.json").read_bytes()))
+    uris = ["tileset.json"] + tileset_files(json.loads((files / "tileset.json").read_bytes()),
+                                            lambda u: (files / u).read_bytes())
     expected = {u: (files / u).read_bytes() for u in uris}
     dbname = psycopg.conninfo.conninfo_to_dict(fixtures_city.url)["dbname"]
     with running(reader_url(fixtures_city.url, environ={}), pool_size=3) as (server, base):
@@ -423,7 +437,8 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbT
         stop.set()
         watcher.join(10)
         assert errors == []
-        assert server.stats()["builds"] == len(uris) - 1, "single flight: each glb built exactly once"
+        glbs = [u for u in uris if u.endswith(".glb")]
+        assert server.stats()["builds"] == len(glbs), "single flight: each glb built exactly once"
         # the module's other server holds its own pool on the same database
         assert peak[0] <= 3 + db_server[0].reader.pool.max_size
 
@@ -495,7 +510,8 @@ def test_a_pipeline_rerun_drops_the_cache(rerun_url: str, tmp_path: Path) -> Non
         try:
             status, _, js = c.get("/tiles/tileset.json")
             assert status == 200
-            uri = max(content_uris(json.loads(js)), key=lambda u: int(u.split("/")[1]))  # a leaf: named buildings
+            uri = max(content_uris(json.loads(js), lambda u: c.get(f"/tiles/{u}")[2]),
+                      key=lambda u: int(u.split("/")[1]))  # a leaf: named buildings
             status, _, before = c.get(f"/tiles/{uri}")
             assert status == 200 and b"renamed by a re-run" not in before
             builds = server.stats()["builds"]
@@ -537,7 +553,7 @@ def test_connections_killed_under_the_server_are_replaced(fixtures_city: City, s
 @pytest.mark.db
 def test_database_outage_is_503(outage_url: str, fixtures_city: City, server_url: str) -> None:
     files = fixtures_city.tiles
-    uris = content_uris(json.loads((files / "tileset.json").read_bytes()))
+    uris = disk_uris(files)
     # revalidate on every request: with the default (1 s) a cached answer may be served for up to a second
     with running(reader_url(outage_url, environ={}), revalidate_s=0.0) as (server, base):
         c = Client(base)

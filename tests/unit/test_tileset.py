@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from core.geodesy import column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
+from core.geodesy import Y_UP_TO_Z_UP, column_major, ecef_to_geodetic, enu_to_ecef, geodetic_to_ecef
 from core.tiles3d import content_uris
 from exporter.checks import check_tileset
 from exporter.gltf import write_glb
-from exporter.tileset import TileRecord, build_tileset, region_diagonal
+from exporter.tileset import TileRecord, build_tileset, leaf_frame, node_matrix, region_diagonal
 from tests.unit.test_gltf import cube_primitive
 
 D = math.radians
@@ -58,19 +58,43 @@ def test_build_and_check(tmp_path) -> None:
     assert ts["asset"]["version"] == "1.1"
     assert ts["root"]["refine"] == "REPLACE"
     assert len(ts["root"]["children"]) == 2
-    assert all("content" in t and "transform" in t for t in [ts["root"], *ts["root"]["children"]])
+    assert all("content" in t for t in [ts["root"], *ts["root"]["children"]])
+    # one transform, the root's ENU frame; the glbs' node matrices place each tile in it (test_node_matrix...)
+    assert not any("transform" in t for t in ts["root"]["children"])
+    w, s, e, n = records()[0].region[:4]
+    lon, lat = (w + e) / 2, (s + n) / 2
+    assert np.allclose(world(ts["root"]["transform"]), enu_to_ecef(lon, lat, 0.0), atol=1e-6)
     assert ts["geometricError"] >= region_diagonal(records()[0].region)
     assert check_tileset(write(tmp_path, ts)) == []
-    # transforms compose down the tree: parent frame × child transform = the child's own ENU frame
-    root = world(ts["root"]["transform"])
-    for child, rec in zip(ts["root"]["children"], records()[1:], strict=True):
-        lon, lat = (rec.region[0] + rec.region[2]) / 2, (rec.region[1] + rec.region[3]) / 2
-        assert np.allclose(root @ world(child["transform"]), enu_to_ecef(lon, lat, 0.0), atol=1e-6)
+
+
+def y_up_to_z_up() -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = Y_UP_TO_Z_UP
+    return m
+
+
+def test_node_matrix_places_a_tile_frame_point_where_the_per_tile_transform_did() -> None:
+    """root transform @ (y-up -> z-up, what CesiumJS applies to glTF) @ node matrix = the tile's own ENU frame
+    @ (y-up -> z-up): the chain the per-tile transforms used to give."""
+    root = records()[0].region
+    pts = np.array([[0, 0, 0, 1], [120.0, 35.0, -80.0, 1], [-3000.0, 2.0, 4000.0, 1]]).T  # glTF frame, y up
+    for rec in records():
+        new = world(column_major(leaf_frame(root))) @ y_up_to_z_up() @ world(node_matrix(rec.region, root)) @ pts
+        old = leaf_frame(rec.region) @ y_up_to_z_up() @ pts
+        assert np.allclose(new, old, atol=1e-6)
+        # and the point's height above the ellipsoid is its y in the tile frame (the tile's frame is its own)
+        h = ecef_to_geodetic(new[:3, 0])[2]
+        assert h == pytest.approx(0.0, abs=1e-6)
+    assert np.allclose(world(node_matrix(root, root)), np.eye(4), atol=1e-9)
+    b = records()[2].region
+    shift = world(node_matrix(b, root))[:3, 3]  # B's centre is east of the root's: +x, and north: -z (y up)
+    assert shift[0] > 1000 and shift[2] < -1000
 
 
 def test_single_lod_is_add_with_leaf_content(tmp_path) -> None:
     ts = build_tileset(records(), single_lod=True)
-    assert ts["root"]["refine"] == "ADD" and "content" not in ts["root"] and "transform" not in ts["root"]
+    assert ts["root"]["refine"] == "ADD" and "content" not in ts["root"]
     assert all("content" in c for c in ts["root"]["children"])
     assert check_tileset(write(tmp_path, ts)) == []
 
