@@ -144,10 +144,13 @@ def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) 
 
 
 def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "",
-              textured: Sequence[Primitive] = (), images: Sequence[Image] = ()) -> bytes:
+              textured: Sequence[Primitive] = (), images: Sequence[Image] = (),
+              node_matrix: Sequence[float] | None = None) -> bytes:
     """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
     primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
-    vertex-coloured primitive; with them an empty ``prim`` is left out."""
+    vertex-coloured primitive; with them an empty ``prim`` is left out.
+    ``node_matrix``: 16 floats, column-major, the glTF node transform from the mesh's metric frame (the
+    positions given) to the frame the tileset places the content in; None = identity."""
     b = _Builder()
     materials: list[dict[str, object]] = []
     primitives: list[dict[str, object]] = []
@@ -207,7 +210,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "extensionsUsed": ["EXT_mesh_features", "EXT_structural_metadata"],
         "scene": 0,
         "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
+        "nodes": [_node(node_matrix)],
         "materials": materials,
         "meshes": [{"primitives": primitives}],
         "extensions": {"EXT_structural_metadata": {
@@ -231,6 +234,15 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
             gltf["extensionsUsed"] = [*gltf["extensionsUsed"], "EXT_texture_webp"]  # type: ignore[misc]
             gltf["extensionsRequired"] = ["EXT_texture_webp"]
     return _pack(gltf, bytes(b.bin))
+
+
+def _node(matrix: Sequence[float] | None) -> dict[str, object]:
+    if matrix is None:
+        return {"mesh": 0}
+    m = [float(v) for v in matrix]
+    if len(m) != 16:
+        raise ValueError(f"node_matrix must have 16 values (column-major 4x4), not {len(m)}")
+    return {"mesh": 0, "matrix": m}
 
 
 def _pack(gltf: dict[str, object], binary: bytes) -> bytes:
