@@ -12,7 +12,7 @@ from core.geodesy import Y_UP_TO_Z_UP
 from core.settings import Settings
 from exporter.checks import check_tileset
 from exporter.export import export_tileset
-from exporter.gltf import accessor_array, property_table, read_glb
+from exporter.gltf import accessor_array, mesh_positions, node_positions, property_table, read_glb
 from tests.conftest import REPO, node_bin, run_etl, validate_glb
 
 # Helsinki is the real city of make test; Munich and London (the extract tier) add parts and materials.
@@ -81,7 +81,7 @@ def feature_vertices(tiles_dir, uri: str, osm_id: int):
     table = property_table(gltf, binary)
     fid = table["osm_id"].index(osm_id)
     prim = gltf["meshes"][0]["primitives"][0]
-    pos = accessor_array(gltf, binary, prim["attributes"]["POSITION"]).astype(np.float64)
+    pos = node_positions(gltf, binary, prim["attributes"]["POSITION"])  # metres in the tile's frame
     fids = accessor_array(gltf, binary, prim["attributes"]["_FEATURE_ID_0"])
     return pos[fids == fid], {k: v[fid] for k, v in table.items()}
 
@@ -160,7 +160,8 @@ def test_landmark_exaggeration_metadata(city, conn_of) -> None:
     for path in sorted(c.tiles.rglob("*.glb")):
         gltf, binary = read_glb(path.read_bytes())
         t = property_table(gltf, binary)
-        pos = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
+        # the landmark metadata is in the mesh's frame (quantized positions: before the node's translation)
+        pos = mesh_positions(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
         fid = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["_FEATURE_ID_0"])
         for i, role in enumerate(t["lm_role"]):
             if role == 0:
