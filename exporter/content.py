@@ -1,7 +1,8 @@
 """Tile content: ECEF triangles of a tile's features -> the arrays of one glTF primitive. Pure numpy.
 
 Coordinates go ECEF -> the tile's local east-north-up frame (float64; plain glbs store float32: a tile spans at
-most a few km, so float32 keeps millimetres; compact ones quantize from float64) -> glTF y-up. Triangles are flat shaded: a vertex is shared only by
+most a few km, so float32 keeps millimetres; compact ones quantize from float64) -> glTF y-up.
+Triangles are flat shaded: a vertex is shared only by
 triangles with the same normal, colour and feature (np.unique over those keys), which keeps walls sharp.
 Roof (up-facing) triangles take roof:colour, the others building:colour, else neutral defaults. Tag colours
 are sRGB; glTF vertex colours are linear, so they are converted (16-bit, so dark colours keep their steps).

@@ -81,8 +81,8 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
      True, None),
     ("lm_scale_step", "FLOAT32", "see lm_scale_from_m (0 unless role > 0)", True, None),
     ("lm_max_scale", "FLOAT32", "see lm_scale_from_m (1 unless role > 0)", True, None),
-    ("lm_centre_x", "FLOAT32", "the landmark's footprint centre at ground level in this glTF's mesh frame (m, y up: "
-     "POSITION times the node's scale, before its translation, which is 0 for float positions)", True, None),
+    ("lm_centre_x", "FLOAT32", "the landmark's footprint centre at ground level in this glTF's frame (y up)",
+     True, None),
     ("lm_centre_y", "FLOAT32", "see lm_centre_x", True, None),
     ("lm_centre_z", "FLOAT32", "see lm_centre_x", True, None),
     ("lm_radius_m", "FLOAT32", "radius of the landmark's footprint circle (m)", True, None),
@@ -90,10 +90,18 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
      "(m, negative when they overlap); at scale s it moves max(0, (s - 1) * lm_radius_m - max(gap, 0)) away "
      "along lm_dir", True, None),
     ("lm_dir_x", "FLOAT32", "role 2: horizontal unit vector from the landmark's centre to this building's, in "
-     "this glTF's mesh frame (see lm_centre_x)", True, None),
+     "this glTF's frame", True, None),
     ("lm_dir_y", "FLOAT32", "see lm_dir_x (0: horizontal)", True, None),
     ("lm_dir_z", "FLOAT32", "see lm_dir_x", True, None),
 ]
+
+#: compact geometry: the frame of the landmark metadata said precisely (plain glbs keep the words above)
+COMPACT_DOCS = {
+    "lm_centre_x": "the landmark's footprint centre at ground level in this glTF's mesh frame (m, y up): the "
+    "frame of POSITION times its node's scale, before the node's translation (the quantization origin)",
+    "lm_dir_x": "role 2: horizontal unit vector from the landmark's centre to this building's, in this glTF's "
+    "mesh frame (see lm_centre_x)",
+}
 
 
 @dataclass(frozen=True)
@@ -185,6 +193,7 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
     rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat, origin), strict=True)]
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
+        doc = COMPACT_DOCS.get(name, doc) if compact else doc
         values = [r[name] for r in rows]
         if name in ("osm_type", "building_osm_type"):
             values = [OSM_TYPE[v] for v in values]

@@ -9,6 +9,24 @@ fallback image), plus the vertex-coloured primitive for what has no texture; eve
 feature ids of its own vertices against the one property table.
 Spec notes honoured here: bufferViews start on 8-byte boundaries (metadata requirement), vertex attributes are
 4-byte aligned (feature ids as FLOAT, exact up to 2^24), POSITION carries min/max, normals are unit length.
+
+Compact geometry (``compact=True``; the plain path above is unchanged byte for byte):
+* KHR_mesh_quantization. Positions are SHORT ``round((p - origin) / step)`` with one uniform step per tile and an
+  origin (whole metres, the middle of the mesh's bounding box) per mesh; the node's matrix is
+  ``node_matrix @ T(origin) @ S(step)``. **Error bound**: rounding moves each coordinate at most step/2, so a
+  vertex at most step * sqrt(3) / 2 (Euclidean) from its float64 input once the node's matrix is applied; step
+  is chosen so that this is the tile's bound: 1 cm at leaves, max(1 cm, 1 % of the geometric error) in inner
+  tiles (export.position_error_m), which CesiumJS draws only while that error is a few pixels, so 1 % of it is
+  far below a pixel. A tile wider than int16 reaches at that step (32767 steps from the origin: 378 m at 1 cm)
+  is cut into chunks of whole features, one mesh and node each (plan_quantization); a chunk still too wide
+  (one huge feature) keeps FLOAT positions. Uniform scale and rigid tile transforms let a custom shader recover
+  the step as length(czm_model[0].xyz): CesiumJS gives shaders POSITION as stored (positionMC), not dequantized.
+* Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay),
+  texcoords UNSIGNED_SHORT normalized (FLOAT if outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride;
+  FLOAT past 65536 rows), colours as given (16-bit linear).
+* EXT_meshopt_compression (exporter/meshopt.py): every vertex, index and property-table view whose compressed
+  stream plus its JSON is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
+  buffer 1, the fallback buffer (no uri, ``fallback: true``), at 8-byte aligned offsets.
 """
 
 from __future__ import annotations
@@ -231,11 +249,18 @@ def plan_quantization(prims: Sequence[Primitive], feature_count: int, error_m: f
     half = float(np.max(np.where(np.isfinite(lo), hi - lo, 0.0)[:, [0, 2]])) / 2.0
     cell = max(2.0 * (reach - half), reach)
     key = np.floor((centre[:, [0, 2]] - pos.min(axis=0)[[0, 2]]) / cell).astype(np.int64)
-    _, chunk = np.unique(key, axis=0, return_inverse=True)
+    _, chunk = np.unique(key[:, 0] * (int(key[:, 1].max()) + 1) + key[:, 1], return_inverse=True)
     chunk = chunk.reshape(-1)
     vchunk = chunk[fid]
     qs = tuple(quantization([pos[vchunk == k]], error_m) for k in range(int(chunk.max()) + 1))
     return Chunks(chunk, qs)
+
+
+def _distinct(ids: np.ndarray, count: int) -> int:
+    """How many different values ``ids`` (in [0, count)) holds: a bitmap instead of a sort."""
+    seen = np.zeros(count, bool)
+    seen[np.asarray(ids, np.int64)] = True
+    return int(np.count_nonzero(seen))
 
 
 def _sub_primitive(prim: Primitive, keep_feature: np.ndarray) -> Primitive:
@@ -385,7 +410,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         for k, q in enumerate(chunks.quantizations):
             sub = _sub_primitive(p, chunks.feature_chunk == k)
             if len(sub.indices):
-                n = len(np.unique(sub.feature_ids))
+                n = _distinct(sub.feature_ids, prim.feature_count)
                 meshes[k].append(_compact_primitive(b, sub, material, n, prim.feature_count, q))
 
     def table_view(data: bytes, itemsize: int) -> int:
@@ -614,7 +639,8 @@ def mesh_positions(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     """POSITION accessor ``index`` in metres in the mesh's own frame, the frame of the landmark metadata
     (lm_centre_*, lm_dir_*): the stored values times the node's scale (|column 0| of its matrix; 1 for FLOAT
     positions without a node matrix), before its rotation and translation."""
-    return accessor_array(gltf, binary, index).astype(np.float64) * float(np.linalg.norm(_node_matrix(gltf, index)[:3, 0]))
+    scale = float(np.linalg.norm(_node_matrix(gltf, index)[:3, 0]))
+    return accessor_array(gltf, binary, index).astype(np.float64) * scale
 
 
 def property_table(gltf: dict, binary: bytes) -> dict[str, list[object]]:

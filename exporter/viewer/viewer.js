@@ -88,8 +88,9 @@
   // landmark and its neighbours, in whatever tiles they are, agree on one scale. (api.landmark_exaggeration
   // measures to the middle of the landmark's height, which the metadata does not carry; the two distances differ
   // by at most half that height, so they pick different intervals only that close to a boundary.)
-  // positionMC and lm_centre_* are both in the glTF's frame (y up, origin at the tile's east-north-up centre);
-  // czm_modelView adds the tile transform. Primitives without these properties (older tilesets) get no custom
+  // lm_centre_* are in metres in the mesh's frame (y up); positionMC is POSITION as stored, metres / the node's
+  // scale for quantized (compact) geometry, so both are brought to positionMC's units; czm_modelView adds the
+  // node's and the tile's transforms. Primitives without these properties (older tilesets) get no custom
   // vertex shader from CesiumJS (a console warning), so nothing moves. Bounding volumes are not enlarged: a scaled
   // landmark whose tile is culled is not drawn.
   const LANDMARK_VS = `

@@ -12,7 +12,8 @@ from core.geodesy import Y_UP_TO_Z_UP
 from core.settings import Settings
 from exporter.checks import check_tileset
 from exporter.export import export_tileset
-from exporter.gltf import accessor_array, mesh_positions, node_positions, property_table, read_glb
+from exporter.gltf import feature_vertices as glb_vertices
+from exporter.gltf import property_table, read_glb
 from tests.conftest import REPO, node_bin, run_etl, validate_glb
 
 # Helsinki is the real city of make test; Munich and London (the extract tier) add parts and materials.
@@ -80,9 +81,7 @@ def feature_vertices(tiles_dir, uri: str, osm_id: int):
     gltf, binary = read_glb((tiles_dir / uri).read_bytes())
     table = property_table(gltf, binary)
     fid = table["osm_id"].index(osm_id)
-    prim = gltf["meshes"][0]["primitives"][0]
-    pos = node_positions(gltf, binary, prim["attributes"]["POSITION"])  # metres in the tile's frame
-    fids = accessor_array(gltf, binary, prim["attributes"]["_FEATURE_ID_0"])
+    pos, fids = glb_vertices(gltf, binary)  # metres in the tile's frame, every mesh and primitive
     return pos[fids == fid], {k: v[fid] for k, v in table.items()}
 
 
@@ -160,9 +159,9 @@ def test_landmark_exaggeration_metadata(city, conn_of) -> None:
     for path in sorted(c.tiles.rglob("*.glb")):
         gltf, binary = read_glb(path.read_bytes())
         t = property_table(gltf, binary)
-        # the landmark metadata is in the mesh's frame (quantized positions: before the node's translation)
-        pos = mesh_positions(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
-        fid = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["_FEATURE_ID_0"])
+        # the landmark metadata is in the mesh's frame (compact geometry: before the node's translation), over
+        # every mesh (a wide compact tile has one per chunk) and primitive
+        pos, fid = glb_vertices(gltf, binary, frame="mesh")
         for i, role in enumerate(t["lm_role"]):
             if role == 0:
                 assert t["lm_landmark_osm_id"][i] == 0 and t["lm_scale_step"][i] == 0
@@ -195,8 +194,9 @@ def test_triangle_counts_and_run_record(city, conn_of) -> None:
     total = 0
     for p in c.tiles.rglob("*.glb"):
         gltf, _ = read_glb(p.read_bytes())
-        prim = gltf["meshes"][0]["primitives"][0]
-        total += gltf["accessors"][prim["indices"]]["count"] // 3
+        # every mesh (a wide compact tile has one per chunk of features) and primitive
+        total += sum(gltf["accessors"][prim["indices"]]["count"] // 3
+                     for m in gltf["meshes"] for prim in m["primitives"])
         assert gltf["asset"]["copyright"].startswith("© OpenStreetMap contributors")
     stored, features = conn.execute(
         "SELECT sum(content_triangles)::bigint, sum(content_features)::bigint FROM tiles.tile").fetchone()
