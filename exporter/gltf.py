@@ -24,8 +24,9 @@ Compact geometry (``compact=True``; the plain path above is unchanged byte for b
 * Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay),
   texcoords UNSIGNED_SHORT normalized (FLOAT if outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride;
   FLOAT past 65536 rows), colours as given (16-bit linear).
-* EXT_meshopt_compression (exporter/meshopt.py): every vertex, index and property-table view whose compressed
-  stream plus its JSON is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
+* EXT_meshopt_compression (exporter/meshopt.py): every vertex, index and property-table view (those a whole
+  number of 4-byte groups long: a padded column breaks CesiumJS's table) whose compressed stream plus its JSON
+  is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
   buffer 1, the fallback buffer (no uri, ``fallback: true``), at 8-byte aligned offsets.
 """
 
@@ -414,13 +415,14 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
                 meshes[k].append(_compact_primitive(b, sub, material, n, prim.feature_count, q))
 
     def table_view(data: bytes, itemsize: int) -> int:
-        # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view):
-        # 4- and 8-byte values as themselves, narrower ones and string bytes in 4-byte groups (zero padded;
-        # the table's count and string offsets say where the values end)
-        if not compact:
-            return b.view(data)
+        # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view): 4- and
+        # 8-byte values as themselves, narrower ones and string bytes in 4-byte groups when they fill them
+        # exactly. Never padded: CesiumJS counts a column's values by its view's length and drops the whole
+        # table (custom shaders lose their metadata) when that differs from the table's count.
         stride = itemsize if itemsize % 4 == 0 else 4
-        return b.packed(data + b"\0" * ((-len(data)) % stride), stride)
+        if not compact or len(data) % stride:
+            return b.view(data)
+        return b.packed(data, stride)
 
     materials: list[dict[str, object]] = []
     if not textured or len(prim.indices):

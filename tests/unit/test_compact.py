@@ -206,3 +206,20 @@ def test_plain_bytes_are_todays() -> None:
 
 PLAIN_CUBE = "da4bc8aef027f1d0c9479b3a4d852fc766f8d364ebd37d515851b7d7ce51125b"
 PLAIN_TEXTURED = "df11d66832f1d7d1815f6013cf3a84466b880387ce31a742ff42318af13c88e2"
+
+
+def test_property_views_keep_their_exact_length() -> None:
+    # CesiumJS counts a column's values by its bufferView's length: a padded UINT8 column (9 rows -> 12 bytes)
+    # would make it drop the table, and with it every custom shader's metadata
+    c = cube_primitive()
+    n = 9
+    props = [type(c.properties[0])("lod", [3] * n, "UINT8", required=True),
+             type(c.properties[0])("osm_id", list(range(n)), "INT64", required=True),
+             type(c.properties[0])("name", [f"n{i}" for i in range(n)], None)]
+    prim = Primitive(np.repeat(c.positions, 2, axis=0)[:16], np.repeat(c.normals, 2, axis=0)[:16],
+                     np.repeat(c.colors, 2, axis=0)[:16], np.arange(16) % n, np.arange(15, dtype=np.uint32), props, n)
+    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
+    table = gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["properties"]
+    assert gltf["bufferViews"][table["lod"]["values"]]["byteLength"] == n
+    assert gltf["bufferViews"][table["osm_id"]["values"]]["byteLength"] == 8 * n
+    assert property_table(gltf, binary)["lod"] == [3] * n
