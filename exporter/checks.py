@@ -38,6 +38,7 @@ from core.geodesy import geodetic_to_ecef
 from core.tiles3d import expand
 
 from .gltf import SCALAR_DTYPES, accessor_array, read_glb
+from .gltf import view_bytes as _view_bytes
 
 TOLERANCE_RAD = 1e-9
 TOLERANCE_M = 1e-3
@@ -173,9 +174,8 @@ def check_glb(data: bytes) -> list[str]:
         if buf is None or v.get("byteOffset", 0) + v.get("byteLength", 0) > buf.get("byteLength", 0):
             problems.append(f"bufferView {i} lies outside its buffer")
 
-    def view_bytes(i: int) -> bytes:
-        v = views[i]
-        return binary[v.get("byteOffset", 0) : v.get("byteOffset", 0) + v["byteLength"]]
+    def view_bytes(i: int) -> bytes:  # meshopt-compressed views decoded (compact geometry)
+        return _view_bytes(gltf, binary, i)
 
     used = set(gltf.get("extensionsUsed", []))
     meta = gltf.get("extensions", {}).get("EXT_structural_metadata")

@@ -1,7 +1,8 @@
 """Tile content: ECEF triangles of a tile's features -> the arrays of one glTF primitive. Pure numpy.
 
-Coordinates go ECEF -> the tile's local east-north-up frame (float64, then float32: a tile spans at most a
-few km, so float32 keeps millimetres) -> glTF y-up. Triangles are flat shaded: a vertex is shared only by
+Coordinates go ECEF -> the tile's local east-north-up frame (float64; plain glbs store float32: a tile spans at
+most a few km, so float32 keeps millimetres; compact ones quantize from float64) -> glTF y-up.
+Triangles are flat shaded: a vertex is shared only by
 triangles with the same normal, colour and feature (np.unique over those keys), which keeps walls sharp.
 Roof (up-facing) triangles take roof:colour, the others building:colour, else neutral defaults. Tag colours
 are sRGB; glTF vertex colours are linear, so they are converted (16-bit, so dark colours keep their steps).
@@ -40,7 +41,7 @@ def srgb_to_linear16(rgba: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ContentArrays:
-    positions: np.ndarray  # (n, 3) float32, glTF frame
+    positions: np.ndarray  # (n, 3) float64, glTF frame (plain glbs store float32; vertices are shared by those)
     normals: np.ndarray  # (n, 3) float32
     colors: np.ndarray  # (n, 4) uint16, linear
     feature_ids: np.ndarray  # (n,) uint32
@@ -94,7 +95,8 @@ def tile_arrays(
     nrm_gl = nrm @ Z_UP_TO_Y_UP.T
 
     m = len(gl)
-    pos = gl.reshape(-1, 3).astype(np.float32)
+    pos64 = gl.reshape(-1, 3)  # the output keeps float64: compact geometry quantizes from it
+    pos = pos64.astype(np.float32)
     normals = np.repeat(nrm_gl.astype(np.float32), 3, axis=0)
     textured = tri_page is not None and tri_uv is not None
     if textured:
@@ -105,7 +107,7 @@ def tile_arrays(
     colors = np.repeat(colour, 3, axis=0)
     fids = np.repeat(feat.astype(np.uint32), 3)
     if m == 0:
-        return ContentArrays(pos, normals, colors, fids, np.zeros(0, np.uint32), int((~keep).sum()),
+        return ContentArrays(pos64, normals, colors, fids, np.zeros(0, np.uint32), int((~keep).sum()),
                              uvs if textured else None, pages if textured else None)
     # Coplanar triangles get normals equal up to rounding noise; round them for the key so they share vertices.
     nkey = np.round(normals, 4).astype(np.float32) + np.float32(0.0)  # + 0.0 folds -0.0 into 0.0
@@ -122,7 +124,7 @@ def tile_arrays(
     rank[order] = np.arange(len(order))
     sel = first[order]
     return ContentArrays(
-        positions=pos[sel], normals=normals[sel], colors=colors[sel], feature_ids=fids[sel],
+        positions=pos64[sel], normals=normals[sel], colors=colors[sel], feature_ids=fids[sel],
         indices=rank[inverse.reshape(-1)].astype(np.uint32), dropped_degenerate=int((~keep).sum()),
         uvs=uvs[sel] if textured else None, pages=pages[sel] if textured else None,
     )

@@ -35,7 +35,8 @@ from core.settings import Settings
 from core.wkb import decode_triangles
 
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
-from .gltf import Image, Primitive, Property, write_glb
+from .gltf import Image, Primitive, Property, plan_quantization, read_glb, write_glb
+from .meshopt import CompressionError
 from .stream import COMPACT, StreamOptions
 from .tileset import TileRecord, build, node_matrix, region_centre
 
@@ -96,6 +97,14 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("lm_dir_z", "FLOAT32", "see lm_dir_x", True, None),
 ]
 
+#: compact geometry: the frame of the landmark metadata said precisely (plain glbs keep the words above)
+COMPACT_DOCS = {
+    "lm_centre_x": "the landmark's footprint centre at ground level in this glTF's mesh frame (m, y up): the "
+    "frame of POSITION times its node's scale, before the node's translation (the quantization origin)",
+    "lm_dir_x": "role 2: horizontal unit vector from the landmark's centre to this building's, in this glTF's "
+    "mesh frame (see lm_centre_x)",
+}
+
 
 @dataclass(frozen=True)
 class TileTextures:
@@ -150,7 +159,10 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
                    node_matrix: list[float] | None = None) -> tuple[bytes, int]:
     """glb bytes and triangle count for the feature rows (dicts with the columns of api.export_features) of one tile;
     with ``textures``, the features that have UVs are drawn with their atlas pages; ``node_matrix`` places the
-    tile's frame in the root's (tileset.node_matrix)."""
+    tile's frame in the root's (tileset.node_matrix). ``stream.geometry`` compact: quantized
+    (``position_error_m(rec)``) meshopt-compressed geometry; a tile meshoptimizer refuses is written plain with a
+    warning."""
+    rows_in = rows
     tris = [decode_triangles(r["ecef_wkb"]) for r in rows]
     counts = np.array([len(t) for t in tris])
     triangles = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
@@ -182,40 +194,81 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
         if tri_page.max(initial=-1) >= len(textures.images):
             raise RuntimeError("tex.feature_uv refers to a page the tile does not have")
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem, tri_page=tri_page, tri_uv=tri_uv)
-    rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat), strict=True)]
+    plain, parts = arr, []
+    if textures is not None and arr.pages is not None and np.any(arr.pages >= 0):
+        plain, parts = _split(arr, len(textures.images))
+    compact = stream.geometry == "compact"
+    q = plan_quantization([plain, *(a for _, a in parts)], len(rows), position_error_m(rec)) if compact else None
+    # the landmark metadata is in the mesh's frame, the one a custom shader sees: its chunk's quantization origin
+    origin = q.origins() if q is not None else None
+    rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat, origin), strict=True)]
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
+        doc = COMPACT_DOCS.get(name, doc) if compact else doc
         values = [r[name] for r in rows]
         if name in ("osm_type", "building_osm_type"):
             values = [OSM_TYPE[v] for v in values]
         props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
-    plain, parts = arr, []
-    if textures is not None and arr.pages is not None and np.any(arr.pages >= 0):
-        plain, parts = _split(arr, len(textures.images))
     prim = Primitive(positions=plain.positions, normals=plain.normals, colors=plain.colors,
                      feature_ids=plain.feature_ids, indices=plain.indices, properties=props, feature_count=len(rows))
     # only the pages some triangle uses, renumbered (a page whose triangles were all degenerate goes)
     textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
                           indices=a.indices, uvs=a.uvs, image=k) for k, (_, a) in enumerate(parts)]
     images = [textures.images[p] for p, _ in parts] if textures is not None else []
-    glb = write_glb(prim, "building", "An OSM building or building:part", textured=textured, images=images,
-                    node_matrix=node_matrix)
+    doc = ("building", "An OSM building or building:part")
+    if compact:
+        try:
+            return write_glb(prim, *doc, textured=textured, images=images, node_matrix=node_matrix, compact=True,
+                             quantization=q), len(arr.indices) // 3
+        except CompressionError as e:
+            # recorded: the export counts tiles whose glb is not compact (geometry_fallback) and says why
+            print(f"  warning: tile {_tile_name(rec)} written plain: {e}", file=sys.stderr)
+            # the landmark metadata back in the tile's frame, as plain tiles have it
+            return build_tile_glb(rows_in, region, textures, replace(stream, geometry="plain"), rec, node_matrix)
+    glb = write_glb(prim, *doc, textured=textured, images=images, node_matrix=node_matrix)
     return glb, len(arr.indices) // 3
 
 
-def _landmark_frame(rows: list[dict], lon: float, lat: float) -> list[dict[str, float]]:
-    """lm_centre_* and lm_dir_* of each row in the content's frame (tile_arrays': ENU at (lon, lat), y up)."""
+def _tile_name(rec: TileRecord | None) -> str:
+    return "?" if rec is None else f"{rec.level}/{rec.x}/{rec.y}"
+
+
+#: the largest position error of compact geometry (KHR_mesh_quantization) at a leaf (m)
+LEAF_POSITION_ERROR_M = 0.01
+#: inner tiles: this share of the tile's geometric error, when larger (far below a pixel where they are drawn)
+INNER_POSITION_ERROR_SHARE = 0.01
+
+
+def position_error_m(rec: TileRecord | None) -> float:
+    """The quantization bound of a tile's positions: 1 cm at leaves (and without a record), max(1 cm, 1 % of the
+    geometric error) for inner tiles, which CesiumJS draws only while that error is below its pixel threshold."""
+    if rec is None or rec.is_leaf or rec.geometric_error is None:
+        return LEAF_POSITION_ERROR_M
+    return max(LEAF_POSITION_ERROR_M, INNER_POSITION_ERROR_SHARE * float(rec.geometric_error))
+
+
+def is_compact(glb: bytes) -> bool:
+    """True when a glb's geometry is compact (KHR_mesh_quantization required: every compact glb has BYTE normals)."""
+    gltf, _ = read_glb(glb)
+    return "KHR_mesh_quantization" in gltf.get("extensionsRequired", [])  # type: ignore[operator]
+
+
+def _landmark_frame(rows: list[dict], lon: float, lat: float,
+                    origin: np.ndarray | None = None) -> list[dict[str, float]]:
+    """lm_centre_* and lm_dir_* of each row in the mesh's frame: tile_arrays' (ENU at (lon, lat), y up) less the
+    quantization ``origin`` (features, 3) of the row's chunk in compact geometry (which its node's matrix adds back)."""
     out = [dict.fromkeys(("lm_centre_x", "lm_centre_y", "lm_centre_z", "lm_dir_x", "lm_dir_y", "lm_dir_z"), 0.0)
            for _ in rows]
     idx = [i for i, r in enumerate(rows) if r.get("lm_centre_wkb") is not None]
     if not idx:
         return out
-    origin = geodetic_to_ecef(lon, lat, 0.0)
+    ecef0 = geodetic_to_ecef(lon, lat, 0.0)
+    shift = np.zeros(3) if origin is None else np.asarray(origin, np.float64)[idx]
     to_gl = enu_rotation(lon, lat) @ Z_UP_TO_Y_UP.T
 
     def local(key: str) -> np.ndarray:
         pts = shapely.get_coordinates(shapely.from_wkb([bytes(rows[i][key]) for i in idx]), include_z=True)
-        return (pts - origin) @ to_gl
+        return (pts - ecef0) @ to_gl - shift
 
     centre, own = local("lm_centre_wkb"), local("lm_own_wkb")
     d = own - centre
@@ -277,14 +330,15 @@ def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod:
 
 def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, workers: int,
                   progress: Progress, lod: int | None, stream: StreamOptions,
-                  root_region: tuple[float, ...]) -> tuple[int, int, int]:
+                  root_region: tuple[float, ...]) -> tuple[int, int, int, int]:
     """Write every tile's glb; tiles are independent, so ``workers`` threads each with their own connection
-    share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts)."""
+    share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts).
+    Returns (features, triangles, bytes, compact tiles meshoptimizer refused, written plain)."""
     local = threading.local()
     lock = threading.Lock()
     conns: list = []
 
-    def one(rec: TileRecord) -> tuple[int, int, int]:
+    def one(rec: TileRecord) -> tuple[int, int, int, int]:
         if not hasattr(local, "conn"):
             local.conn = connect(url)
             with lock:
@@ -294,18 +348,19 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
         path = out / rec.content_uri
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(glb)
-        return n, tri, len(glb)
+        return n, tri, len(glb), int(stream.geometry == "compact" and not is_compact(glb))
 
-    n_features = n_triangles = n_bytes = 0
+    n_features = n_triangles = n_bytes = n_fallback = 0
     try:
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            for f, t, b in pool.map(one, tiles):
+            for f, t, b, fb in pool.map(one, tiles):
                 n_features, n_triangles, n_bytes = n_features + f, n_triangles + t, n_bytes + b
+                n_fallback += fb
                 progress.update(f)
     finally:
         for c in conns:
             c.close()
-    return n_features, n_triangles, n_bytes
+    return n_features, n_triangles, n_bytes, n_fallback
 
 
 def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int | None) -> None:
@@ -375,7 +430,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     partial.mkdir(parents=True)
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "features", total=expected)
-    n_features, n_triangles, n_bytes = _export_tiles(
+    n_features, n_triangles, n_bytes, n_fallback = _export_tiles(
         url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod, stream, root_region)
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
@@ -399,6 +454,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
     return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
             "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
-            "tileset_json_bytes": len(files[TILESET_JSON]), "triangles": n_triangles, "bytes": n_bytes,
+            "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
+            "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "directory": str(out)}

@@ -9,6 +9,25 @@ EXT_texture_webp, required: no fallback image), plus the vertex-coloured primiti
 every primitive carries the feature ids of its own vertices against the one property table.
 Spec notes honoured here: bufferViews start on 8-byte boundaries (metadata requirement), vertex attributes are
 4-byte aligned (feature ids as FLOAT, exact up to 2^24), POSITION carries min/max, normals are unit length.
+
+Compact geometry (``compact=True``; the plain path above is unchanged byte for byte):
+* KHR_mesh_quantization. Positions are SHORT ``round((p - origin) / step)`` with one uniform step per tile and an
+  origin (whole metres, the middle of the mesh's bounding box) per mesh; the node's matrix is
+  ``node_matrix @ T(origin) @ S(step)``. **Error bound**: rounding moves each coordinate at most step/2, so a
+  vertex at most step * sqrt(3) / 2 (Euclidean) from its float64 input once the node's matrix is applied; step
+  is chosen so that this is the tile's bound: 1 cm at leaves, max(1 cm, 1 % of the geometric error) in inner
+  tiles (export.position_error_m), which CesiumJS draws only while that error is a few pixels, so 1 % of it is
+  far below a pixel. A tile wider than int16 reaches at that step (32767 steps from the origin: 378 m at 1 cm)
+  is cut into chunks of whole features, one mesh and node each (plan_quantization); a chunk still too wide
+  (one huge feature) keeps FLOAT positions. Uniform scale and rigid tile transforms let a custom shader recover
+  the step as length(czm_model[0].xyz): CesiumJS gives shaders POSITION as stored (positionMC), not dequantized.
+* Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay),
+  texcoords UNSIGNED_SHORT normalized (FLOAT if outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride;
+  FLOAT past 65536 rows), colours as given (16-bit linear).
+* EXT_meshopt_compression (exporter/meshopt.py): every vertex, index and property-table view (those a whole
+  number of 4-byte groups long: a padded column breaks CesiumJS's table) whose compressed stream plus its JSON
+  is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
+  buffer 1, the fallback buffer (no uri, ``fallback: true``), at 8-byte aligned offsets.
 """
 
 from __future__ import annotations
@@ -20,8 +39,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import ATTRIBUTION, __version__
+from . import ATTRIBUTION, __version__, meshopt
 
+BYTE, SHORT = 5120, 5122
 FLOAT, UNSIGNED_BYTE, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 
@@ -72,11 +92,17 @@ IMAGE_EXTENSIONS = {"image/webp": "EXT_texture_webp", "image/ktx2": "KHR_texture
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
+#: about what a compressed view's JSON (its extension object and the fallback view) adds to a glb
+MESHOPT_JSON_BYTES = 160
+
+
 class _Builder:
-    def __init__(self) -> None:
+    def __init__(self, compact: bool = False) -> None:
         self.bin = bytearray()
         self.views: list[dict[str, object]] = []
         self.accessors: list[dict[str, object]] = []
+        self.compact = compact
+        self.fallback = 0  # bytes of buffer 1, the decoded views (compact only)
 
     def view(self, data: bytes, target: int | None = None) -> int:
         pad = (-len(self.bin)) % 8
@@ -87,6 +113,59 @@ class _Builder:
         self.bin.extend(data)
         self.views.append(v)
         return len(self.views) - 1
+
+    def packed(self, data: bytes, stride: int, target: int | None = None, vertex_stride: bool = False,
+               triangles: int = 0) -> int:
+        """A view stored meshopt-compressed in buffer 0 and decoded into buffer 1 (the fallback buffer, 8-byte
+        aligned views: the metadata's requirement): ATTRIBUTES of ``stride``-byte elements, or with
+        ``triangles`` (the vertex count) a TRIANGLES index stream of ``stride``-byte indices. Plain: a view."""
+        if not self.compact:
+            return self.view(data, target)
+        count = len(data) // stride
+        if triangles:
+            enc = meshopt.encode_triangles(np.frombuffer(data, "<u2" if stride == 2 else "<u4"), triangles)
+        else:
+            enc = meshopt.encode_attributes(data, stride)
+        if len(enc) + MESHOPT_JSON_BYTES >= len(data):
+            # a small view the extension's JSON would outweigh: stored as is (still 8-byte aligned)
+            at = self.view(data, target)
+            if vertex_stride:
+                self.views[at]["byteStride"] = stride
+            return at
+        at = self.view(enc)
+        src = self.views[at]
+        self.fallback += (-self.fallback) % 8
+        v: dict[str, object] = {"buffer": 1, "byteOffset": self.fallback, "byteLength": count * stride}
+        if vertex_stride:
+            v["byteStride"] = stride
+        if target is not None:
+            v["target"] = target
+        v["extensions"] = {"EXT_meshopt_compression": {
+            "buffer": 0, "byteOffset": src["byteOffset"], "byteLength": src["byteLength"], "byteStride": stride,
+            "count": count, "mode": "TRIANGLES" if triangles else "ATTRIBUTES"}}
+        self.fallback += count * stride
+        self.views[at] = v
+        return at
+
+    def vertex(self, array: np.ndarray, component: int, kind: str, normalized: bool = False,
+               minmax: bool = False) -> int:
+        """A compact vertex attribute: elements padded to a multiple of 4 bytes (meshopt's unit and glTF's
+        vertex alignment), compressed; the accessor reads the first ``kind`` components of each."""
+        arr = np.ascontiguousarray(array)
+        arr2 = arr.reshape(len(arr), -1)
+        size = arr2.shape[1] * arr2.dtype.itemsize
+        stride = size + (-size) % 4
+        rows = np.zeros((len(arr2), stride), np.uint8)
+        rows[:, :size] = arr2.view(np.uint8).reshape(len(arr2), size)
+        view = self.packed(rows.tobytes(), stride, ARRAY_BUFFER, vertex_stride=stride != size)
+        a: dict[str, object] = {"bufferView": view, "componentType": component, "count": int(len(arr)), "type": kind}
+        if normalized:
+            a["normalized"] = True
+        if minmax:
+            a["min"] = [float(v) for v in arr2.min(axis=0)]
+            a["max"] = [float(v) for v in arr2.max(axis=0)]
+        self.accessors.append(a)
+        return len(self.accessors) - 1
 
     def accessor(self, array: np.ndarray, component: int, kind: str, target: int | None,
                  normalized: bool = False, minmax: bool = False) -> int:
@@ -107,6 +186,162 @@ def _string_column(values: Sequence[object], no_data: str) -> tuple[bytes, bytes
     offsets = np.zeros(len(encoded) + 1, dtype="<u4")
     np.cumsum([len(e) for e in encoded], out=offsets[1:])
     return b"".join(encoded), offsets.tobytes()
+
+
+@dataclass(frozen=True)
+class Quantization:
+    """KHR_mesh_quantization of positions: ``(p - origin) / step`` rounded to int16 (SHORT), and the node's
+    matrix gets ``T(origin) @ S(step)`` so the tileset places the mesh exactly as before."""
+
+    origin: tuple[float, float, float]  # in the positions' frame (m), whole metres
+    step: float  # m per unit
+
+
+QMAX = 32767  # SHORT positions in [-32767, 32767]
+
+
+def quantization(positions: Sequence[np.ndarray], error_m: float) -> Quantization | None:
+    """The coarsest int16 quantization whose positions are within ``error_m`` (Euclidean) of ``positions``
+    (rounding each coordinate moves a point at most step/2 per axis, so step = 2 error / sqrt(3)); origin the
+    middle of their bounding box. None when the extent needs a finer step than int16 holds: positions stay FLOAT."""
+    pts = [np.asarray(p, np.float64).reshape(-1, 3) for p in positions if len(p)]
+    if not pts:
+        return Quantization((0.0, 0.0, 0.0), 1.0)
+    lo = np.min([p.min(axis=0) for p in pts], axis=0)
+    hi = np.max([p.max(axis=0) for p in pts], axis=0)
+    origin = np.round((lo + hi) / 2.0)
+    step = 2.0 * error_m / np.sqrt(3.0)
+    reach = float(np.max(np.maximum(hi - origin, origin - lo)))
+    if reach / step > QMAX - 0.5:
+        return None
+    return Quantization((float(origin[0]), float(origin[1]), float(origin[2])), float(step))
+
+
+@dataclass(frozen=True)
+class Chunks:
+    """Compact geometry in several meshes, one node each: a tile wider than int16 reaches at its bound is cut
+    into chunks of whole features, each quantized around its own origin (None: FLOAT positions)."""
+
+    feature_chunk: np.ndarray  # (features,) chunk of each property-table row
+    quantizations: tuple[Quantization | None, ...]
+
+    def origins(self) -> np.ndarray:
+        """(features, 3) the quantization origin of each row's chunk (0 for FLOAT chunks): its mesh frame's."""
+        o = np.array([q.origin if q is not None else (0.0, 0.0, 0.0) for q in self.quantizations], np.float64)
+        return o.reshape(-1, 3)[self.feature_chunk]
+
+
+def plan_quantization(prims: Sequence[Primitive], feature_count: int, error_m: float) -> Chunks:
+    """One quantization for the whole tile when its extent fits int16 at ``error_m``; otherwise features are
+    grouped by a square grid of cells (by the centre of their bounding box; cells as wide as int16's reach
+    allows with the widest feature overhanging, at least one reach) and each group gets its own (a group too wide
+    for int16 all the same keeps FLOAT positions)."""
+    live = [p for p in prims if len(p.positions)]
+    if not live:
+        return Chunks(np.zeros(feature_count, np.int64), (Quantization((0.0, 0.0, 0.0), 1.0),))
+    pos = np.concatenate([np.asarray(p.positions, np.float64).reshape(-1, 3) for p in live])
+    fid = np.concatenate([np.asarray(p.feature_ids, np.int64) for p in live])
+    whole = quantization([pos], error_m)
+    if whole is not None:
+        return Chunks(np.zeros(feature_count, np.int64), (whole,))
+    lo = np.full((feature_count, 3), np.inf)
+    hi = np.full((feature_count, 3), -np.inf)
+    np.minimum.at(lo, fid, pos)
+    np.maximum.at(hi, fid, pos)
+    centre = np.where(np.isfinite(lo), (lo + hi) / 2.0, pos.min(axis=0))  # a row without vertices: anywhere
+    reach = (QMAX - 1) * 2.0 * error_m / np.sqrt(3.0)  # of int16 from a chunk's origin
+    # a chunk's vertices stay within half a cell plus half its widest feature of the chunk's centre
+    half = float(np.max(np.where(np.isfinite(lo), hi - lo, 0.0)[:, [0, 2]])) / 2.0
+    cell = max(2.0 * (reach - half), reach)
+    key = np.floor((centre[:, [0, 2]] - pos.min(axis=0)[[0, 2]]) / cell).astype(np.int64)
+    _, chunk = np.unique(key[:, 0] * (int(key[:, 1].max()) + 1) + key[:, 1], return_inverse=True)
+    chunk = chunk.reshape(-1)
+    vchunk = chunk[fid]
+    qs = tuple(quantization([pos[vchunk == k]], error_m) for k in range(int(chunk.max()) + 1))
+    return Chunks(chunk, qs)
+
+
+def _distinct(ids: np.ndarray, count: int) -> int:
+    """How many different values ``ids`` (in [0, count)) holds: a bitmap instead of a sort."""
+    seen = np.zeros(count, bool)
+    seen[np.asarray(ids, np.int64)] = True
+    return int(np.count_nonzero(seen))
+
+
+def _sub_primitive(prim: Primitive, keep_feature: np.ndarray) -> Primitive:
+    """The vertices and triangles of ``prim`` whose features ``keep_feature`` selects (a triangle's corners
+    belong to one feature)."""
+    keep_v = keep_feature[np.asarray(prim.feature_ids, np.int64)]
+    new = np.cumsum(keep_v) - 1
+    tris = np.asarray(prim.indices).reshape(-1, 3)
+    tris = tris[keep_v[tris[:, 0]]] if len(tris) else tris
+    return Primitive(np.asarray(prim.positions)[keep_v], np.asarray(prim.normals)[keep_v],
+                     np.asarray(prim.colors)[keep_v] if prim.uvs is None else prim.colors,
+                     np.asarray(prim.feature_ids)[keep_v], new[tris].reshape(-1).astype(np.uint32),
+                     feature_count=prim.feature_count,
+                     uvs=None if prim.uvs is None else np.asarray(prim.uvs)[keep_v], image=prim.image)
+
+
+def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_count: int, table_count: int,
+                       q: Quantization | None) -> dict[str, object]:
+    """The primitive with quantized attributes (KHR_mesh_quantization) in meshopt-compressed views: positions
+    SHORT (FLOAT when ``q`` is None), normals BYTE normalized, texcoords UNSIGNED_SHORT normalized, feature
+    ids UNSIGNED_BYTE/SHORT (FLOAT past 65535 rows), colours as given; vertices and triangles reordered for
+    the vertex cache first (meshoptimizer), which also makes the codecs' deltas small."""
+    n = len(prim.positions)
+    idx, order = meshopt.reorder(np.asarray(prim.indices), n)
+    pos = np.asarray(prim.positions, np.float64)[order]
+    if q is None:
+        attrs = {"POSITION": b.vertex(pos.astype(np.float32), FLOAT, "VEC3", minmax=True)}
+    else:
+        qpos = np.round((pos - np.asarray(q.origin)) / q.step).astype(np.int16)
+        attrs = {"POSITION": b.vertex(qpos, SHORT, "VEC3", minmax=True)}
+    nrm = np.asarray(prim.normals, np.float64)[order]
+    attrs["NORMAL"] = b.vertex(np.round(np.clip(nrm, -1.0, 1.0) * 127.0).astype(np.int8), BYTE, "VEC3",
+                               normalized=True)
+    if prim.uvs is not None:
+        uv = np.asarray(prim.uvs, np.float64)[order]
+        if uv.size and (uv.min() < 0.0 or uv.max() > 1.0):
+            attrs["TEXCOORD_0"] = b.vertex(uv.astype(np.float32), FLOAT, "VEC2")  # outside [0, 1]: as is
+        else:
+            attrs["TEXCOORD_0"] = b.vertex(np.round(uv * 65535.0).astype(np.uint16), UNSIGNED_SHORT, "VEC2",
+                                           normalized=True)
+    else:
+        colors = np.asarray(prim.colors)[order]
+        attrs["COLOR_0"] = b.vertex(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
+                                    UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4",
+                                    normalized=True)
+    fids = np.asarray(prim.feature_ids)[order]
+    if table_count <= 0x100:
+        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint8), UNSIGNED_BYTE, "SCALAR")
+    elif table_count <= 0x10000:
+        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint16), UNSIGNED_SHORT, "SCALAR")
+    else:
+        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.float32), FLOAT, "SCALAR")
+    small = len(order) <= 0xFFFF
+    view = b.packed(idx.astype(np.uint16 if small else np.uint32).tobytes(), 2 if small else 4,
+                    ELEMENT_ARRAY_BUFFER, triangles=len(order))
+    b.accessors.append({"bufferView": view, "componentType": UNSIGNED_SHORT if small else UNSIGNED_INT,
+                        "count": int(len(idx)), "type": "SCALAR"})
+    return {
+        "attributes": attrs,
+        "indices": len(b.accessors) - 1,
+        "material": material,
+        "mode": 4,
+        "extensions": {"EXT_mesh_features": {"featureIds": [
+            {"featureCount": int(feature_count), "attribute": 0, "propertyTable": 0}
+        ]}},
+    }
+
+
+def _check_lengths(prim: Primitive) -> None:
+    n = len(prim.positions)
+    textured = prim.uvs is not None
+    if not (len(prim.normals) == len(prim.feature_ids) == n) or (len(prim.colors) != n and not textured) \
+            or (textured and len(prim.uvs) != n):  # type: ignore[arg-type]
+        raise ValueError("vertex attribute arrays must have the same length")
+    if len(prim.indices) % 3:
+        raise ValueError("indices must describe whole triangles")
 
 
 def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) -> dict[str, object]:
@@ -149,14 +384,51 @@ def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) 
 
 def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "",
               textured: Sequence[Primitive] = (), images: Sequence[Image] = (),
-              node_matrix: Sequence[float] | None = None) -> bytes:
+              node_matrix: Sequence[float] | None = None, compact: bool = False,
+              quantization: Quantization | Chunks | None = None) -> bytes:
     """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
     primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
-    vertex-coloured primitive; with them an empty ``prim`` is left out. ``node_matrix`` (16 numbers,
-    column-major): the node's transform from the mesh's frame to the frame the tileset places it in."""
-    b = _Builder()
+    vertex-coloured primitive; with them an empty ``prim`` is left out.
+    ``node_matrix``: 16 floats, column-major, the glTF node transform from the mesh's metric frame (the
+    positions given) to the frame the tileset places the content in; None = identity.
+    ``compact``: KHR_mesh_quantization + EXT_meshopt_compression (``quantization`` for SHORT positions, None
+    for FLOAT ones, Chunks for one mesh and node per chunk); a node's matrix becomes
+    ``node_matrix @ T(origin) @ S(step)``. Raises
+    meshopt.CompressionError when meshoptimizer refuses a stream (the caller writes the tile plain)."""
+    if quantization is not None and not compact:
+        raise ValueError("quantization needs compact=True")
+    b = _Builder(compact)
+    chunks = quantization if isinstance(quantization, Chunks) else \
+        Chunks(np.zeros(prim.feature_count, np.int64), (quantization,))
+    if len(chunks.feature_chunk) != prim.feature_count:
+        raise ValueError("Chunks.feature_chunk needs one chunk per feature")
+    meshes: list[list[dict[str, object]]] = [[] for _ in chunks.quantizations]
+
+    def add(p: Primitive, material: int, count: int) -> None:
+        if not compact:
+            meshes[0].append(_primitive(b, p, material, count))
+            return
+        _check_lengths(p)
+        if len(chunks.quantizations) == 1:
+            meshes[0].append(_compact_primitive(b, p, material, count, prim.feature_count, chunks.quantizations[0]))
+            return
+        for k, q in enumerate(chunks.quantizations):
+            sub = _sub_primitive(p, chunks.feature_chunk == k)
+            if len(sub.indices):
+                n = _distinct(sub.feature_ids, prim.feature_count)
+                meshes[k].append(_compact_primitive(b, sub, material, n, prim.feature_count, q))
+
+    def table_view(data: bytes, itemsize: int) -> int:
+        # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view): 4- and
+        # 8-byte values as themselves, narrower ones and string bytes in 4-byte groups when they fill them
+        # exactly. Never padded: CesiumJS counts a column's values by its view's length and drops the whole
+        # table (custom shaders lose their metadata) when that differs from the table's count.
+        stride = itemsize if itemsize % 4 == 0 else 4
+        if not compact or len(data) % stride:
+            return b.view(data)
+        return b.packed(data, stride)
+
     materials: list[dict[str, object]] = []
-    primitives: list[dict[str, object]] = []
     if not textured or len(prim.indices):
         materials.append({
             "name": "building",
@@ -165,7 +437,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         # one primitive: every feature has vertices in it (featureCount = the table's); with textured ones
         # next to it, featureCount counts the features of its own vertices (EXT_mesh_features)
         count = prim.feature_count if not textured else len(np.unique(np.asarray(prim.feature_ids)))
-        primitives.append(_primitive(b, prim, 0, count))
+        add(prim, 0, count)
     for tp in textured:
         if tp.uvs is None or tp.image is None or not 0 <= tp.image < len(images):
             raise ValueError("a textured primitive needs uvs and the index of one of the images")
@@ -174,7 +446,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
             "pbrMetallicRoughness": {"baseColorTexture": {"index": tp.image}, "metallicFactor": 0.0,
                                      "roughnessFactor": 1.0},
         })
-        primitives.append(_primitive(b, tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids)))))
+        add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))))
 
     class_props: dict[str, object] = {}
     table_props: dict[str, object] = {}
@@ -192,14 +464,14 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
                 class_props[p.name] = spec  # every value is noData: the column may be omitted from the table
                 continue
             # bufferViews must not be empty; a spare byte past the last offset is never read
-            table_props[p.name] = {"values": b.view(data or b"\0"), "stringOffsets": b.view(offsets),
+            table_props[p.name] = {"values": table_view(data or b"\0", 1), "stringOffsets": table_view(offsets, 4),
                                    "stringOffsetType": "UINT32"}
         else:
             spec["type"] = "SCALAR"
             spec["componentType"] = p.component_type
             dtype = np.dtype(SCALAR_DTYPES[p.component_type])
             vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
-            table_props[p.name] = {"values": b.view(vals.tobytes())}
+            table_props[p.name] = {"values": table_view(vals.tobytes(), dtype.itemsize)}
             if p.no_data is not None and not p.required:
                 spec["noData"] = p.no_data
         if p.required:
@@ -208,14 +480,15 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
     # the images go last into the buffer (when there are textured primitives)
     image_views = [b.view(im.data) for im in images] if textured else []
 
+    kept = [k for k, m in enumerate(meshes) if m] or [0]  # chunks that drew nothing go
     gltf: dict[str, object] = {
         "asset": {"version": "2.0", "generator": f"citylod {__version__}", "copyright": ATTRIBUTION},
         "extensionsUsed": ["EXT_mesh_features", "EXT_structural_metadata"],
         "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0} if node_matrix is None else {"mesh": 0, "matrix": _matrix16(node_matrix)}],
+        "scenes": [{"nodes": list(range(len(kept)))}],
+        "nodes": [_node(i, _compose(node_matrix, chunks.quantizations[k])) for i, k in enumerate(kept)],
         "materials": materials,
-        "meshes": [{"primitives": primitives}],
+        "meshes": [{"primitives": meshes[k]} for k in kept],
         "extensions": {"EXT_structural_metadata": {
             "schema": {"id": "citylod", "classes": {class_name: {
                 "name": class_name.capitalize(), "description": class_description, "properties": class_props}}},
@@ -227,24 +500,47 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
     }
     if textured:
         # WebP and KTX2 only through their extensions, required: the pages exist in no other format (no fallback)
-        ext = [IMAGE_EXTENSIONS.get(im.mime) for im in images]
+        image_ext = [IMAGE_EXTENSIONS.get(im.mime) for im in images]
         gltf["images"] = [{"bufferView": v, "mimeType": im.mime} for v, im in zip(image_views, images, strict=True)]
         # KTX2 pages carry their full mip chain; WebP pages get theirs from the client (CesiumJS generates them)
         gltf["samplers"] = [{"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE,
                              "wrapT": CLAMP_TO_EDGE}]
         gltf["textures"] = [{"sampler": 0, "extensions": {e: {"source": i}}} if e else {"sampler": 0, "source": i}
-                            for i, e in enumerate(ext)]
-        used = sorted({e for e in ext if e})
+                            for i, e in enumerate(image_ext)]
+        used = sorted({e for e in image_ext if e})
         if used:
             gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *used]  # type: ignore[misc]
             gltf["extensionsRequired"] = used
+    if compact:
+        ext = ["KHR_mesh_quantization"]  # always: normals are BYTE
+        if b.fallback:  # some view is compressed (a tiny glb may have none worth it)
+            gltf["buffers"] = [{"byteLength": len(b.bin)}, {"byteLength": b.fallback, "extensions": {
+                "EXT_meshopt_compression": {"fallback": True}}}]
+            ext.append("EXT_meshopt_compression")
+        gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *ext]  # type: ignore[misc]
+        gltf["extensionsRequired"] = [*gltf.get("extensionsRequired", []), *ext]  # type: ignore[misc]
     return _pack(gltf, bytes(b.bin))
 
 
-def _matrix16(m: Sequence[float]) -> list[float]:
-    if len(m) != 16 or not np.all(np.isfinite(m)):
-        raise ValueError("node_matrix must be 16 finite numbers")
-    return [float(v) for v in m]
+def _compose(node_matrix: Sequence[float] | None, q: Quantization | None) -> list[float] | None:
+    """node_matrix @ T(origin) @ S(step) (column-major), or node_matrix itself without quantization."""
+    if q is None:
+        return None if node_matrix is None else list(node_matrix)
+    m = np.eye(4) if node_matrix is None else np.asarray(node_matrix, np.float64).reshape(4, 4).T
+    if m.shape != (4, 4):
+        raise ValueError("node_matrix must have 16 values (column-major 4x4)")
+    ts = np.diag([q.step, q.step, q.step, 1.0])
+    ts[:3, 3] = q.origin
+    return (m @ ts).T.ravel().tolist()
+
+
+def _node(mesh: int, matrix: Sequence[float] | None) -> dict[str, object]:
+    if matrix is None:
+        return {"mesh": mesh}
+    m = [float(v) for v in matrix]
+    if len(m) != 16:
+        raise ValueError(f"node_matrix must have 16 values (column-major 4x4), not {len(m)}")
+    return {"mesh": mesh, "matrix": m}
 
 
 def _pack(gltf: dict[str, object], binary: bytes) -> bytes:
@@ -289,14 +585,70 @@ _NP = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
+def view_bytes(gltf: dict, binary: bytes, index: int) -> bytes:
+    """The bytes of bufferView ``index``: straight from the BIN chunk, or decoded from its
+    EXT_meshopt_compression stream (the view then lies in the fallback buffer, which has no bytes of its own)."""
+    view = gltf["bufferViews"][index]
+    ext = view.get("extensions", {}).get("EXT_meshopt_compression")
+    if ext is None:
+        start = view.get("byteOffset", 0)
+        return binary[start : start + view["byteLength"]]
+    if ext["buffer"] != 0:
+        raise ValueError("compressed data outside the GLB's BIN chunk")
+    src = binary[ext.get("byteOffset", 0) : ext.get("byteOffset", 0) + ext["byteLength"]]
+    return meshopt.decode(src, ext["count"], ext["byteStride"], ext["mode"], ext.get("filter", "NONE"))
+
+
 def accessor_array(gltf: dict, binary: bytes, index: int) -> np.ndarray:
-    """Read accessor ``index`` (tightly packed) into a numpy array."""
+    """Accessor ``index`` as stored (meshopt decoded, strided views unpacked; quantized values stay integers:
+    see node_positions / mesh_positions for metres) in a numpy array."""
     acc = gltf["accessors"][index]
     view = gltf["bufferViews"][acc["bufferView"]]
-    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    data = view_bytes(gltf, binary, acc["bufferView"])
     width = _WIDTH[acc["type"]]
-    arr = np.frombuffer(binary, dtype=_NP[acc["componentType"]], count=acc["count"] * width, offset=start)
-    return arr.reshape(acc["count"], width) if width > 1 else arr
+    dtype = np.dtype(_NP[acc["componentType"]])
+    stride = view.get("byteStride", width * dtype.itemsize)
+    count, start = acc["count"], acc.get("byteOffset", 0)
+    rows = np.frombuffer(data, np.uint8, count=(count - 1) * stride + width * dtype.itemsize if count else 0,
+                         offset=start)
+    if count:
+        rows = np.lib.stride_tricks.as_strided(rows, (count, width * dtype.itemsize), (stride, 1))
+    arr = np.ascontiguousarray(rows).view(dtype).reshape(count, width)
+    return arr if width > 1 else arr.reshape(count)
+
+
+def _node_matrix(gltf: dict, index: int) -> np.ndarray:
+    """The matrix (row-major 4x4; identity when absent) of the node whose mesh holds POSITION accessor ``index``."""
+    mesh = next(i for i, m in enumerate(gltf["meshes"]) for p in m["primitives"]
+                if p["attributes"].get("POSITION") == index)
+    node = next(n for n in gltf.get("nodes", []) if n.get("mesh") == mesh)
+    return np.asarray(node.get("matrix", np.eye(4).ravel()), np.float64).reshape(4, 4).T
+
+
+def feature_vertices(gltf: dict, binary: bytes, frame: str = "node") -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 3) in metres, feature ids (n,)) of every primitive of every mesh; ``frame`` node
+    (node_positions) or mesh (mesh_positions)."""
+    read = node_positions if frame == "node" else mesh_positions
+    parts = [(read(gltf, binary, p["attributes"]["POSITION"]),
+              accessor_array(gltf, binary, p["attributes"]["_FEATURE_ID_0"]).astype(np.int64))
+             for m in gltf["meshes"] for p in m["primitives"]]
+    return np.concatenate([q for q, _ in parts]), np.concatenate([f for _, f in parts])
+
+
+def node_positions(gltf: dict, binary: bytes, index: int) -> np.ndarray:
+    """POSITION accessor ``index`` in metres in the frame the node places the mesh in (its matrix applied:
+    the tile's frame in a tileset whose tile transforms place the content), float64."""
+    m = _node_matrix(gltf, index)
+    pos = accessor_array(gltf, binary, index).astype(np.float64)
+    return pos @ m[:3, :3].T + m[:3, 3]
+
+
+def mesh_positions(gltf: dict, binary: bytes, index: int) -> np.ndarray:
+    """POSITION accessor ``index`` in metres in the mesh's own frame, the frame of the landmark metadata
+    (lm_centre_*, lm_dir_*): the stored values times the node's scale (|column 0| of its matrix; 1 for FLOAT
+    positions without a node matrix), before its rotation and translation."""
+    scale = float(np.linalg.norm(_node_matrix(gltf, index)[:3, 0]))
+    return accessor_array(gltf, binary, index).astype(np.float64) * scale
 
 
 def property_table(gltf: dict, binary: bytes) -> dict[str, list[object]]:
@@ -308,14 +660,10 @@ def property_table(gltf: dict, binary: bytes) -> dict[str, list[object]]:
     out: dict[str, list[object]] = {}
     for name, col in table["properties"].items():
         spec = cls[name]
-        vview = gltf["bufferViews"][col["values"]]
-        vstart, vlen = vview.get("byteOffset", 0), vview["byteLength"]
+        raw = view_bytes(gltf, binary, col["values"])
         if spec["type"] == "STRING":
-            oview = gltf["bufferViews"][col["stringOffsets"]]
-            offs = np.frombuffer(binary, "<u4", count=count + 1, offset=oview.get("byteOffset", 0))
-            raw = binary[vstart : vstart + vlen]
+            offs = np.frombuffer(view_bytes(gltf, binary, col["stringOffsets"]), "<u4", count=count + 1)
             out[name] = [raw[offs[i] : offs[i + 1]].decode("utf-8") for i in range(count)]
         else:
-            out[name] = np.frombuffer(binary, SCALAR_DTYPES[spec["componentType"]], count=count,
-                                      offset=vstart).tolist()
+            out[name] = np.frombuffer(raw, SCALAR_DTYPES[spec["componentType"]], count=count).tolist()
     return out

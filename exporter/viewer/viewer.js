@@ -88,8 +88,9 @@
   // landmark and its neighbours, in whatever tiles they are, agree on one scale. (api.landmark_exaggeration
   // measures to the middle of the landmark's height, which the metadata does not carry; the two distances differ
   // by at most half that height, so they pick different intervals only that close to a boundary.)
-  // positionMC and lm_centre_* are both in the glTF's frame (y up, origin at the tile's east-north-up centre);
-  // czm_modelView adds the tile transform. Primitives without these properties (older tilesets) get no custom
+  // lm_centre_* are in metres in the mesh's frame (y up); positionMC is POSITION as stored, metres / the node's
+  // scale for quantized (compact) geometry, so both are brought to positionMC's units; czm_modelView adds the
+  // node's and the tile's transforms. Primitives without these properties (older tilesets) get no custom
   // vertex shader from CesiumJS (a console warning), so nothing moves. Bounding volumes are not enlarged: a scaled
   // landmark whose tile is culled is not drawn.
   const LANDMARK_VS = `
@@ -99,7 +100,11 @@
       float scaleStep = vsInput.metadata.lm_scale_step; // not 'step': that would hide the GLSL built-in
       float maxScale = vsInput.metadata.lm_max_scale;
       if (role == 0u || !(scaleFrom > 0.0 && scaleStep > 1.0 && maxScale > 1.0)) return;
-      vec3 centre = vec3(vsInput.metadata.lm_centre_x, vsInput.metadata.lm_centre_y, vsInput.metadata.lm_centre_z);
+      // positionMC is POSITION as stored: quantized (KHR_mesh_quantization) it is metres / step, the node's scale,
+      // which czm_model carries (the tile transforms are rigid); the metadata is in metres in the mesh's frame
+      float unit = length(czm_model[0].xyz);
+      vec3 centre = vec3(vsInput.metadata.lm_centre_x, vsInput.metadata.lm_centre_y, vsInput.metadata.lm_centre_z)
+        / unit;
       float d = length((czm_modelView * vec4(centre, 1.0)).xyz);
       if (d < scaleFrom) return;
       // interval i, from scaleFrom * scaleStep^i on, scales by min(scaleStep^(i + 1), maxScale)
@@ -108,7 +113,7 @@
         vsOutput.positionMC = centre + (vsOutput.positionMC - centre) * s;
       } else if (role == 2u) {
         float push = max(0.0, (s - 1.0) * vsInput.metadata.lm_radius_m - max(vsInput.metadata.lm_gap_m, 0.0));
-        vsOutput.positionMC += push * vec3(vsInput.metadata.lm_dir_x, vsInput.metadata.lm_dir_y,
+        vsOutput.positionMC += push / unit * vec3(vsInput.metadata.lm_dir_x, vsInput.metadata.lm_dir_y,
           vsInput.metadata.lm_dir_z);
       }
     }`;

@@ -13,8 +13,9 @@ from core.geodesy import Y_UP_TO_Z_UP
 from core.settings import Settings
 from core.tiles3d import content_uris, expand
 from exporter.checks import check_tileset
-from exporter.export import export_tileset
-from exporter.gltf import accessor_array, property_table, read_glb
+from exporter.export import LEAF_POSITION_ERROR_M, export_tileset
+from exporter.gltf import feature_vertices as glb_vertices
+from exporter.gltf import property_table, read_glb
 from exporter.stream import StreamOptions
 from tests.conftest import REPO, node_bin, run_etl, validate_glb
 
@@ -121,14 +122,13 @@ def tile_of(conn, building_id: int):
 
 
 def tile_world(tiles_dir, uri: str) -> np.ndarray:
-    """The 4×4 matrix from a glb's positions to ECEF, as a client composes it: the tileset root's transform (the
-    only one), glTF y-up to 3D Tiles z-up, the glb node's matrix (its tile's frame in the root's)."""
+    """The 4×4 matrix from a glb's node frame to ECEF, as a client composes it: the tileset root's transform (the
+    only one) and glTF y-up to 3D Tiles z-up. The nodes' own matrices (the tile's frame in the root's, composed
+    with the quantization) are applied per mesh by exporter.gltf.feature_vertices."""
     root = np.array(json.loads((tiles_dir / "tileset.json").read_text())["root"]["transform"]).reshape(4, 4).T
-    gltf, _ = read_glb((tiles_dir / uri).read_bytes())
-    node = np.array(gltf["nodes"][0].get("matrix", np.eye(4).reshape(-1))).reshape(4, 4).T
     y_to_z = np.eye(4)
     y_to_z[:3, :3] = Y_UP_TO_Z_UP
-    return root @ y_to_z @ node
+    return root @ y_to_z
 
 
 @pytest.fixture(scope="module")
@@ -145,9 +145,7 @@ def feature_vertices(tiles_dir, uri: str, osm_id: int):
     gltf, binary = read_glb((tiles_dir / uri).read_bytes())
     table = property_table(gltf, binary)
     fid = table["osm_id"].index(osm_id)
-    prim = gltf["meshes"][0]["primitives"][0]
-    pos = accessor_array(gltf, binary, prim["attributes"]["POSITION"]).astype(np.float64)
-    fids = accessor_array(gltf, binary, prim["attributes"]["_FEATURE_ID_0"])
+    pos, fids = glb_vertices(gltf, binary)  # metres in the root's frame (node matrices applied), every mesh
     return pos[fids == fid], {k: v[fid] for k, v in table.items()}
 
 
@@ -225,8 +223,9 @@ def test_landmark_exaggeration_metadata(city, conn_of) -> None:
     for path in sorted(c.tiles.rglob("*.glb")):
         gltf, binary = read_glb(path.read_bytes())
         t = property_table(gltf, binary)
-        pos = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
-        fid = accessor_array(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"]["_FEATURE_ID_0"])
+        # the landmark metadata is in the mesh's frame (compact geometry: before the node's translation), over
+        # every mesh (a wide compact tile has one per chunk) and primitive
+        pos, fid = glb_vertices(gltf, binary, frame="mesh")
         for i, role in enumerate(t["lm_role"]):
             if role == 0:
                 assert t["lm_landmark_osm_id"][i] == 0 and t["lm_scale_step"][i] == 0
@@ -259,8 +258,9 @@ def test_triangle_counts_and_run_record(city, conn_of) -> None:
     total = 0
     for p in c.tiles.rglob("*.glb"):
         gltf, _ = read_glb(p.read_bytes())
-        prim = gltf["meshes"][0]["primitives"][0]
-        total += gltf["accessors"][prim["indices"]]["count"] // 3
+        # every mesh (a wide compact tile has one per chunk of features) and primitive
+        total += sum(gltf["accessors"][prim["indices"]]["count"] // 3
+                     for m in gltf["meshes"] for prim in m["primitives"])
         assert gltf["asset"]["copyright"].startswith("© OpenStreetMap contributors")
     stored, features = conn.execute(
         "SELECT sum(content_triangles)::bigint, sum(content_features)::bigint FROM tiles.tile").fetchone()
@@ -329,8 +329,11 @@ def test_placement_against_the_osm_file_itself(lod2, conn_of) -> None:
     ecef = (np.c_[verts, np.ones(len(verts))] @ m.T)[:, :3]
     lon, lat, h = ecef_to_geodetic(ecef).T
     lonlat = np.degrees(np.c_[lon, lat])
-    # 1e-8 degrees is about a millimetre here
-    d = np.abs(lonlat[:, None, :] - nodes[None, :, :]).max(axis=2)
-    assert d.min(axis=1).max() < 1e-8
-    assert np.all(np.minimum(np.abs(h), np.abs(h - 12.0)) < 1e-3)
-    assert math.isclose(h.max(), 12.0, abs_tol=1e-3) and math.isclose(h.min(), 0.0, abs_tol=1e-3)
+    # in metres (1e-8 degrees is about a millimetre here): within the compact geometry's bound at leaves, 1 cm
+    # (KHR_mesh_quantization, exporter/gltf.py), plus a millimetre
+    metres = np.radians(lonlat[:, None, :] - nodes[None, :, :]) * 6_371_000.0
+    metres[..., 0] *= np.cos(np.radians(nodes[None, :, 1]))
+    assert np.linalg.norm(metres, axis=2).min(axis=1).max() < LEAF_POSITION_ERROR_M + 1e-3  # horizontal
+    tol = LEAF_POSITION_ERROR_M + 1e-3
+    assert np.all(np.minimum(np.abs(h), np.abs(h - 12.0)) < tol)
+    assert math.isclose(h.max(), 12.0, abs_tol=tol) and math.isclose(h.min(), 0.0, abs_tol=tol)

@@ -1,0 +1,225 @@
+"""Compact geometry (exporter/gltf.py compact=True, exporter/meshopt.py): KHR_mesh_quantization positions within
+the stated bound of the float64 input once the node matrix is applied, every attribute, triangle and property-table
+value read back through the meshopt decoders, the Khronos glTF-Validator without errors, and plain bytes unchanged."""
+
+import hashlib
+
+import meshoptimizer
+import numpy as np
+import pytest
+
+from exporter.checks import check_glb
+from exporter.export import LEAF_POSITION_ERROR_M, is_compact, position_error_m
+from exporter.gltf import (
+    Primitive,
+    accessor_array,
+    feature_vertices,
+    mesh_positions,
+    node_positions,
+    plan_quantization,
+    property_table,
+    quantization,
+    read_glb,
+    write_glb,
+)
+from exporter.meshopt import CompressionError
+from exporter.tileset import TileRecord
+from tests.conftest import validate_glb
+from tests.unit.test_gltf import cube_primitive, textured_glb
+
+
+def city_block(rng: np.random.Generator, half: float, height: float = 600.0) -> Primitive:
+    """Random boxes (float64 corners, 12 triangles each) spread over +-half m around a point ``height`` m up:
+    the shape of a tile's content in its frame (y up), 300 features."""
+    n = 300
+    base = np.c_[rng.uniform(-half, half, n), rng.uniform(height, height + 5, n), rng.uniform(-half, half, n)]
+    size = rng.uniform(3, 30, (n, 3))
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float64)
+    pos = (base[:, None, :] + corners[None] * size[:, None, :]).reshape(-1, 3)
+    quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+    tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    idx = (tri[None] + 8 * np.arange(n)[:, None, None]).reshape(-1).astype(np.uint32)
+    nrm = rng.normal(size=(len(pos), 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    colours = rng.integers(0, 65535, (len(pos), 4)).astype(np.uint16)
+    fids = np.repeat(np.arange(n), 8)
+    c = cube_primitive()
+    props = [type(c.properties[0])("osm_id", list(range(10**9, 10**9 + n)), "INT64", required=True),
+             type(c.properties[0])("name", [f"house {i}" if i % 3 else None for i in range(n)], None),
+             type(c.properties[0])("lod", [i % 4 for i in range(n)], "UINT8", required=True),
+             type(c.properties[0])("height", list(size[:, 1]), "FLOAT32", required=True)]
+    return Primitive(pos, nrm, colours, fids, idx, props, feature_count=n)
+
+
+def rigid(angle: float, shift: tuple[float, float, float]) -> list[float]:
+    """A column-major node matrix: a rotation about y and a translation (a tile frame -> root frame move)."""
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.array([[c, 0, s, shift[0]], [0, 1, 0, shift[1]], [-s, 0, c, shift[2]], [0, 0, 0, 1]])
+    return m.T.ravel().tolist()
+
+
+def apply(matrix: list[float], pts: np.ndarray) -> np.ndarray:
+    m = np.asarray(matrix).reshape(4, 4).T
+    return pts @ m[:3, :3].T + m[:3, 3]
+
+
+def triangles(gltf: dict, binary: bytes, prim: dict) -> set[tuple[tuple[float, ...], ...]]:
+    """The primitive's triangles as sets of corner positions (rounded to mm) in the node's frame, rotation-free."""
+    pos = node_positions(gltf, binary, prim["attributes"]["POSITION"]).round(3)
+    idx = accessor_array(gltf, binary, prim["indices"]).reshape(-1, 3)
+    return {tuple(sorted(map(tuple, pos[t]))) for t in idx}
+
+
+@pytest.mark.parametrize(("half", "geometric_error", "leaf"), [(150.0, 0.0, True), (300.0, 0.0, True),
+                                                                 (900.0, 40.0, False)])
+def test_positions_within_the_bound_after_the_node_matrix(half, geometric_error, leaf) -> None:
+    rng = np.random.default_rng(7)
+    prim = city_block(rng, half)
+    rec = TileRecord(level=3, x=0, y=0, is_leaf=leaf, region=(0, 0, 0, 0, 0, 0), geometric_error=geometric_error,
+                     content_uri="t.glb", n_features=300, content_features=300)
+    bound = position_error_m(rec)
+    assert bound == (LEAF_POSITION_ERROR_M if leaf else max(0.01, 0.01 * geometric_error))
+    q = quantization([prim.positions], bound)
+    assert q is not None  # these extents fit int16 at this bound
+    node = rigid(0.3, (1234.5, -20.0, 77.0))
+    glb = write_glb(prim, compact=True, quantization=q, node_matrix=node)
+    gltf, binary = read_glb(glb)
+    assert is_compact(glb) and set(gltf["extensionsRequired"]) == {"KHR_mesh_quantization", "EXT_meshopt_compression"}
+    assert gltf["buffers"][1] == {"byteLength": gltf["buffers"][1]["byteLength"],
+                                  "extensions": {"EXT_meshopt_compression": {"fallback": True}}}
+    p = gltf["meshes"][0]["primitives"][0]
+    assert gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5122  # SHORT
+    # each stored vertex is one of the input's (reordered): match them by feature and nearest corner
+    got = node_positions(gltf, binary, p["attributes"]["POSITION"])
+    fid = accessor_array(gltf, binary, p["attributes"]["_FEATURE_ID_0"])
+    want = apply(node, prim.positions)
+    err = []
+    for f in range(prim.feature_count):
+        g, w = got[fid == f], want[prim.feature_ids == f]
+        assert len(g) == len(w) == 8
+        err.append(np.linalg.norm(g[:, None] - w[None], axis=2).min(axis=1).max())
+    assert max(err) <= bound, (max(err), bound)
+    assert max(err) > bound / 10  # the bound is used, not a much finer step
+    # the mesh frame (the landmark metadata's) is the stored value times the node's scale
+    np.testing.assert_allclose(mesh_positions(gltf, binary, p["attributes"]["POSITION"]),
+                               accessor_array(gltf, binary, p["attributes"]["POSITION"]) * q.step)
+    # the property table and the colours read back exactly, normals within BYTE precision
+    table = property_table(gltf, binary)
+    for prop in prim.properties:
+        want_v = [("" if v is None else v) for v in prop.values]
+        assert table[prop.name] == pytest.approx(want_v) if prop.component_type == "FLOAT32" else \
+            table[prop.name] == want_v
+    assert check_glb(glb) == []
+
+
+def test_every_triangle_survives_reordering_and_compression() -> None:
+    prim = city_block(np.random.default_rng(3), 200.0)
+    q = quantization([prim.positions], 0.01)
+    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=q))
+    cgltf, cbin = read_glb(write_glb(prim))
+    p, cp = gltf["meshes"][0]["primitives"][0], cgltf["meshes"][0]["primitives"][0]
+    assert len(triangles(gltf, binary, p)) == len(triangles(cgltf, cbin, cp)) == 3600
+    # colours and feature ids travel with their vertices (compare as sorted multisets)
+    for name in ("COLOR_0", "_FEATURE_ID_0"):
+        a = accessor_array(gltf, binary, p["attributes"][name]).reshape(len(prim.positions), -1)
+        b = accessor_array(cgltf, cbin, cp["attributes"][name]).reshape(len(prim.positions), -1)
+        assert np.array_equal(np.unique(a, axis=0, return_counts=True)[1], np.unique(b, axis=0, return_counts=True)[1])
+    nrm = accessor_array(gltf, binary, p["attributes"]["NORMAL"]) / 127.0
+    assert np.abs(np.linalg.norm(nrm, axis=1) - 1).max() < 0.02
+
+
+def test_too_large_a_tile_keeps_float_positions_compressed() -> None:
+    # 2 km across: int16 at 1 cm reaches 378 m from the origin, so the tile keeps FLOAT positions (meshopt still)
+    prim = city_block(np.random.default_rng(5), 1000.0)
+    assert quantization([prim.positions], 0.01) is None
+    glb = write_glb(prim, compact=True, quantization=None)
+    gltf, binary = read_glb(glb)
+    p = gltf["meshes"][0]["primitives"][0]
+    assert gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5126 and "matrix" not in gltf["nodes"][0]
+    np.testing.assert_allclose(node_positions(gltf, binary, p["attributes"]["POSITION"]).min(axis=0),
+                               prim.positions.min(axis=0), atol=1e-3)
+    assert len(glb) < len(write_glb(prim)) * 0.8
+
+
+def test_a_wide_tile_is_cut_into_quantized_chunks_of_whole_features(tmp_path) -> None:
+    # 2 km across at 1 cm: one node and mesh per chunk of features, each SHORT around its own origin
+    prim = city_block(np.random.default_rng(5), 1000.0)
+    chunks = plan_quantization([prim], prim.feature_count, 0.01)
+    assert len(chunks.quantizations) > 1 and all(q is not None for q in chunks.quantizations)
+    node = rigid(-0.7, (10.0, 20.0, 30.0))
+    glb = write_glb(prim, compact=True, quantization=chunks, node_matrix=node)
+    gltf, binary = read_glb(glb)
+    assert len(gltf["nodes"]) == len(gltf["meshes"]) == len(chunks.quantizations) == len(gltf["scenes"][0]["nodes"])
+    assert all(gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5122
+               for m in gltf["meshes"] for p in m["primitives"])
+    got, fid = feature_vertices(gltf, binary)
+    want = apply(node, prim.positions)
+    worst = max(np.linalg.norm(got[fid == f][:, None] - want[prim.feature_ids == f][None], axis=2).min(axis=1).max()
+                for f in range(prim.feature_count))
+    assert worst <= 0.01
+    # the mesh frame of each feature is the tile's less its chunk's origin (what the landmark metadata uses)
+    mesh, mfid = feature_vertices(gltf, binary, frame="mesh")
+    for f in (0, 150, 299):
+        tile = mesh[mfid == f] + chunks.origins()[f]
+        assert np.linalg.norm(tile[:, None] - prim.positions[prim.feature_ids == f][None], axis=2).min(axis=1).max() \
+            <= 0.01
+    assert check_glb(glb) == []
+    (tmp_path / "wide.glb").write_bytes(glb)
+    report = validate_glb(tmp_path)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+
+
+def test_compact_glbs_pass_the_khronos_validator(tmp_path) -> None:
+    prim = city_block(np.random.default_rng(11), 100.0)
+    c = cube_primitive()
+    files = {
+        "block.glb": write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01),
+                               node_matrix=rigid(1.0, (5.0, 6.0, 7.0))),
+        "cube.glb": write_glb(c, compact=True, quantization=quantization([c.positions], 0.01)),
+        "float.glb": write_glb(prim, compact=True),
+    }
+    for name, glb in files.items():
+        (tmp_path / name).write_bytes(glb)
+        assert check_glb(glb) == [], name
+    report = validate_glb(tmp_path)
+    # EXT_meshopt_compression is not one the validator knows: it reports it as an info (unsupported extension)
+    # and validates the decoded layout (buffer 1, the fallback, has no bytes it can check)
+    assert report["files"] == 3 and report["errors"] == 0 and report["warnings"] == 0, report
+
+
+def test_encoder_refusal_is_a_compression_error() -> None:
+    prim = city_block(np.random.default_rng(1), 50.0)
+    old = meshoptimizer.MeshoptLimits.MAX_VERTEX_COUNT
+    meshoptimizer.MeshoptLimits.MAX_VERTEX_COUNT = 100  # the binding's own configurable limit
+    try:
+        with pytest.raises(CompressionError, match="refused"):
+            write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01))
+    finally:
+        meshoptimizer.MeshoptLimits.MAX_VERTEX_COUNT = old
+
+
+def test_plain_bytes_are_todays() -> None:
+    # sha256 of what citylod wrote before compact geometry existed (commit db08689) for the same primitives
+    assert hashlib.sha256(write_glb(cube_primitive())).hexdigest() == PLAIN_CUBE
+    assert hashlib.sha256(textured_glb()).hexdigest() == PLAIN_TEXTURED
+
+
+PLAIN_CUBE = "da4bc8aef027f1d0c9479b3a4d852fc766f8d364ebd37d515851b7d7ce51125b"
+PLAIN_TEXTURED = "df11d66832f1d7d1815f6013cf3a84466b880387ce31a742ff42318af13c88e2"
+
+
+def test_property_views_keep_their_exact_length() -> None:
+    # CesiumJS counts a column's values by its bufferView's length: a padded UINT8 column (9 rows -> 12 bytes)
+    # would make it drop the table, and with it every custom shader's metadata
+    c = cube_primitive()
+    n = 9
+    props = [type(c.properties[0])("lod", [3] * n, "UINT8", required=True),
+             type(c.properties[0])("osm_id", list(range(n)), "INT64", required=True),
+             type(c.properties[0])("name", [f"n{i}" for i in range(n)], None)]
+    prim = Primitive(np.repeat(c.positions, 2, axis=0)[:16], np.repeat(c.normals, 2, axis=0)[:16],
+                     np.repeat(c.colors, 2, axis=0)[:16], np.arange(16) % n, np.arange(15, dtype=np.uint32), props, n)
+    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
+    table = gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["properties"]
+    assert gltf["bufferViews"][table["lod"]["values"]]["byteLength"] == n
+    assert gltf["bufferViews"][table["osm_id"]["values"]]["byteLength"] == 8 * n
+    assert property_table(gltf, binary)["lod"] == [3] * n
