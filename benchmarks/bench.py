@@ -312,9 +312,10 @@ VIEW_NOTE = (
     "Sum of n_triangles over the features api.lod_for_view returns (what a 3D Tiles client draws with REPLACE "
     "refinement, max_sse 16, fov 60°, 1080 px, 16:9) against the LOD3 triangles of every building (a client "
     "without the hierarchy). *overview*: over the centre of the data looking straight down, at the height "
-    "where the root tile's region fills the view; *street*: 50 m above the centre of the leaf tile with the "
-    "most features, looking north 15° down (for context; it is not a target). Target, on the benchmark "
-    "extract: overview at least 5× fewer triangles than all-LOD3. A small extract's quadtree is only a few "
+    "where the root tile's region fills the view; *street*: 80 m up, 150 m south of the median building of "
+    "the leaf tile with the most features, looking north 20° down (for context; it is not a target). "
+    "Target, on the benchmark extract: overview at least 5× fewer triangles than all-LOD3. "
+    "A small extract's quadtree is only a few "
     "levels deep, so its root is already a fine band and a view of the whole extract refines to its leaves."
 )
 TEXTURES_NOTE = (

@@ -23,9 +23,10 @@ Everything is read from tex.page, tex.feature_uv, tex.failure and tiles.tile (th
   says how many were encoded). The decoded atlas texels are already WebP-compressed once, which slightly
   favours the baseline.
 * **Views**: the tiles api.lod_for_view selects (``cull_features => false``: a client loads and draws whole
-  tiles; 60°, 1080 px, 16:9, max SSE 16) for benchmarks/view_bench.py's *near* camera (``street_camera``: 50 m
-  above the densest leaf tile, 15° down) and *overview* camera (``overview_camera``: straight down, the root
-  region filling the view). Draw calls and texture bytes of those tiles, atlases against one texture per
+  tiles; 60°, 1080 px, 16:9, max SSE 16) for benchmarks/view_bench.py's *near* camera (``street_camera``: 80 m
+  up, 150 m south of the median building of the densest leaf tile, 20° down) and *overview* camera
+  (``overview_camera``: straight down, the root region filling the view). Draw calls and texture bytes of
+  those tiles, atlases against one texture per
   building. Target: at least 10× fewer draw calls at the overview.
 * **Packers**: for the ``--packer-tiles`` tiles with the most charts (0 = every textured tile), the chart
   sizes the stage packed (tex.page.rects, in page order; charts the stage shrank to fit a page are taken at

@@ -446,8 +446,9 @@ SPLIT_NOTE = (
 CLIENT_NOTE = (
     "CesiumJS {cesium} in headless Chromium (benchmarks/stream_view.mjs, the citylod viewer, landmark "
     "exaggeration off, plain traversal: maximumScreenSpaceError 16, no dynamic/foveated SSE, no skipLevelOfDetail, "
-    "a cache that never coarsens the view) at the *Triangles per view* cameras, street (50 m above the densest "
-    "leaf, pitch -15°) and overview (straight down over the whole extract), 1920×1080, vertical fov 60°. After "
+    "a cache that never coarsens the view) at the *Triangles per view* cameras, street (80 m up, 150 m south of "
+    "the median building of the densest leaf, pitch -20°) and overview (straight down over the whole extract), "
+    "1920×1080, vertical fov 60°. After "
     "the view's tiles loaded every tile it does not need is unloaded (trimLoadedTiles), then tileset.statistics "
     "is read: *textures*/*geometry* = texturesByteLength/geometryByteLength (GPU memory CesiumJS accounts, MB = "
     "10⁶ B). Target: street textures ≤ {tm}× plain."

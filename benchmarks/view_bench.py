@@ -6,8 +6,9 @@ Three measurements, each usable alone (``--help`` of each subcommand) and called
 ``triangles`` — triangles per view. The sum of ``n_triangles`` over the features api.lod_for_view returns for
     an *overview* camera (over the centre of the data, looking straight down, at the height where the whole
     extract fills a 60° / 1080 px / 16:9 view, max_sse 16) against the LOD3 triangles of every building (what a
-    client without the hierarchy would draw). A *street* camera (50 m above the densest leaf tile, pitch -15°)
-    is reported for context. lod_for_view returns every feature of each tile it stops at, so the sum is taken
+    client without the hierarchy would draw). A *street* camera (80 m up, 150 m south of the median building of
+    the densest leaf tile, looking north, pitch -20°) is reported for context. lod_for_view returns every feature
+    of each tile it stops at, so the sum is taken
     over api.buildings_for_tile of the distinct tiles it returns (the same features, counted once), with
     ``cull_features => false``: a client draws whole tiles, their features outside the frustum too.
 
@@ -130,11 +131,26 @@ def overview_camera(conn: psycopg.Connection, pitch: float = -90.0, fov: float =
     return Camera(math.degrees((w + e) / 2), math.degrees(lat), height, 0.0, pitch, fov, viewport_height, aspect)
 
 
+STREET_HEIGHT_M, STREET_BACK_M, STREET_PITCH = 80.0, 150.0, -20.0
+
+
 def street_camera(conn: psycopg.Connection) -> Camera:
-    """50 m above the centre of the leaf tile with the most features, looking north, 15° down."""
+    """A view into the densest streets: 80 m above the lowest point of the leaf tile with the most features,
+    150 m south of the median position of its buildings (the median longitude and latitude of their
+    centroids), looking north, 20° down. (The centre of that tile can be a field: a camera there saw few
+    buildings.)"""
     w, s, e, n, lo, _hi = conn.execute(
         "SELECT region FROM tiles.tile WHERE is_leaf ORDER BY n_features DESC, level, x, y LIMIT 1").fetchone()[0]  # type: ignore[index]
-    return Camera(math.degrees((w + e) / 2), math.degrees((s + n) / 2), lo + 50.0, 0.0, -15.0)
+    lon, lat = conn.execute(
+        "SELECT percentile_disc(0.5) WITHIN GROUP (ORDER BY ST_X(c)),"
+        "       percentile_disc(0.5) WITHIN GROUP (ORDER BY ST_Y(c))"
+        " FROM (SELECT ST_Centroid(geom) AS c FROM osm.building"
+        "       WHERE geom && ST_MakeEnvelope(%s, %s, %s, %s, 4326)) b",
+        [math.degrees(v) for v in (w, s, e, n)]).fetchone()  # type: ignore[misc]
+    if lon is None:
+        lon, lat = math.degrees((w + e) / 2), math.degrees((s + n) / 2)
+    lat -= math.degrees(STREET_BACK_M / EARTH_R)
+    return Camera(lon, lat, lo + STREET_HEIGHT_M, 0.0, STREET_PITCH)
 
 
 def navigation_cameras(conn: psycopg.Connection, n: int = N_CAMERAS, seed: int = SEED) -> list[Camera]:
