@@ -513,6 +513,18 @@ def _scale_section(scale: dict[str, Any] | None) -> list[str]:
             f"{c['pitch']:.0f}°, {_num(sl['features'] if sl['features'] is not None else sl.get('rows'))} features): "
             f"planning {sl['planning_ms']:.1f} ms, execution "
             f"{sl['execution_ms']:.1f} ms.")
+    sizes = [(label, scale[key]["tileset"]) for key, label in (("100k", "~100k"), ("1m", "~1M"))
+             if scale.get(key) and "tileset" in scale[key]]
+    if sizes:
+        out += ["", "tileset.json of each database's tile tree (benchmarks/tileset_size.py: the bytes the export "
+                "writes, from the tile records alone). Target (issue 17): implicit ≤ 100 kB at ~1M.", "",
+                *markdown_table(
+                    ["database", "tiles", "levels", "implicit tileset.json", "explicit tileset.json",
+                     "subtrees (files, bytes)", "≤ 100 kB"],
+                    [[label, f"{t['tiles']:,}", f"{t['levels']}", f"{t['implicit_tileset_json_bytes']:,} B",
+                      f"{t['explicit_tileset_json_bytes']:,} B", f"{t['subtrees']}, {t['subtree_bytes']:,} B",
+                      pass_mark(t["implicit_tileset_json_bytes"] <= 100_000) if label == "~1M" else "–"]
+                     for label, t in sizes], "lrrrrrl"), ""]
     if "build_s" in scale:
         out.append(f"* Databases built or reused in {scale['build_s']:.0f} s this run (cached between runs by a "
                    "marker of their inputs and code).")

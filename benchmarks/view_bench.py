@@ -535,6 +535,10 @@ def scale(admin_url: str, osm: Path, n: int = N_CAMERAS, seed: int = SEED, rebui
         t = time.perf_counter()
         out[key] = measure_latency(url, n, seed)
         out[key]["measure_s"] = round(time.perf_counter() - t, 1)
+        # issue 17: tileset.json stays small at scale with implicit tiling (tile records only, no glb)
+        from .tileset_size import measure as tileset_size
+
+        out[key]["tileset"] = tileset_size(url)
         log(f"{key}: p50 {out[key]['p50_ms']} ms, p95 {out[key]['p95_ms']} ms, max {out[key]['max_ms']} ms, "
             f"{out[key]['mean_features']} features per view ({out[key]['buildings']:,} buildings)")
     return out

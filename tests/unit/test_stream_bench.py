@@ -220,3 +220,18 @@ def test_compare_shots_reads_pngs_and_records_failed_clients(tmp_path: Path) -> 
     assert "Chromium crashed" in out["street"]["error"] and "Chromium crashed" in out["overview"]["error"]
     res["compact"] = {}
     assert "not measured" in sb.compare_shots(res)["street"]["error"]
+
+
+def test_scale_section_states_the_tileset_sizes() -> None:
+    from benchmarks import bench
+
+    lat = {"buildings": 1_000_000, "tiles": 8134, "p50_ms": 2.0, "p95_ms": 8.0, "max_ms": 20.0, "mean_features": 10,
+           "max_features": 50, "pass": True, "cameras": 200, "seed": 4,
+           "profile": {"slowest": {"camera": {"height": 100, "pitch": -20}, "features": 10, "planning_ms": 1.0,
+                                   "execution_ms": 2.0}, "p95": {"planning_ms": 1.0, "execution_ms": 2.0}}}
+    size = {"tiles": 8134, "levels": 10, "implicit_tileset_json_bytes": 1340, "explicit_tileset_json_bytes": 1_520_918,
+            "subtrees": 1, "subtree_bytes": 499_744}
+    text = "\n".join(bench._scale_section({"1m": {**lat, "tileset": size}}))
+    assert "| ~1M | 8,134 | 10 | 1,340 B | 1,520,918 B | 1, 499,744 B | **pass** |" in text
+    too_big = {**size, "implicit_tileset_json_bytes": 100_001}
+    assert "**FAIL**" in "\n".join(bench._scale_section({"1m": {**lat, "tileset": too_big}}))
