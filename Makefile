@@ -23,6 +23,7 @@ SETUP_NODE := node_modules/.installed
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-21s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
 	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database) (DATABASE_URL to use another PostGIS)"
+	@echo "  stream: GEOMETRY=compact|plain TEXTURES=ktx2|webp TILING=implicit|explicit (export, status, serve DB=1; default the first)"
 	@echo "  a stage runs the stages it reads first, and only when its inputs changed; FORCE=1 reruns the stages named"
 
 # --- installation (each step only when something is missing) -----------------------------------------------
@@ -61,7 +62,7 @@ migrate: db ## apply migrations/ and reload sql/ (when a migration was applied o
 	$(PY) -m etl migrate $(call STALE,migrate)
 
 status: db ## which stages are current, and why the others are not (what `make export` would run)
-	$(PY) -m etl status --osm $(OSM) --out $(OUT) $(if $(LOD),--lod $(LOD))
+	$(PY) -m etl status --osm $(OSM) --out $(OUT) $(if $(LOD),--lod $(LOD)) $(STREAM)
 
 # --- stages ----------------------------------------------------------------------------------------------------
 # A DAG over the database: each stage target depends on the stages it reads and runs `python -m etl <stage>
@@ -70,6 +71,8 @@ status: db ## which stages are current, and why the others are not (what `make e
 # is the database's, not stamp files: DATABASE_URL may point anywhere. So `make export` on a fresh database runs
 # every stage, and again runs none. FORCE=1 reruns the stage targets named on the command line (make lod FORCE=1).
 STALE = $(if $(and $(FORCE),$(filter $(1),$(MAKECMDGOALS))),,--if-stale)
+# the stream's encoding (exporter/stream.py); unset = the compact defaults
+STREAM = $(if $(GEOMETRY),--geometry $(GEOMETRY)) $(if $(TEXTURES),--textures $(TEXTURES)) $(if $(TILING),--tiling $(TILING))
 # a one-LOD export has no textures
 EXPORT_READS = $(if $(LOD),generalize,textures)
 
@@ -101,12 +104,12 @@ textures: generalize ## procedural facade/roof textures in per-tile atlas pages 
 	$(PY) -m etl textures $(call STALE,textures)
 
 export: $(EXPORT_READS) ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
-	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD)) $(call STALE,export)
+	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD)) $(STREAM) $(call STALE,export)
 
 # serving only reads what is there (OUT, or the database with DB=1): it never reruns a stage, which with the default
 # OSM would replace a dataset ingested from another file
 serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
-	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)),--dir $(OUT)) --host $(HOST) --port $(PORT)
+	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)) $(STREAM),--dir $(OUT)) --host $(HOST) --port $(PORT)
 
 demo: ## everything on Helsinki: install, database, every stage not yet current (ingest ... textures, export), serve
 	$(MAKE) setup
