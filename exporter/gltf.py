@@ -24,6 +24,9 @@ Compact geometry (``compact=True``; the plain path above is unchanged byte for b
 * Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay),
   texcoords UNSIGNED_SHORT normalized (FLOAT if outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride;
   FLOAT past 65536 rows), colours as given (16-bit linear).
+* Vertex and index data of every primitive and chunk pooled: one view per (semantic, stride), one per index
+  width, accessors into them by byteOffset (a TRIANGLES view is decoded as one index buffer; each accessor's
+  range is whole triangles), so a glb has a handful of geometry views whatever its primitives.
 * EXT_meshopt_compression (exporter/meshopt.py): every vertex, index and property-table view (those a whole
   number of 4-byte groups long: a padded column breaks CesiumJS's table) whose compressed stream plus its JSON
   is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
@@ -103,6 +106,36 @@ class _Builder:
         self.accessors: list[dict[str, object]] = []
         self.compact = compact
         self.fallback = 0  # bytes of buffer 1, the decoded views (compact only)
+        # compact: vertex and index data pooled by (semantic, stride), one view each (flush): fewer views and
+        # one longer meshopt stream per kind; accessors point into them by byteOffset
+        self.pools: dict[tuple[str, int], list[bytes]] = {}
+        self.pool_len: dict[tuple[str, int], int] = {}
+        self.pooled: list[tuple[dict[str, object], tuple[str, int]]] = []
+
+    def pool(self, key: tuple[str, int], data: bytes, accessor: dict[str, object]) -> None:
+        """Append ``data`` to pool ``key``; ``accessor`` gets its bufferView and byteOffset at flush."""
+        at = self.pool_len.get(key, 0)
+        self.pools.setdefault(key, []).append(data)
+        self.pool_len[key] = at + len(data)
+        if at:
+            accessor["byteOffset"] = at
+        self.pooled.append((accessor, key))
+
+    def flush(self) -> None:
+        """One view per pool: vertex pools ATTRIBUTES (byteStride: several accessors share them), index pools one
+        TRIANGLES stream (every accessor's range is whole triangles; the decoder decodes the view as a whole)."""
+        views: dict[tuple[str, int], int] = {}
+        for key, parts in self.pools.items():
+            data = b"".join(parts)
+            name, stride = key
+            if name == "indices":
+                top = int(np.frombuffer(data, "<u2" if stride == 2 else "<u4").max()) + 1
+                views[key] = self.packed(data, stride, ELEMENT_ARRAY_BUFFER, triangles=top)
+            else:
+                views[key] = self.packed(data, stride, ARRAY_BUFFER, vertex_stride=True)
+        for acc, key in self.pooled:
+            acc["bufferView"] = views[key]
+        self.pools, self.pool_len, self.pooled = {}, {}, []
 
     def view(self, data: bytes, target: int | None = None) -> int:
         pad = (-len(self.bin)) % 8
@@ -147,18 +180,19 @@ class _Builder:
         self.views[at] = v
         return at
 
-    def vertex(self, array: np.ndarray, component: int, kind: str, normalized: bool = False,
+    def vertex(self, array: np.ndarray, component: int, kind: str, semantic: str, normalized: bool = False,
                minmax: bool = False) -> int:
         """A compact vertex attribute: elements padded to a multiple of 4 bytes (meshopt's unit and glTF's
-        vertex alignment), compressed; the accessor reads the first ``kind`` components of each."""
+        vertex alignment), pooled with the ``semantic``'s others of that stride (compressed at flush); the
+        accessor reads the first ``kind`` components of each."""
         arr = np.ascontiguousarray(array)
         arr2 = arr.reshape(len(arr), -1)
         size = arr2.shape[1] * arr2.dtype.itemsize
         stride = size + (-size) % 4
         rows = np.zeros((len(arr2), stride), np.uint8)
         rows[:, :size] = arr2.view(np.uint8).reshape(len(arr2), size)
-        view = self.packed(rows.tobytes(), stride, ARRAY_BUFFER, vertex_stride=stride != size)
-        a: dict[str, object] = {"bufferView": view, "componentType": component, "count": int(len(arr)), "type": kind}
+        a: dict[str, object] = {"componentType": component, "count": int(len(arr)), "type": kind}
+        self.pool((semantic, stride), rows.tobytes(), a)
         if normalized:
             a["normalized"] = True
         if minmax:
@@ -292,37 +326,37 @@ def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_coun
     idx, order = meshopt.reorder(np.asarray(prim.indices), n)
     pos = np.asarray(prim.positions, np.float64)[order]
     if q is None:
-        attrs = {"POSITION": b.vertex(pos.astype(np.float32), FLOAT, "VEC3", minmax=True)}
+        attrs = {"POSITION": b.vertex(pos.astype(np.float32), FLOAT, "VEC3", "POSITION", minmax=True)}
     else:
         qpos = np.round((pos - np.asarray(q.origin)) / q.step).astype(np.int16)
-        attrs = {"POSITION": b.vertex(qpos, SHORT, "VEC3", minmax=True)}
+        attrs = {"POSITION": b.vertex(qpos, SHORT, "VEC3", "POSITION", minmax=True)}
     nrm = np.asarray(prim.normals, np.float64)[order]
-    attrs["NORMAL"] = b.vertex(np.round(np.clip(nrm, -1.0, 1.0) * 127.0).astype(np.int8), BYTE, "VEC3",
+    attrs["NORMAL"] = b.vertex(np.round(np.clip(nrm, -1.0, 1.0) * 127.0).astype(np.int8), BYTE, "VEC3", "NORMAL",
                                normalized=True)
     if prim.uvs is not None:
         uv = np.asarray(prim.uvs, np.float64)[order]
         if uv.size and (uv.min() < 0.0 or uv.max() > 1.0):
-            attrs["TEXCOORD_0"] = b.vertex(uv.astype(np.float32), FLOAT, "VEC2")  # outside [0, 1]: as is
+            attrs["TEXCOORD_0"] = b.vertex(uv.astype(np.float32), FLOAT, "VEC2", "TEXCOORD_0")  # outside [0, 1]: as is
         else:
             attrs["TEXCOORD_0"] = b.vertex(np.round(uv * 65535.0).astype(np.uint16), UNSIGNED_SHORT, "VEC2",
-                                           normalized=True)
+                                           "TEXCOORD_0", normalized=True)
     else:
         colors = np.asarray(prim.colors)[order]
         attrs["COLOR_0"] = b.vertex(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
-                                    UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4",
+                                    UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4", "COLOR_0",
                                     normalized=True)
     fids = np.asarray(prim.feature_ids)[order]
     if table_count <= 0x100:
-        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint8), UNSIGNED_BYTE, "SCALAR")
+        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint8), UNSIGNED_BYTE, "SCALAR", "_FEATURE_ID_0")
     elif table_count <= 0x10000:
-        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint16), UNSIGNED_SHORT, "SCALAR")
+        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint16), UNSIGNED_SHORT, "SCALAR", "_FEATURE_ID_0")
     else:
-        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.float32), FLOAT, "SCALAR")
+        attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.float32), FLOAT, "SCALAR", "_FEATURE_ID_0")
     small = len(order) <= 0xFFFF
-    view = b.packed(idx.astype(np.uint16 if small else np.uint32).tobytes(), 2 if small else 4,
-                    ELEMENT_ARRAY_BUFFER, triangles=len(order))
-    b.accessors.append({"bufferView": view, "componentType": UNSIGNED_SHORT if small else UNSIGNED_INT,
-                        "count": int(len(idx)), "type": "SCALAR"})
+    acc: dict[str, object] = {"componentType": UNSIGNED_SHORT if small else UNSIGNED_INT, "count": int(len(idx)),
+                              "type": "SCALAR"}
+    b.pool(("indices", 2 if small else 4), idx.astype(np.uint16 if small else np.uint32).tobytes(), acc)
+    b.accessors.append(acc)
     return {
         "attributes": attrs,
         "indices": len(b.accessors) - 1,
@@ -448,6 +482,7 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         })
         add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))))
 
+    b.flush()
     class_props: dict[str, object] = {}
     table_props: dict[str, object] = {}
     for p in prim.properties:
