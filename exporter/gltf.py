@@ -483,18 +483,17 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))))
 
     b.flush()
+    # compact: the descriptions are in tileset.json's schema (exporter/export.py), not repeated in every glb
+    specs = class_schema(prim.properties, class_name, class_description, descriptions=not compact)["properties"]
     class_props: dict[str, object] = {}
     table_props: dict[str, object] = {}
     for p in prim.properties:
         if len(p.values) != prim.feature_count:
             raise ValueError(f"property {p.name} has {len(p.values)} values for {prim.feature_count} features")
-        spec: dict[str, object] = {"description": p.description} if p.description else {}
+        spec = specs[p.name]
         if p.component_type is None:
-            spec["type"] = "STRING"
             no_data = "" if p.no_data is None else str(p.no_data)
             data, offsets = _string_column(p.values, no_data)
-            if not p.required:
-                spec["noData"] = no_data
             if not data and not p.required:
                 class_props[p.name] = spec  # every value is noData: the column may be omitted from the table
                 continue
@@ -502,15 +501,9 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
             table_props[p.name] = {"values": table_view(data or b"\0", 1), "stringOffsets": table_view(offsets, 4),
                                    "stringOffsetType": "UINT32"}
         else:
-            spec["type"] = "SCALAR"
-            spec["componentType"] = p.component_type
             dtype = np.dtype(SCALAR_DTYPES[p.component_type])
             vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
             table_props[p.name] = {"values": table_view(vals.tobytes(), dtype.itemsize)}
-            if p.no_data is not None and not p.required:
-                spec["noData"] = p.no_data
-        if p.required:
-            spec["required"] = True
         class_props[p.name] = spec
     # the images go last into the buffer (when there are textured primitives)
     image_views = [b.view(im.data) for im in images] if textured else []
@@ -526,7 +519,8 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "meshes": [{"primitives": meshes[k]} for k in kept],
         "extensions": {"EXT_structural_metadata": {
             "schema": {"id": "citylod", "classes": {class_name: {
-                "name": class_name.capitalize(), "description": class_description, "properties": class_props}}},
+                **class_schema((), class_name, class_description, descriptions=not compact),
+                "properties": class_props}}},
             "propertyTables": [{"class": class_name, "count": int(prim.feature_count), "properties": table_props}],
         }},
         "accessors": b.accessors,
@@ -555,6 +549,32 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *ext]  # type: ignore[misc]
         gltf["extensionsRequired"] = [*gltf.get("extensionsRequired", []), *ext]  # type: ignore[misc]
     return _pack(gltf, bytes(b.bin))
+
+
+def class_schema(properties: Sequence[Property], class_name: str = "building", class_description: str = "",
+                 descriptions: bool = True) -> dict[str, object]:
+    """The EXT_structural_metadata / 3D Tiles 1.1 schema class of ``properties`` (their values unused): type,
+    componentType, noData (optional ones), required, and with ``descriptions`` the words."""
+    cls: dict[str, object] = {"name": class_name.capitalize()}
+    if descriptions:
+        cls["description"] = class_description
+    props: dict[str, object] = {}
+    for p in properties:
+        spec: dict[str, object] = {"description": p.description} if p.description and descriptions else {}
+        if p.component_type is None:
+            spec["type"] = "STRING"
+            if not p.required:
+                spec["noData"] = "" if p.no_data is None else str(p.no_data)
+        else:
+            spec["type"] = "SCALAR"
+            spec["componentType"] = p.component_type
+            if p.no_data is not None and not p.required:
+                spec["noData"] = p.no_data
+        if p.required:
+            spec["required"] = True
+        props[p.name] = spec
+    cls["properties"] = props
+    return cls
 
 
 def _compose(node_matrix: Sequence[float] | None, q: Quantization | None) -> list[float] | None:
