@@ -503,6 +503,9 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         else:
             dtype = np.dtype(SCALAR_DTYPES[p.component_type])
             vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
+            if compact and "noData" in spec and np.all(vals == np.array(p.no_data, dtype)):
+                class_props[p.name] = spec  # optional and every value noData: omitted, like such strings
+                continue
             table_props[p.name] = {"values": table_view(vals.tobytes(), dtype.itemsize)}
         class_props[p.name] = spec
     # the images go last into the buffer (when there are textured primitives)
