@@ -452,15 +452,21 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
                 n = _distinct(sub.feature_ids, prim.feature_count)
                 meshes[k].append(_compact_primitive(b, sub, material, n, prim.feature_count, q))
 
+    shared: dict[tuple[bytes, int], int] = {}
+
     def table_view(data: bytes, itemsize: int) -> int:
         # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view): 4- and
         # 8-byte values as themselves, narrower ones and string bytes in 4-byte groups when they fill them
         # exactly. Never padded: CesiumJS counts a column's values by its view's length and drops the whole
         # table (custom shaders lose their metadata) when that differs from the table's count.
         stride = itemsize if itemsize % 4 == 0 else 4
-        if not compact or len(data) % stride:
+        if not compact:
             return b.view(data)
-        return b.packed(data, stride)
+        # columns with the same bytes share one view (the landmark columns of tiles without landmarks, ...)
+        key = (data, stride)
+        if key not in shared:
+            shared[key] = b.view(data) if len(data) % stride else b.packed(data, stride)
+        return shared[key]
 
     materials: list[dict[str, object]] = []
     if not textured or len(prim.indices):
