@@ -21,7 +21,8 @@ Compact geometry (``compact=True``; the plain path above is unchanged byte for b
   is cut into chunks of whole features, one mesh and node each (plan_quantization); a chunk still too wide
   (one huge feature) keeps FLOAT positions. Uniform scale and rigid tile transforms let a custom shader recover
   the step as length(czm_model[0].xyz): CesiumJS gives shaders POSITION as stored (positionMC), not dequantized.
-* Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay),
+* Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay), through
+  meshopt's OCTAHEDRAL filter at 8 bits (two varying bytes compress better; 1.2 degrees at worst),
   texcoords UNSIGNED_SHORT normalized (FLOAT if outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride;
   FLOAT past 65536 rows), colours as given (16-bit linear).
 * Vertex and index data of every primitive and chunk pooled: one view per (semantic, stride), one per index
@@ -132,7 +133,7 @@ class _Builder:
                 top = int(np.frombuffer(data, "<u2" if stride == 2 else "<u4").max()) + 1
                 views[key] = self.packed(data, stride, ELEMENT_ARRAY_BUFFER, triangles=top)
             else:
-                views[key] = self.packed(data, stride, ARRAY_BUFFER, vertex_stride=True)
+                views[key] = self.packed(data, stride, ARRAY_BUFFER, vertex_stride=True, octahedral=name == "NORMAL")
         for acc, key in self.pooled:
             acc["bufferView"] = views[key]
         self.pools, self.pool_len, self.pooled = {}, {}, []
@@ -148,10 +149,11 @@ class _Builder:
         return len(self.views) - 1
 
     def packed(self, data: bytes, stride: int, target: int | None = None, vertex_stride: bool = False,
-               triangles: int = 0) -> int:
+               triangles: int = 0, octahedral: bool = False) -> int:
         """A view stored meshopt-compressed in buffer 0 and decoded into buffer 1 (the fallback buffer, 8-byte
         aligned views: the metadata's requirement): ATTRIBUTES of ``stride``-byte elements, or with
-        ``triangles`` (the vertex count) a TRIANGLES index stream of ``stride``-byte indices. Plain: a view."""
+        ``triangles`` (the vertex count) a TRIANGLES index stream of ``stride``-byte indices; ``octahedral``: ``data``
+        is meshopt.encode_oct's, the view holds what the OCTAHEDRAL filter decodes it to. Plain: a view."""
         if not self.compact:
             return self.view(data, target)
         count = len(data) // stride
@@ -161,7 +163,7 @@ class _Builder:
             enc = meshopt.encode_attributes(data, stride)
         if len(enc) + MESHOPT_JSON_BYTES >= len(data):
             # a small view the extension's JSON would outweigh: stored as is (still 8-byte aligned)
-            at = self.view(data, target)
+            at = self.view(meshopt.decode_oct(data, count, stride) if octahedral else data, target)
             if vertex_stride:
                 self.views[at]["byteStride"] = stride
             return at
@@ -176,6 +178,8 @@ class _Builder:
         v["extensions"] = {"EXT_meshopt_compression": {
             "buffer": 0, "byteOffset": src["byteOffset"], "byteLength": src["byteLength"], "byteStride": stride,
             "count": count, "mode": "TRIANGLES" if triangles else "ATTRIBUTES"}}
+        if octahedral:
+            v["extensions"]["EXT_meshopt_compression"]["filter"] = "OCTAHEDRAL"  # type: ignore[index]
         self.fallback += count * stride
         self.views[at] = v
         return at
@@ -331,8 +335,8 @@ def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_coun
         qpos = np.round((pos - np.asarray(q.origin)) / q.step).astype(np.int16)
         attrs = {"POSITION": b.vertex(qpos, SHORT, "VEC3", "POSITION", minmax=True)}
     nrm = np.asarray(prim.normals, np.float64)[order]
-    attrs["NORMAL"] = b.vertex(np.round(np.clip(nrm, -1.0, 1.0) * 127.0).astype(np.int8), BYTE, "VEC3", "NORMAL",
-                               normalized=True)
+    # octahedral (meshopt's filter, 8 bits as gltfpack's default): 1.2 degrees at worst, 0.4 as plain BYTE
+    attrs["NORMAL"] = b.vertex(meshopt.encode_oct(nrm), BYTE, "VEC3", "NORMAL", normalized=True)
     if prim.uvs is not None:
         uv = np.asarray(prim.uvs, np.float64)[order]
         if uv.size and (uv.min() < 0.0 or uv.max() > 1.0):
