@@ -719,8 +719,9 @@ def mesh_positions(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     return accessor_array(gltf, binary, index).astype(np.float64) * scale
 
 
-def property_table(gltf: dict, binary: bytes) -> dict[str, list[object]]:
-    """The first EXT_structural_metadata property table as {property: values}."""
+def property_table(gltf: dict, binary: bytes, fill_no_data: bool = False) -> dict[str, list[object]]:
+    """The first EXT_structural_metadata property table as {property: values}: its stored columns, and with
+    ``fill_no_data`` also the optional class properties it omits (every value noData) as their noData."""
     meta = gltf["extensions"]["EXT_structural_metadata"]
     table = meta["propertyTables"][0]
     cls = meta["schema"]["classes"][table["class"]]["properties"]
@@ -734,4 +735,8 @@ def property_table(gltf: dict, binary: bytes) -> dict[str, list[object]]:
             out[name] = [raw[offs[i] : offs[i + 1]].decode("utf-8") for i in range(count)]
         else:
             out[name] = np.frombuffer(raw, SCALAR_DTYPES[spec["componentType"]], count=count).tolist()
+    if fill_no_data:
+        for name, spec in cls.items():
+            if name not in out and "noData" in spec:
+                out[name] = [spec["noData"]] * count
     return out

@@ -226,7 +226,7 @@ def test_landmark_exaggeration_metadata(city, conn_of) -> None:
     seen = {1: 0, 2: 0}
     for path in sorted(c.tiles.rglob("*.glb")):
         gltf, binary = read_glb(path.read_bytes())
-        t = property_table(gltf, binary)
+        t = property_table(gltf, binary, fill_no_data=True)  # compact omits all-noData lm_landmark_osm_id
         # the landmark metadata is in the mesh's frame (compact geometry: before the node's translation), over
         # every mesh (a wide compact tile has one per chunk) and primitive
         pos, fid = glb_vertices(gltf, binary, frame="mesh")

@@ -286,7 +286,8 @@ def test_compact_tables_share_equal_columns_and_drop_all_nodata_optional_ones() 
     assert meta["schema"]["classes"]["building"]["properties"]["lm_rank"] == {
         "type": "SCALAR", "componentType": "UINT32", "noData": 0}  # no descriptions: tileset.json has them
     table = property_table(gltf, binary)
-    assert table["lm_centre_y"] == [0.0] * n and table["levels"] == [-1.0, 2.0] * 4
+    assert table["lm_centre_y"] == [0.0] * n and table["levels"] == [-1.0, 2.0] * 4 and "lm_rank" not in table
+    assert property_table(gltf, binary, fill_no_data=True)["lm_rank"] == [0] * n
     # plain glbs keep every column in its own view, with the descriptions
     pg, _ = read_glb(write_glb(prim))
     pmeta = pg["extensions"]["EXT_structural_metadata"]
