@@ -35,7 +35,7 @@ from core.settings import Settings
 from core.wkb import decode_triangles
 
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
-from .gltf import Image, Primitive, Property, plan_quantization, read_glb, write_glb
+from .gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
 from .meshopt import CompressionError
 from .stream import COMPACT, StreamOptions
 from .tileset import TileRecord, build, node_matrix, region_centre
@@ -104,6 +104,18 @@ COMPACT_DOCS = {
     "lm_dir_x": "role 2: horizontal unit vector from the landmark's centre to this building's, in this glTF's "
     "mesh frame (see lm_centre_x)",
 }
+
+
+#: the glbs' property-table class (name, description)
+BUILDING_CLASS = ("building", "An OSM building or building:part")
+
+
+def building_schema_class(compact: bool = True) -> dict[str, object]:
+    """The glbs' building class with its descriptions, for tileset.json's schema: compact glbs carry the class
+    without them (a few kB in every glb)."""
+    props = [Property(name, (), ctype, COMPACT_DOCS.get(name, doc) if compact else doc, no_data=no_data,
+                      required=required) for name, ctype, doc, required, no_data in PROPERTIES]
+    return class_schema(props, *BUILDING_CLASS)
 
 
 @dataclass(frozen=True)
@@ -215,7 +227,7 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
     textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
                           indices=a.indices, uvs=a.uvs, image=k) for k, (_, a) in enumerate(parts)]
     images = [textures.images[p] for p, _ in parts] if textures is not None else []
-    doc = ("building", "An OSM building or building:part")
+    doc = BUILDING_CLASS
     if compact:
         try:
             return write_glb(prim, *doc, textured=textured, images=images, node_matrix=node_matrix, compact=True,
@@ -303,6 +315,12 @@ def tileset_files(conn: psycopg.Connection, records: list[TileRecord], lod: int 
     dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
     version = dataset[0][:16] if dataset and dataset[0] else ""
     ts, files = build(records, tileset_version=version, single_lod=lod is not None, tiling=stream.tiling)
+    if stream.geometry == "compact":
+        # the glbs' class with the descriptions they leave out (3D Tiles 1.1 schema; the glbs keep their own
+        # EXT_structural_metadata schema, which is what clients read a picked feature's values with)
+        schema = ts.get("schema") or {"id": "citylod"}
+        ts["schema"] = {**schema, "classes": {**schema.get("classes", {}),  # type: ignore[typeddict-item]
+                                              BUILDING_CLASS[0]: building_schema_class()}}
     # compact JSON: an implicit tileset.json is a few kB either way, an explicit one is the size of the tree
     return {TILESET_JSON: json.dumps(ts, separators=(",", ":")).encode(), **files}
 

@@ -44,13 +44,39 @@ def encode_triangles(indices: np.ndarray, vertex_count: int) -> bytes:
         raise CompressionError(f"meshoptimizer refused an index stream: {e}") from None
 
 
+def encode_oct(normals: np.ndarray) -> np.ndarray:
+    """(n, 3) unit vectors -> (n, 4) int8 for the OCTAHEDRAL filter at 8 bits (meshopt_encodeFilterOct: x, y the
+    octahedral map, 127 = 1.0, 0): two varying bytes instead of three, so the stream compresses better; the
+    decoder gives back BYTE normalized x, y, z of length 127."""
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    n = n / np.maximum(np.abs(n).sum(axis=1, keepdims=True), 1e-30)
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    u = np.where(z >= 0, x, (1.0 - np.abs(y)) * np.where(x >= 0, 1.0, -1.0))
+    v = np.where(z >= 0, y, (1.0 - np.abs(x)) * np.where(y >= 0, 1.0, -1.0))
+    out = np.zeros((len(n), 4), np.int8)
+    for k, a in enumerate((u, v)):  # meshopt_quantizeSnorm(a, 8): round half away from zero
+        out[:, k] = np.trunc(np.clip(a, -1.0, 1.0) * 127.0 + np.where(a >= 0, 0.5, -0.5))
+    out[:, 2] = 127
+    return out
+
+
+def decode_oct(data: bytes, count: int, stride: int) -> bytes:
+    """The OCTAHEDRAL filter's output (BYTE x, y, z of length 127, w kept) of ``encode_oct``'s elements."""
+    if stride != 4:
+        raise ValueError(f"citylod writes OCTAHEDRAL normals of 4 bytes, not {stride}")
+    buf = np.frombuffer(data, np.int8, count=count * 4).copy()
+    return mo.decode_filter_oct(buf, count, stride).view(np.uint8).tobytes()
+
+
 def decode(source: bytes, count: int, stride: int, mode: str, filter_: str = "NONE") -> bytes:
-    """The ``count * stride`` bytes an EXT_meshopt_compression stream decodes to (ATTRIBUTES or TRIANGLES)."""
-    if filter_ != "NONE":
-        raise ValueError(f"meshopt filter {filter_} is not written by citylod")
+    """The ``count * stride`` bytes an EXT_meshopt_compression stream decodes to (ATTRIBUTES or TRIANGLES; the
+    OCTAHEDRAL filter applied to ATTRIBUTES)."""
+    if filter_ not in ("NONE", "OCTAHEDRAL") or (filter_ != "NONE" and mode != "ATTRIBUTES"):
+        raise ValueError(f"meshopt filter {filter_} ({mode}) is not written by citylod")
     buf = np.frombuffer(source, np.uint8)
     if mode == "ATTRIBUTES":
-        return mo.decode_vertex_buffer(count, stride, buf).view(np.uint8).tobytes()
+        raw = mo.decode_vertex_buffer(count, stride, buf).view(np.uint8).tobytes()
+        return decode_oct(raw, count, stride) if filter_ == "OCTAHEDRAL" else raw
     if mode == "TRIANGLES":
         # the binding allocates uint32 whatever the index size: the C decoder wrote count * stride bytes at its start
         return mo.decode_index_buffer(count, stride, buf).view(np.uint8)[: count * stride].tobytes()

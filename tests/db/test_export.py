@@ -90,6 +90,10 @@ def test_implicit_and_explicit_tilings_share_every_glb(city, conn_of, tmp_path) 
     assert all((out / g).read_bytes() == (implicit / g).read_bytes() for g in glbs)
     assert check_tileset(out / "tileset.json") == [] and check_tileset(implicit / "tileset.json") == []
     ts = json.loads((out / "tileset.json").read_text())
+    # compact glbs leave the property descriptions to tileset.json's schema (beside implicit tiling's tile class)
+    its = json.loads((implicit / "tileset.json").read_text())
+    assert set(its["schema"]["classes"]) == {"tile", "building"} and set(ts["schema"]["classes"]) == {"building"}
+    assert all(s["description"] for s in ts["schema"]["classes"]["building"]["properties"].values())
     stack, n = [ts["root"]], 0
     while stack:
         t = stack.pop()
@@ -222,7 +226,7 @@ def test_landmark_exaggeration_metadata(city, conn_of) -> None:
     seen = {1: 0, 2: 0}
     for path in sorted(c.tiles.rglob("*.glb")):
         gltf, binary = read_glb(path.read_bytes())
-        t = property_table(gltf, binary)
+        t = property_table(gltf, binary, fill_no_data=True)  # compact omits all-noData lm_landmark_osm_id
         # the landmark metadata is in the mesh's frame (compact geometry: before the node's translation), over
         # every mesh (a wide compact tile has one per chunk) and primitive
         pos, fid = glb_vertices(gltf, binary, frame="mesh")

@@ -223,3 +223,85 @@ def test_property_views_keep_their_exact_length() -> None:
     assert gltf["bufferViews"][table["lod"]["values"]]["byteLength"] == n
     assert gltf["bufferViews"][table["osm_id"]["values"]]["byteLength"] == 8 * n
     assert property_table(gltf, binary)["lod"] == [3] * n
+
+
+def _geometry_views(gltf: dict) -> set[int]:
+    return {gltf["accessors"][a]["bufferView"] for m in gltf["meshes"] for p in m["primitives"]
+            for a in [*p["attributes"].values(), p["indices"]]}
+
+
+def test_chunks_share_one_view_per_attribute_and_read_back(tmp_path) -> None:
+    # a wide tile in chunks: every chunk's POSITION, NORMAL, COLOR_0, feature ids and indices go into one view
+    # each (accessors by byteOffset), so the views do not grow with the chunks; every triangle reads back
+    prim = city_block(np.random.default_rng(5), 1000.0)
+    chunks = plan_quantization([prim], prim.feature_count, 0.01)
+    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=chunks))
+    prims = [p for m in gltf["meshes"] for p in m["primitives"]]
+    assert len(prims) == len(chunks.quantizations) > 3
+    assert len(_geometry_views(gltf)) == 5
+    assert sum(len(triangles(gltf, binary, p)) for p in prims) == len(prim.indices) // 3
+    offsets = [gltf["accessors"][p["attributes"]["POSITION"]].get("byteOffset", 0) for p in prims]
+    assert len(set(offsets)) == len(prims)  # each chunk its own range of the pooled view
+    nrm = np.concatenate([accessor_array(gltf, binary, p["attributes"]["NORMAL"]) for p in prims]) / 127.0
+    assert np.abs(np.linalg.norm(nrm, axis=1) - 1).max() < 0.02
+    (tmp_path / "pooled.glb").write_bytes(write_glb(prim, compact=True, quantization=chunks))
+    report = validate_glb(tmp_path)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+
+
+def test_octahedral_normals_within_1_2_degrees() -> None:
+    from exporter.meshopt import decode_oct, encode_oct
+
+    rng = np.random.default_rng(7)
+    n = rng.normal(size=(20000, 3))
+    n = np.concatenate([n / np.linalg.norm(n, axis=1)[:, None], np.eye(3), -np.eye(3)])
+    got = np.frombuffer(decode_oct(encode_oct(n).tobytes(), len(n), 4), np.int8).reshape(-1, 4)
+    v = got[:, :3] / np.linalg.norm(got[:, :3], axis=1)[:, None]
+    angle = np.degrees(np.arccos(np.clip((v * n).sum(axis=1), -1.0, 1.0)))
+    assert angle.max() < 1.2
+    assert np.array_equal(got[-6:, :3], np.r_[np.eye(3), -np.eye(3)] * 127)  # the axes exactly
+    # a glb's stream carries the filter; the reader applies it
+    prim = city_block(np.random.default_rng(3), 100.0)
+    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
+    p = gltf["meshes"][0]["primitives"][0]
+    view = gltf["bufferViews"][gltf["accessors"][p["attributes"]["NORMAL"]]["bufferView"]]
+    assert view["extensions"]["EXT_meshopt_compression"]["filter"] == "OCTAHEDRAL"
+
+
+def test_compact_tables_share_equal_columns_and_drop_all_nodata_optional_ones() -> None:
+    c = cube_primitive()
+    P = type(c.properties[0])
+    n = 8
+    props = [P("lm_centre_x", [0.0] * n, "FLOAT32", "desc x", required=True),
+             P("lm_centre_y", [0.0] * n, "FLOAT32", "desc y", required=True),
+             P("lm_rank", [None] * n, "UINT32", "rank", no_data=0),
+             P("levels", [None, 2.0] * 4, "FLOAT32", "levels", no_data=-1.0)]
+    prim = Primitive(c.positions, c.normals, c.colors, np.arange(len(c.positions)) % n,
+                     np.asarray(c.indices, np.uint32), props, n)
+    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
+    meta = gltf["extensions"]["EXT_structural_metadata"]
+    cols = meta["propertyTables"][0]["properties"]
+    assert cols["lm_centre_x"]["values"] == cols["lm_centre_y"]["values"]  # the same bytes, one view
+    assert "lm_rank" not in cols and "levels" in cols  # optional, all noData: omitted (the spec's reading)
+    assert meta["schema"]["classes"]["building"]["properties"]["lm_rank"] == {
+        "type": "SCALAR", "componentType": "UINT32", "noData": 0}  # no descriptions: tileset.json has them
+    table = property_table(gltf, binary)
+    assert table["lm_centre_y"] == [0.0] * n and table["levels"] == [-1.0, 2.0] * 4 and "lm_rank" not in table
+    assert property_table(gltf, binary, fill_no_data=True)["lm_rank"] == [0] * n
+    # plain glbs keep every column in its own view, with the descriptions
+    pg, _ = read_glb(write_glb(prim))
+    pmeta = pg["extensions"]["EXT_structural_metadata"]
+    assert len({c["values"] for c in pmeta["propertyTables"][0]["properties"].values()}) == 4
+    assert pmeta["schema"]["classes"]["building"]["properties"]["lm_rank"]["description"] == "rank"
+
+
+def test_the_tileset_schema_describes_what_compact_glbs_leave_out() -> None:
+    from exporter.export import PROPERTIES, building_schema_class
+
+    cls = building_schema_class()
+    assert list(cls["properties"]) == [p[0] for p in PROPERTIES]
+    assert all(spec["description"] for spec in cls["properties"].values())
+    assert cls["properties"]["lm_rank"] == {"description": dict((p[0], p[2]) for p in PROPERTIES)["lm_rank"],
+                                            "type": "SCALAR",
+                                            "componentType": "UINT32", "noData": 0}
+    assert "mesh frame" in cls["properties"]["lm_centre_x"]["description"]  # compact's words (COMPACT_DOCS)
