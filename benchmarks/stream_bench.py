@@ -451,7 +451,9 @@ CLIENT_NOTE = (
     "1920×1080, vertical fov 60°. After "
     "the view's tiles loaded every tile it does not need is unloaded (trimLoadedTiles), then tileset.statistics "
     "is read: *textures*/*geometry* = texturesByteLength/geometryByteLength (GPU memory CesiumJS accounts, MB = "
-    "10⁶ B). Target: street textures ≤ {tm}× plain."
+    "10⁶ B). *batch/metadata* = batchTableByteLength, which CesiumJS 1.145 adds up once per glTF primitive "
+    "(PrimitiveStatisticsPipelineStage counts a model's property tables for each of its primitives), so it grows "
+    "with the primitives (atlas pages, compact chunks), not with the metadata. Target: street textures ≤ {tm}× plain."
 )
 PIXEL_NOTE = (
     "Screenshots of the two streams at the same camera once their tiles loaded (build/bench/stream/<extract>/"
