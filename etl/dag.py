@@ -11,7 +11,8 @@ record now:
   included), of every sql/ object that code or that SQL names, as loaded in the database (meta.sql_object,
   not the file on disk: the database runs what migrate loaded), and of the migrations applied (third-party
   packages are left out: the venv pins them in constraints.txt);
-* ``file`` (ingest: path and sha256 of the OSM file) and ``options`` (export: output directory and --lod);
+* ``file`` (ingest: path and sha256 of the OSM file) and ``options`` (export: output directory, --lod and the
+  stream's --geometry, --textures, --tiling);
   export is also stale when its files are gone or changed (``output``: the sha256 of the tileset.json written).
 
 The record is the database's own: the database may be the local cluster or DATABASE_URL, so stamp files in the
