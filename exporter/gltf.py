@@ -197,24 +197,22 @@ class _Builder:
         rows[:, :size] = arr2.view(np.uint8).reshape(len(arr2), size)
         a: dict[str, object] = {"componentType": component, "count": int(len(arr)), "type": kind}
         self.pool((semantic, stride), rows.tobytes(), a)
-        if normalized:
-            a["normalized"] = True
-        if minmax:
-            a["min"] = [float(v) for v in arr2.min(axis=0)]
-            a["max"] = [float(v) for v in arr2.max(axis=0)]
-        self.accessors.append(a)
-        return len(self.accessors) - 1
+        return self._add(a, arr2, normalized, minmax)
 
     def accessor(self, array: np.ndarray, component: int, kind: str, target: int | None,
                  normalized: bool = False, minmax: bool = False) -> int:
         view = self.view(np.ascontiguousarray(array).tobytes(), target)
         a: dict[str, object] = {"bufferView": view, "componentType": component, "count": int(len(array)),
                                 "type": kind}
+        return self._add(a, array, normalized, minmax)
+
+    def _add(self, a: dict[str, object], values: np.ndarray, normalized: bool, minmax: bool) -> int:
+        """Append accessor ``a`` with its normalized flag and the min/max of ``values`` (rows: elements)."""
         if normalized:
             a["normalized"] = True
         if minmax:
-            a["min"] = [float(v) for v in array.min(axis=0)]
-            a["max"] = [float(v) for v in array.max(axis=0)]
+            a["min"] = [float(v) for v in values.min(axis=0)]
+            a["max"] = [float(v) for v in values.max(axis=0)]
         self.accessors.append(a)
         return len(self.accessors) - 1
 
