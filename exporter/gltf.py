@@ -381,13 +381,9 @@ def _check_lengths(prim: Primitive) -> None:
 
 
 def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) -> dict[str, object]:
+    _check_lengths(prim)
     n = len(prim.positions)
     textured = prim.uvs is not None
-    if not (len(prim.normals) == len(prim.feature_ids) == n) or (len(prim.colors) != n and not textured) \
-            or (textured and len(prim.uvs) != n):  # type: ignore[arg-type]
-        raise ValueError("vertex attribute arrays must have the same length")
-    if len(prim.indices) % 3:
-        raise ValueError("indices must describe whole triangles")
     pos = np.asarray(prim.positions, dtype=np.float32)
     attrs = {
         "POSITION": b.accessor(pos, FLOAT, "VEC3", ARRAY_BUFFER, minmax=True),
