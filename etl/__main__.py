@@ -106,7 +106,8 @@ def _stream_arguments(p: argparse.ArgumentParser) -> None:
     from exporter.stream import GEOMETRY, TEXTURES, TILING
 
     p.add_argument("--geometry", choices=GEOMETRY, default=GEOMETRY[0],
-                   help="compact: quantized, meshopt-compressed (KHR_mesh_quantization, EXT_meshopt_compression); "
+                   help="compact: quantized, meshopt-compressed (KHR_mesh_quantization, KHR_meshopt_compression); "
+                        "compact-ext: the same through EXT_meshopt_compression, for loaders without the KHR one; "
                         "plain: float32 (default: %(default)s)")
     p.add_argument("--textures", choices=TEXTURES, default=TEXTURES[0],
                    help="ktx2: Basis Universal with mipmaps (KHR_texture_basisu); webp: EXT_texture_webp "

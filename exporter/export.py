@@ -209,10 +209,10 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
     plain, parts = arr, []
     if textures is not None and arr.pages is not None and np.any(arr.pages >= 0):
         plain, parts = _split(arr, len(textures.images))
-    compact = stream.geometry == "compact"
-    q = plan_quantization([plain, *(a for _, a in parts)], len(rows), position_error_m(rec)) if compact else None
-    # the landmark metadata is in the mesh's frame, the one a custom shader sees: its chunk's quantization origin
-    origin = q.origins() if q is not None else None
+    compact = stream.compact
+    q = plan_quantization([plain, *(a for _, a in parts)], position_error_m(rec)) if compact else None
+    # the landmark metadata is in the mesh's frame, the one a custom shader sees: less the quantization origin
+    origin = np.broadcast_to(np.asarray(q.origin), (len(rows), 3)) if q is not None else None
     rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat, origin), strict=True)]
     props = []
     for name, ctype, doc, required, no_data in PROPERTIES:
@@ -231,7 +231,7 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
     if compact:
         try:
             return write_glb(prim, *doc, textured=textured, images=images, node_matrix=node_matrix, compact=True,
-                             quantization=q), len(arr.indices) // 3
+                             quantization=q, meshopt_extension=stream.meshopt_extension), len(arr.indices) // 3
         except CompressionError as e:
             # recorded: the export counts tiles whose glb is not compact (geometry_fallback) and says why
             print(f"  warning: tile {_tile_name(rec)} written plain: {e}", file=sys.stderr)
@@ -268,7 +268,7 @@ def is_compact(glb: bytes) -> bool:
 def _landmark_frame(rows: list[dict], lon: float, lat: float,
                     origin: np.ndarray | None = None) -> list[dict[str, float]]:
     """lm_centre_* and lm_dir_* of each row in the mesh's frame: tile_arrays' (ENU at (lon, lat), y up) less the
-    quantization ``origin`` (features, 3) of the row's chunk in compact geometry (which its node's matrix adds back)."""
+    quantization ``origin`` (features, 3) in compact geometry (which its node's matrix adds back)."""
     out = [dict.fromkeys(("lm_centre_x", "lm_centre_y", "lm_centre_z", "lm_dir_x", "lm_dir_y", "lm_dir_z"), 0.0)
            for _ in rows]
     idx = [i for i, r in enumerate(rows) if r.get("lm_centre_wkb") is not None]
@@ -315,7 +315,7 @@ def tileset_files(conn: psycopg.Connection, records: list[TileRecord], lod: int 
     dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
     version = dataset[0][:16] if dataset and dataset[0] else ""
     ts, files = build(records, tileset_version=version, single_lod=lod is not None, tiling=stream.tiling)
-    if stream.geometry == "compact":
+    if stream.compact:
         # the glbs' class with the descriptions they leave out (3D Tiles 1.1 schema; the glbs keep their own
         # EXT_structural_metadata schema, which is what clients read a picked feature's values with)
         schema = ts.get("schema") or {"id": "citylod"}
@@ -366,7 +366,7 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
         path = out / rec.content_uri
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(glb)
-        return n, tri, len(glb), int(stream.geometry == "compact" and not is_compact(glb))
+        return n, tri, len(glb), int(stream.compact and not is_compact(glb))
 
     n_features = n_triangles = n_bytes = n_fallback = 0
     try:

@@ -11,24 +11,28 @@ Spec notes honoured here: bufferViews start on 8-byte boundaries (metadata requi
 4-byte aligned (feature ids as FLOAT, exact up to 2^24), POSITION carries min/max, normals are unit length.
 
 Compact geometry (``compact=True``; the plain path above is unchanged byte for byte):
-* KHR_mesh_quantization. Positions are SHORT ``round((p - origin) / step)`` with one uniform step per tile and an
-  origin (whole metres, the middle of the mesh's bounding box) per mesh; the node's matrix is
+* KHR_mesh_quantization. Positions are SHORT ``round((p - origin) / step)`` with one uniform step per tile and
+  an origin (whole metres, the middle of the tile's bounding box); the node's matrix is
   ``node_matrix @ T(origin) @ S(step)``. **Error bound**: rounding moves each coordinate at most step/2, so a
   vertex at most step * sqrt(3) / 2 (Euclidean) from its float64 input once the node's matrix is applied; step
   is chosen so that this is the tile's bound: 1 cm at leaves, max(1 cm, 1 % of the geometric error) in inner
   tiles (export.position_error_m), which CesiumJS draws only while that error is a few pixels, so 1 % of it is
   far below a pixel. A tile wider than int16 reaches at that step (32767 steps from the origin: 378 m at 1 cm)
-  is cut into chunks of whole features, one mesh and node each (plan_quantization); a chunk still too wide
-  (one huge feature) keeps FLOAT positions. Uniform scale and rigid tile transforms let a custom shader recover
-  the step as length(czm_model[0].xyz): CesiumJS gives shaders POSITION as stored (positionMC), not dequantized.
+  keeps FLOAT positions rounded to a power-of-two step within the same bound and stored through meshopt's
+  EXPONENTIAL filter with one shared exponent (24-bit mantissas: the repeated exponent byte costs nothing), so
+  every tile is one mesh and one node (plan_quantization). Uniform scale and rigid tile transforms let a custom
+  shader recover the scale as length(czm_model[0].xyz): CesiumJS gives shaders POSITION as stored (positionMC).
 * Normals BYTE normalized (4-byte stride: CesiumJS draws primitives without normals unlit, so they stay), through
   meshopt's OCTAHEDRAL filter at 8 bits (two varying bytes compress better; 1.2 degrees at worst),
-  texcoords UNSIGNED_SHORT normalized (FLOAT if outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride;
-  FLOAT past 65536 rows), colours as given (16-bit linear).
-* Vertex and index data of every primitive and chunk pooled: one view per (semantic, stride), one per index
+  texcoords UNSIGNED_SHORT integers in quarter texels of their page, scaled back by the material's
+  KHR_texture_transform (a texcoord moves at most 1/8 texel; normalized [0, 1] when the page's size is unknown,
+  FLOAT outside [0, 1]), feature ids UNSIGNED_BYTE/SHORT (4-byte stride; FLOAT past 65536 rows), colours as
+  given (16-bit linear).
+* Vertex and index data of every primitive pooled: one view per (semantic, stride, filter), one per index
   width, accessors into them by byteOffset (a TRIANGLES view is decoded as one index buffer; each accessor's
   range is whole triangles), so a glb has a handful of geometry views whatever its primitives.
-* EXT_meshopt_compression (exporter/meshopt.py): every vertex, index and property-table view (those a whole
+* KHR_meshopt_compression with vertex codec version 1 (default) or EXT_meshopt_compression with version 0
+  (``meshopt_extension``; exporter/meshopt.py): every vertex, index and property-table view (those a whole
   number of 4-byte groups long: a padded column breaks CesiumJS's table) whose compressed stream plus its JSON
   is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
   buffer 1, the fallback buffer (no uri, ``fallback: true``), at 8-byte aligned offsets.
@@ -101,19 +105,22 @@ MESHOPT_JSON_BYTES = 160
 
 
 class _Builder:
-    def __init__(self, compact: bool = False) -> None:
+    def __init__(self, compact: bool = False, meshopt_extension: str = meshopt.KHR) -> None:
         self.bin = bytearray()
         self.views: list[dict[str, object]] = []
         self.accessors: list[dict[str, object]] = []
         self.compact = compact
+        if meshopt_extension not in meshopt.VERTEX_VERSION:
+            raise ValueError(f"meshopt extension must be one of {', '.join(meshopt.VERTEX_VERSION)}")
+        self.ext = meshopt_extension
         self.fallback = 0  # bytes of buffer 1, the decoded views (compact only)
-        # compact: vertex and index data pooled by (semantic, stride), one view each (flush): fewer views and
-        # one longer meshopt stream per kind; accessors point into them by byteOffset
-        self.pools: dict[tuple[str, int], list[bytes]] = {}
-        self.pool_len: dict[tuple[str, int], int] = {}
-        self.pooled: list[tuple[dict[str, object], tuple[str, int]]] = []
+        # compact: vertex and index data pooled by (semantic, stride, filter), one view each (flush): fewer views
+        # and one longer meshopt stream per kind; accessors point into them by byteOffset
+        self.pools: dict[tuple[str, int, str], list[bytes]] = {}
+        self.pool_len: dict[tuple[str, int, str], int] = {}
+        self.pooled: list[tuple[dict[str, object], tuple[str, int, str]]] = []
 
-    def pool(self, key: tuple[str, int], data: bytes, accessor: dict[str, object]) -> None:
+    def pool(self, key: tuple[str, int, str], data: bytes, accessor: dict[str, object]) -> None:
         """Append ``data`` to pool ``key``; ``accessor`` gets its bufferView and byteOffset at flush."""
         at = self.pool_len.get(key, 0)
         self.pools.setdefault(key, []).append(data)
@@ -125,15 +132,15 @@ class _Builder:
     def flush(self) -> None:
         """One view per pool: vertex pools ATTRIBUTES (byteStride: several accessors share them), index pools one
         TRIANGLES stream (every accessor's range is whole triangles; the decoder decodes the view as a whole)."""
-        views: dict[tuple[str, int], int] = {}
+        views: dict[tuple[str, int, str], int] = {}
         for key, parts in self.pools.items():
             data = b"".join(parts)
-            name, stride = key
+            name, stride, filter_ = key
             if name == "indices":
                 top = int(np.frombuffer(data, "<u2" if stride == 2 else "<u4").max()) + 1
                 views[key] = self.packed(data, stride, ELEMENT_ARRAY_BUFFER, triangles=top)
             else:
-                views[key] = self.packed(data, stride, ARRAY_BUFFER, vertex_stride=True, octahedral=name == "NORMAL")
+                views[key] = self.packed(data, stride, ARRAY_BUFFER, vertex_stride=True, filter_=filter_)
         for acc, key in self.pooled:
             acc["bufferView"] = views[key]
         self.pools, self.pool_len, self.pooled = {}, {}, []
@@ -149,21 +156,23 @@ class _Builder:
         return len(self.views) - 1
 
     def packed(self, data: bytes, stride: int, target: int | None = None, vertex_stride: bool = False,
-               triangles: int = 0, octahedral: bool = False) -> int:
+               triangles: int = 0, filter_: str = "NONE") -> int:
         """A view stored meshopt-compressed in buffer 0 and decoded into buffer 1 (the fallback buffer, 8-byte
         aligned views: the metadata's requirement): ATTRIBUTES of ``stride``-byte elements, or with
-        ``triangles`` (the vertex count) a TRIANGLES index stream of ``stride``-byte indices; ``octahedral``: ``data``
-        is meshopt.encode_oct's, the view holds what the OCTAHEDRAL filter decodes it to. Plain: a view."""
+        ``triangles`` (the vertex count) a TRIANGLES index stream of ``stride``-byte indices; ``filter_``
+        OCTAHEDRAL or EXPONENTIAL: ``data`` is meshopt.encode_oct's / encode_exp's, the view holds what the filter
+        decodes it to. Plain: a view."""
         if not self.compact:
             return self.view(data, target)
         count = len(data) // stride
         if triangles:
             enc = meshopt.encode_triangles(np.frombuffer(data, "<u2" if stride == 2 else "<u4"), triangles)
         else:
-            enc = meshopt.encode_attributes(data, stride)
+            enc = meshopt.encode_attributes(data, stride, meshopt.VERTEX_VERSION[self.ext])
         if len(enc) + MESHOPT_JSON_BYTES >= len(data):
-            # a small view the extension's JSON would outweigh: stored as is (still 8-byte aligned)
-            at = self.view(meshopt.decode_oct(data, count, stride) if octahedral else data, target)
+            # a small view the extension's JSON would outweigh: stored as is, decoded (still 8-byte aligned)
+            unfilter = meshopt.FILTERS[filter_]
+            at = self.view(unfilter(data, count, stride) if unfilter is not None else data, target)
             if vertex_stride:
                 self.views[at]["byteStride"] = stride
             return at
@@ -175,20 +184,21 @@ class _Builder:
             v["byteStride"] = stride
         if target is not None:
             v["target"] = target
-        v["extensions"] = {"EXT_meshopt_compression": {
+        v["extensions"] = {self.ext: {
             "buffer": 0, "byteOffset": src["byteOffset"], "byteLength": src["byteLength"], "byteStride": stride,
             "count": count, "mode": "TRIANGLES" if triangles else "ATTRIBUTES"}}
-        if octahedral:
-            v["extensions"]["EXT_meshopt_compression"]["filter"] = "OCTAHEDRAL"  # type: ignore[index]
+        if filter_ != "NONE":
+            v["extensions"][self.ext]["filter"] = filter_  # type: ignore[index]
         self.fallback += count * stride
         self.views[at] = v
         return at
 
     def vertex(self, array: np.ndarray, component: int, kind: str, semantic: str, normalized: bool = False,
-               minmax: bool = False) -> int:
+               minmax: bool = False, filter_: str = "NONE", decoded: np.ndarray | None = None) -> int:
         """A compact vertex attribute: elements padded to a multiple of 4 bytes (meshopt's unit and glTF's
-        vertex alignment), pooled with the ``semantic``'s others of that stride (compressed at flush); the
-        accessor reads the first ``kind`` components of each."""
+        vertex alignment), pooled with the ``semantic``'s others of that stride and filter (compressed at flush);
+        the accessor reads the first ``kind`` components of each. With a filter, ``array`` is the filter's input
+        and ``decoded`` what it decodes to (for min/max)."""
         arr = np.ascontiguousarray(array)
         arr2 = arr.reshape(len(arr), -1)
         size = arr2.shape[1] * arr2.dtype.itemsize
@@ -196,8 +206,8 @@ class _Builder:
         rows = np.zeros((len(arr2), stride), np.uint8)
         rows[:, :size] = arr2.view(np.uint8).reshape(len(arr2), size)
         a: dict[str, object] = {"componentType": component, "count": int(len(arr)), "type": kind}
-        self.pool((semantic, stride), rows.tobytes(), a)
-        return self._add(a, arr2, normalized, minmax)
+        self.pool((semantic, stride, filter_), rows.tobytes(), a)
+        return self._add(a, arr2 if decoded is None else decoded.reshape(len(arr), -1), normalized, minmax)
 
     def accessor(self, array: np.ndarray, component: int, kind: str, target: int | None,
                  normalized: bool = False, minmax: bool = False) -> int:
@@ -211,8 +221,10 @@ class _Builder:
         if normalized:
             a["normalized"] = True
         if minmax:
-            a["min"] = [float(v) for v in values.min(axis=0)]
-            a["max"] = [float(v) for v in values.max(axis=0)]
+            # integers as integers (quantized positions): the same numbers, shorter JSON
+            num = int if values.dtype.kind in "iu" else float
+            a["min"] = [num(v) for v in values.min(axis=0)]
+            a["max"] = [num(v) for v in values.max(axis=0)]
         self.accessors.append(a)
         return len(self.accessors) - 1
 
@@ -226,25 +238,42 @@ def _string_column(values: Sequence[object], no_data: str) -> tuple[bytes, bytes
 
 @dataclass(frozen=True)
 class Quantization:
-    """KHR_mesh_quantization of positions: ``(p - origin) / step`` rounded to int16 (SHORT), and the node's
-    matrix gets ``T(origin) @ S(step)`` so the tileset places the mesh exactly as before."""
+    """How compact positions are stored, around ``origin`` (whole metres, the positions' frame), within a bound:
+
+    * ``exponent`` None: KHR_mesh_quantization SHORT ``round((p - origin) / step)``; the node's matrix gets
+      ``T(origin) @ S(step)``;
+    * ``exponent`` e: FLOAT through meshopt's EXPONENTIAL filter with one shared exponent, i.e. ``p - origin``
+      rounded to multiples of ``step`` = 2^e (24-bit mantissas: 2^23 steps each way, 97 km at 1 cm), for a mesh
+      wider than SHORT reaches at its bound; the node's matrix gets ``T(origin)`` only (positions in metres)."""
 
     origin: tuple[float, float, float]  # in the positions' frame (m), whole metres
-    step: float  # m per unit
+    step: float  # m per unit (SHORT) or the rounding step 2^exponent (FLOAT)
+    exponent: int | None = None
+
+    @property
+    def scale(self) -> float:
+        """The node matrix's scale: the step for SHORT positions, 1 for FLOAT ones (stored in metres)."""
+        return self.step if self.exponent is None else 1.0
 
 
 QMAX = 32767  # SHORT positions in [-32767, 32767]
 
 
+def _bounds(positions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    pts = [np.asarray(p, np.float64).reshape(-1, 3) for p in positions if len(p)]
+    if not pts:
+        return None
+    return np.min([p.min(axis=0) for p in pts], axis=0), np.max([p.max(axis=0) for p in pts], axis=0)
+
+
 def quantization(positions: Sequence[np.ndarray], error_m: float) -> Quantization | None:
     """The coarsest int16 quantization whose positions are within ``error_m`` (Euclidean) of ``positions``
     (rounding each coordinate moves a point at most step/2 per axis, so step = 2 error / sqrt(3)); origin the
-    middle of their bounding box. None when the extent needs a finer step than int16 holds: positions stay FLOAT."""
-    pts = [np.asarray(p, np.float64).reshape(-1, 3) for p in positions if len(p)]
-    if not pts:
+    middle of their bounding box. None when the extent needs a finer step than int16 holds."""
+    bounds = _bounds(positions)
+    if bounds is None:
         return Quantization((0.0, 0.0, 0.0), 1.0)
-    lo = np.min([p.min(axis=0) for p in pts], axis=0)
-    hi = np.max([p.max(axis=0) for p in pts], axis=0)
+    lo, hi = bounds
     origin = np.round((lo + hi) / 2.0)
     step = 2.0 * error_m / np.sqrt(3.0)
     reach = float(np.max(np.maximum(hi - origin, origin - lo)))
@@ -253,92 +282,60 @@ def quantization(positions: Sequence[np.ndarray], error_m: float) -> Quantizatio
     return Quantization((float(origin[0]), float(origin[1]), float(origin[2])), float(step))
 
 
-@dataclass(frozen=True)
-class Chunks:
-    """Compact geometry in several meshes, one node each: a tile wider than int16 reaches at its bound is cut
-    into chunks of whole features, each quantized around its own origin (None: FLOAT positions)."""
-
-    feature_chunk: np.ndarray  # (features,) chunk of each property-table row
-    quantizations: tuple[Quantization | None, ...]
-
-    def origins(self) -> np.ndarray:
-        """(features, 3) the quantization origin of each row's chunk (0 for FLOAT chunks): its mesh frame's."""
-        o = np.array([q.origin if q is not None else (0.0, 0.0, 0.0) for q in self.quantizations], np.float64)
-        return o.reshape(-1, 3)[self.feature_chunk]
-
-
-def plan_quantization(prims: Sequence[Primitive], feature_count: int, error_m: float) -> Chunks:
-    """One quantization for the whole tile when its extent fits int16 at ``error_m``; otherwise features are
-    grouped by a square grid of cells (by the centre of their bounding box; cells as wide as int16's reach
-    allows with the widest feature overhanging, at least one reach) and each group gets its own (a group too wide
-    for int16 all the same keeps FLOAT positions)."""
-    live = [p for p in prims if len(p.positions)]
-    if not live:
-        return Chunks(np.zeros(feature_count, np.int64), (Quantization((0.0, 0.0, 0.0), 1.0),))
-    pos = np.concatenate([np.asarray(p.positions, np.float64).reshape(-1, 3) for p in live])
-    fid = np.concatenate([np.asarray(p.feature_ids, np.int64) for p in live])
-    whole = quantization([pos], error_m)
-    if whole is not None:
-        return Chunks(np.zeros(feature_count, np.int64), (whole,))
-    lo = np.full((feature_count, 3), np.inf)
-    hi = np.full((feature_count, 3), -np.inf)
-    np.minimum.at(lo, fid, pos)
-    np.maximum.at(hi, fid, pos)
-    centre = np.where(np.isfinite(lo), (lo + hi) / 2.0, pos.min(axis=0))  # a row without vertices: anywhere
-    reach = (QMAX - 1) * 2.0 * error_m / np.sqrt(3.0)  # of int16 from a chunk's origin
-    # a chunk's vertices stay within half a cell plus half its widest feature of the chunk's centre
-    half = float(np.max(np.where(np.isfinite(lo), hi - lo, 0.0)[:, [0, 2]])) / 2.0
-    cell = max(2.0 * (reach - half), reach)
-    key = np.floor((centre[:, [0, 2]] - pos.min(axis=0)[[0, 2]]) / cell).astype(np.int64)
-    _, chunk = np.unique(key[:, 0] * (int(key[:, 1].max()) + 1) + key[:, 1], return_inverse=True)
-    chunk = chunk.reshape(-1)
-    vchunk = chunk[fid]
-    qs = tuple(quantization([pos[vchunk == k]], error_m) for k in range(int(chunk.max()) + 1))
-    return Chunks(chunk, qs)
+def exponential_quantization(positions: Sequence[np.ndarray], error_m: float) -> Quantization:
+    """FLOAT positions within ``error_m`` through the EXPONENTIAL filter: the largest power-of-two step at most
+    2 error / sqrt(3) (the same bound as SHORT's), coarser only where 24-bit mantissas could not reach the
+    extent (beyond 97 km from the origin at 1 cm, where float32 itself is coarser)."""
+    bounds = _bounds(positions)
+    lo, hi = bounds if bounds is not None else (np.zeros(3), np.zeros(3))
+    origin = np.round((lo + hi) / 2.0)
+    reach = float(np.max(np.maximum(hi - origin, origin - lo)))
+    e = int(np.floor(np.log2(2.0 * error_m / np.sqrt(3.0))))
+    while reach / 2.0 ** e > meshopt.MANTISSA_MAX - 0.5:
+        e += 1
+    e = min(max(e, meshopt.EXP_MIN), meshopt.EXP_MAX)
+    return Quantization((float(origin[0]), float(origin[1]), float(origin[2])), 2.0 ** e, e)
 
 
-def _distinct(ids: np.ndarray, count: int) -> int:
-    """How many different values ``ids`` (in [0, count)) holds: a bitmap instead of a sort."""
-    seen = np.zeros(count, bool)
-    seen[np.asarray(ids, np.int64)] = True
-    return int(np.count_nonzero(seen))
-
-
-def _sub_primitive(prim: Primitive, keep_feature: np.ndarray) -> Primitive:
-    """The vertices and triangles of ``prim`` whose features ``keep_feature`` selects (a triangle's corners
-    belong to one feature)."""
-    keep_v = keep_feature[np.asarray(prim.feature_ids, np.int64)]
-    new = np.cumsum(keep_v) - 1
-    tris = np.asarray(prim.indices).reshape(-1, 3)
-    tris = tris[keep_v[tris[:, 0]]] if len(tris) else tris
-    return Primitive(np.asarray(prim.positions)[keep_v], np.asarray(prim.normals)[keep_v],
-                     np.asarray(prim.colors)[keep_v] if prim.uvs is None else prim.colors,
-                     np.asarray(prim.feature_ids)[keep_v], new[tris].reshape(-1).astype(np.uint32),
-                     feature_count=prim.feature_count,
-                     uvs=None if prim.uvs is None else np.asarray(prim.uvs)[keep_v], image=prim.image)
+def plan_quantization(prims: Sequence[Primitive], error_m: float) -> Quantization:
+    """One quantization for a tile's meshes within ``error_m``: SHORT when int16 reaches its extent at that
+    bound, else FLOAT through the EXPONENTIAL filter (one mesh either way: no chunks, so no extra primitives)."""
+    positions = [np.asarray(p.positions) for p in prims]
+    return quantization(positions, error_m) or exponential_quantization(positions, error_m)
 
 
 def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_count: int, table_count: int,
-                       q: Quantization | None) -> dict[str, object]:
+                       q: Quantization | None, uv_units: tuple[int, int] | None = None) -> dict[str, object]:
     """The primitive with quantized attributes (KHR_mesh_quantization) in meshopt-compressed views: positions
-    SHORT (FLOAT when ``q`` is None), normals BYTE normalized, texcoords UNSIGNED_SHORT normalized, feature
-    ids UNSIGNED_BYTE/SHORT (FLOAT past 65535 rows), colours as given; vertices and triangles reordered for
-    the vertex cache first (meshoptimizer), which also makes the codecs' deltas small."""
+    SHORT or FLOAT through the EXPONENTIAL filter (``q``; plain FLOAT when None), normals BYTE normalized,
+    texcoords UNSIGNED_SHORT in ``uv_units`` per page side (their material scales them back with
+    KHR_texture_transform; normalized when None), feature ids UNSIGNED_BYTE/SHORT (FLOAT past 65535 rows),
+    colours as given; vertices and triangles reordered for the vertex cache first (meshoptimizer), which also
+    makes the codecs' deltas small."""
     n = len(prim.positions)
     idx, order = meshopt.reorder(np.asarray(prim.indices), n)
     pos = np.asarray(prim.positions, np.float64)[order]
     if q is None:
         attrs = {"POSITION": b.vertex(pos.astype(np.float32), FLOAT, "VEC3", "POSITION", minmax=True)}
+    elif q.exponent is not None:
+        packed = meshopt.encode_exp(pos - np.asarray(q.origin), q.exponent)
+        decoded = np.frombuffer(meshopt.decode_exp(packed.tobytes(), len(pos), 12), "<f4").reshape(-1, 3)
+        attrs = {"POSITION": b.vertex(packed, FLOAT, "VEC3", "POSITION", minmax=True, filter_="EXPONENTIAL",
+                                      decoded=decoded)}
     else:
         qpos = np.round((pos - np.asarray(q.origin)) / q.step).astype(np.int16)
         attrs = {"POSITION": b.vertex(qpos, SHORT, "VEC3", "POSITION", minmax=True)}
     nrm = np.asarray(prim.normals, np.float64)[order]
     # octahedral (meshopt's filter, 8 bits as gltfpack's default): 1.2 degrees at worst, 0.4 as plain BYTE
-    attrs["NORMAL"] = b.vertex(meshopt.encode_oct(nrm), BYTE, "VEC3", "NORMAL", normalized=True)
+    attrs["NORMAL"] = b.vertex(meshopt.encode_oct(nrm), BYTE, "VEC3", "NORMAL", normalized=True,
+                               filter_="OCTAHEDRAL")
     if prim.uvs is not None:
         uv = np.asarray(prim.uvs, np.float64)[order]
         if uv.size and (uv.min() < 0.0 or uv.max() > 1.0):
             attrs["TEXCOORD_0"] = b.vertex(uv.astype(np.float32), FLOAT, "VEC2", "TEXCOORD_0")  # outside [0, 1]: as is
+        elif uv_units is not None:
+            attrs["TEXCOORD_0"] = b.vertex(np.round(uv * uv_units).astype(np.uint16), UNSIGNED_SHORT, "VEC2",
+                                           "TEXCOORD_0")
         else:
             attrs["TEXCOORD_0"] = b.vertex(np.round(uv * 65535.0).astype(np.uint16), UNSIGNED_SHORT, "VEC2",
                                            "TEXCOORD_0", normalized=True)
@@ -357,7 +354,7 @@ def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_coun
     small = len(order) <= 0xFFFF
     acc: dict[str, object] = {"componentType": UNSIGNED_SHORT if small else UNSIGNED_INT, "count": int(len(idx)),
                               "type": "SCALAR"}
-    b.pool(("indices", 2 if small else 4), idx.astype(np.uint16 if small else np.uint32).tobytes(), acc)
+    b.pool(("indices", 2 if small else 4, "NONE"), idx.astype(np.uint16 if small else np.uint32).tobytes(), acc)
     b.accessors.append(acc)
     return {
         "attributes": attrs,
@@ -417,38 +414,28 @@ def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) 
 def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "",
               textured: Sequence[Primitive] = (), images: Sequence[Image] = (),
               node_matrix: Sequence[float] | None = None, compact: bool = False,
-              quantization: Quantization | Chunks | None = None) -> bytes:
+              quantization: Quantization | None = None, meshopt_extension: str = meshopt.KHR) -> bytes:
     """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
     primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
     vertex-coloured primitive; with them an empty ``prim`` is left out.
     ``node_matrix``: 16 floats, column-major, the glTF node transform from the mesh's metric frame (the
     positions given) to the frame the tileset places the content in; None = identity.
-    ``compact``: KHR_mesh_quantization + EXT_meshopt_compression (``quantization`` for SHORT positions, None
-    for FLOAT ones, Chunks for one mesh and node per chunk); a node's matrix becomes
-    ``node_matrix @ T(origin) @ S(step)``. Raises
+    ``compact``: KHR_mesh_quantization + ``meshopt_extension`` (KHR_meshopt_compression, vertex codec 1, or
+    EXT_meshopt_compression, codec 0; ``quantization`` for SHORT or EXPONENTIAL-filtered positions, None for
+    plain FLOAT ones); the node's matrix becomes ``node_matrix @ T(origin) @ S(scale)``, and texcoords are
+    integers in quarter texels of their page (KHR_texture_transform scales them back). Raises
     meshopt.CompressionError when meshoptimizer refuses a stream (the caller writes the tile plain)."""
     if quantization is not None and not compact:
         raise ValueError("quantization needs compact=True")
-    b = _Builder(compact)
-    chunks = quantization if isinstance(quantization, Chunks) else \
-        Chunks(np.zeros(prim.feature_count, np.int64), (quantization,))
-    if len(chunks.feature_chunk) != prim.feature_count:
-        raise ValueError("Chunks.feature_chunk needs one chunk per feature")
-    meshes: list[list[dict[str, object]]] = [[] for _ in chunks.quantizations]
+    b = _Builder(compact, meshopt_extension)
+    primitives: list[dict[str, object]] = []
 
-    def add(p: Primitive, material: int, count: int) -> None:
+    def add(p: Primitive, material: int, count: int, uv_units: tuple[int, int] | None = None) -> None:
         if not compact:
-            meshes[0].append(_primitive(b, p, material, count))
+            primitives.append(_primitive(b, p, material, count))
             return
         _check_lengths(p)
-        if len(chunks.quantizations) == 1:
-            meshes[0].append(_compact_primitive(b, p, material, count, prim.feature_count, chunks.quantizations[0]))
-            return
-        for k, q in enumerate(chunks.quantizations):
-            sub = _sub_primitive(p, chunks.feature_chunk == k)
-            if len(sub.indices):
-                n = _distinct(sub.feature_ids, prim.feature_count)
-                meshes[k].append(_compact_primitive(b, sub, material, n, prim.feature_count, q))
+        primitives.append(_compact_primitive(b, p, material, count, prim.feature_count, quantization, uv_units))
 
     shared: dict[tuple[bytes, int], int] = {}
 
@@ -476,15 +463,20 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         # next to it, featureCount counts the features of its own vertices (EXT_mesh_features)
         count = prim.feature_count if not textured else len(np.unique(np.asarray(prim.feature_ids)))
         add(prim, 0, count)
+    transformed = False
     for tp in textured:
         if tp.uvs is None or tp.image is None or not 0 <= tp.image < len(images):
             raise ValueError("a textured primitive needs uvs and the index of one of the images")
+        units = _uv_units(tp.uvs, images[tp.image]) if compact else None
+        info: dict[str, object] = {"index": tp.image}
+        if units is not None:
+            info["extensions"] = {"KHR_texture_transform": {"scale": [1.0 / units[0], 1.0 / units[1]]}}
+            transformed = True
         materials.append({
             "name": f"atlas page {tp.image}",
-            "pbrMetallicRoughness": {"baseColorTexture": {"index": tp.image}, "metallicFactor": 0.0,
-                                     "roughnessFactor": 1.0},
+            "pbrMetallicRoughness": {"baseColorTexture": info, "metallicFactor": 0.0, "roughnessFactor": 1.0},
         })
-        add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))))
+        add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))), units)
 
     b.flush()
     # compact: the descriptions are in tileset.json's schema (exporter/export.py), not repeated in every glb
@@ -515,15 +507,14 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
     # the images go last into the buffer (when there are textured primitives)
     image_views = [b.view(im.data) for im in images] if textured else []
 
-    kept = [k for k, m in enumerate(meshes) if m] or [0]  # chunks that drew nothing go
     gltf: dict[str, object] = {
         "asset": {"version": "2.0", "generator": f"citylod {__version__}", "copyright": ATTRIBUTION},
         "extensionsUsed": ["EXT_mesh_features", "EXT_structural_metadata"],
         "scene": 0,
-        "scenes": [{"nodes": list(range(len(kept)))}],
-        "nodes": [_node(i, _compose(node_matrix, chunks.quantizations[k])) for i, k in enumerate(kept)],
+        "scenes": [{"nodes": [0]}],
+        "nodes": [_node(0, _compose(node_matrix, quantization))],
         "materials": materials,
-        "meshes": [{"primitives": meshes[k]} for k in kept],
+        "meshes": [{"primitives": primitives}],
         "extensions": {"EXT_structural_metadata": {
             "schema": {"id": "citylod", "classes": {class_name: {
                 **class_schema((), class_name, class_description, descriptions=not compact),
@@ -549,10 +540,12 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
             gltf["extensionsRequired"] = used
     if compact:
         ext = ["KHR_mesh_quantization"]  # always: normals are BYTE
+        if transformed:  # integer texcoords mean nothing without their scale
+            ext.append("KHR_texture_transform")
         if b.fallback:  # some view is compressed (a tiny glb may have none worth it)
             gltf["buffers"] = [{"byteLength": len(b.bin)}, {"byteLength": b.fallback, "extensions": {
-                "EXT_meshopt_compression": {"fallback": True}}}]
-            ext.append("EXT_meshopt_compression")
+                meshopt_extension: {"fallback": True}}}]
+            ext.append(meshopt_extension)
         gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *ext]  # type: ignore[misc]
         gltf["extensionsRequired"] = [*gltf.get("extensionsRequired", []), *ext]  # type: ignore[misc]
     return _pack(gltf, bytes(b.bin))
@@ -584,14 +577,52 @@ def class_schema(properties: Sequence[Property], class_name: str = "building", c
     return cls
 
 
+#: compact texcoords are integers in 1/UV_SUBTEXEL of a texel: a texcoord moves at most 1/(2 UV_SUBTEXEL) texel
+UV_SUBTEXEL = 4
+
+
+def _uv_units(uvs: np.ndarray, image: Image) -> tuple[int, int] | None:
+    """(units across, units down) of an image for integer texcoords (UV_SUBTEXEL per texel), or None when
+    they cannot be used: uvs outside [0, 1], an image whose size its header does not give, or one too large
+    for UNSIGNED_SHORT."""
+    uv = np.asarray(uvs)
+    size = image_size(image)
+    if size is None or (uv.size and (uv.min() < 0.0 or uv.max() > 1.0)):
+        return None
+    units = (size[0] * UV_SUBTEXEL, size[1] * UV_SUBTEXEL)
+    return units if max(units) <= 0xFFFF else None
+
+
+def image_size(image: Image) -> tuple[int, int] | None:
+    """(width, height) in pixels from an encoded image's header (KTX2, WebP, PNG), None when it is not one."""
+    d = image.data
+    if d[:12] == b"\xabKTX 20\xbb\r\n\x1a\n" and len(d) >= 28:
+        w, h = struct.unpack_from("<II", d, 20)
+        return (w, h) if w and h else None
+    if d[:4] == b"RIFF" and d[8:12] == b"WEBP" and len(d) >= 30:
+        chunk = d[12:16]
+        if chunk == b"VP8 " and d[23:26] == b"\x9d\x01\x2a":
+            w, h = struct.unpack_from("<HH", d, 26)
+            return w & 0x3FFF, h & 0x3FFF
+        if chunk == b"VP8L" and d[20] == 0x2F:
+            bits = int.from_bytes(d[21:25], "little")
+            return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+        if chunk == b"VP8X":
+            return int.from_bytes(d[24:27], "little") + 1, int.from_bytes(d[27:30], "little") + 1
+        return None
+    if d[:8] == b"\x89PNG\r\n\x1a\n" and len(d) >= 24:
+        return struct.unpack_from(">II", d, 16)
+    return None
+
+
 def _compose(node_matrix: Sequence[float] | None, q: Quantization | None) -> list[float] | None:
-    """node_matrix @ T(origin) @ S(step) (column-major), or node_matrix itself without quantization."""
+    """node_matrix @ T(origin) @ S(scale) (column-major), or node_matrix itself without quantization."""
     if q is None:
         return None if node_matrix is None else list(node_matrix)
     m = np.eye(4) if node_matrix is None else np.asarray(node_matrix, np.float64).reshape(4, 4).T
     if m.shape != (4, 4):
         raise ValueError("node_matrix must have 16 values (column-major 4x4)")
-    ts = np.diag([q.step, q.step, q.step, 1.0])
+    ts = np.diag([q.scale, q.scale, q.scale, 1.0])
     ts[:3, 3] = q.origin
     return (m @ ts).T.ravel().tolist()
 
@@ -649,9 +680,10 @@ _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 def view_bytes(gltf: dict, binary: bytes, index: int) -> bytes:
     """The bytes of bufferView ``index``: straight from the BIN chunk, or decoded from its
-    EXT_meshopt_compression stream (the view then lies in the fallback buffer, which has no bytes of its own)."""
+    KHR_/EXT_meshopt_compression stream (the view then lies in the fallback buffer, which has no bytes of its own)."""
     view = gltf["bufferViews"][index]
-    ext = view.get("extensions", {}).get("EXT_meshopt_compression")
+    exts = view.get("extensions", {})
+    ext = exts.get(meshopt.KHR, exts.get(meshopt.EXT))
     if ext is None:
         start = view.get("byteOffset", 0)
         return binary[start : start + view["byteLength"]]

@@ -1,7 +1,10 @@
 """How a tileset is encoded for the stream: one value object the export, the DB server and the CLI share.
 
-* ``geometry``: ``compact`` = KHR_mesh_quantization + EXT_meshopt_compression (meshoptimizer), ``plain`` =
-  float32 attributes as before (for clients without meshopt).
+* ``geometry``: ``compact`` = KHR_mesh_quantization + KHR_meshopt_compression (meshoptimizer, vertex codec
+  version 1: CesiumJS 1.145 and loaders.gl 4.5 here decode it, as does three.js' GLTFLoader),
+  ``compact-ext`` = the same geometry through EXT_meshopt_compression (codec version 0, 11-29 % larger streams:
+  for loaders that know only the EXT extension), ``plain`` = float32 attributes as before (for clients without
+  meshopt).
 * ``textures``: ``ktx2`` = KHR_texture_basisu (Basis Universal, full mip chains), ``webp`` = EXT_texture_webp.
 * ``tiling``: ``implicit`` = 3D Tiles 1.1 implicitTiling with subtree files, ``explicit`` = every tile in
   tileset.json.
@@ -13,11 +16,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Literal
 
-Geometry = Literal["compact", "plain"]
+from . import meshopt
+
+Geometry = Literal["compact", "compact-ext", "plain"]
 Textures = Literal["ktx2", "webp"]
 Tiling = Literal["implicit", "explicit"]
 
-GEOMETRY: tuple[Geometry, ...] = ("compact", "plain")
+GEOMETRY: tuple[Geometry, ...] = ("compact", "compact-ext", "plain")
 TEXTURES: tuple[Textures, ...] = ("ktx2", "webp")
 TILING: tuple[Tiling, ...] = ("implicit", "explicit")
 
@@ -35,6 +40,16 @@ class StreamOptions:
 
     def as_dict(self) -> dict[str, str]:
         return asdict(self)
+
+    @property
+    def compact(self) -> bool:
+        """Quantized, meshopt-compressed geometry (either extension)."""
+        return self.geometry != "plain"
+
+    @property
+    def meshopt_extension(self) -> str:
+        """The meshopt extension compact glbs are written with."""
+        return meshopt.EXT if self.geometry == "compact-ext" else meshopt.KHR
 
 
 #: today's uncompressed stream (float32 geometry, WebP pages, every tile in tileset.json)

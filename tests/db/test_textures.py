@@ -183,7 +183,6 @@ def test_export_validates_with_one_material_per_page(fmt, textured, webp_export,
     for glb in sorted(out.rglob("*.glb")):
         level, x, y = (int(p) for p in glb.relative_to(out / "content").with_suffix("").parts)
         gltf, _ = read_glb(glb.read_bytes())
-        # every mesh: a wide compact tile has one per chunk of features, each with its share of the pages
         prims = [p for m in gltf["meshes"] for p in m["primitives"]]
         with_texture = [p for p in prims if "TEXCOORD_0" in p["attributes"]]
         materials = {p["material"] for p in with_texture}
@@ -192,7 +191,8 @@ def test_export_validates_with_one_material_per_page(fmt, textured, webp_export,
             textured_tiles += 1
             materials = {p["material"] for p in with_texture}
             assert len(materials) == len(gltf["images"])  # one material per page, never per building
-            geometry = {"KHR_mesh_quantization", "EXT_meshopt_compression"}  # compact geometry's
+            # compact geometry's (texcoords in quarter texels, scaled back per material)
+            geometry = {"KHR_mesh_quantization", "KHR_meshopt_compression", "KHR_texture_transform"}
             assert set(gltf["extensionsRequired"]) - geometry == {ext}
             assert all(im["mimeType"] == mime for im in gltf["images"])
             assert all(set(t["extensions"]) == {ext} for t in gltf["textures"])

@@ -3,6 +3,8 @@ the stated bound of the float64 input once the node matrix is applied, every att
 value read back through the meshopt decoders, the Khronos glTF-Validator without errors, and plain bytes unchanged."""
 
 import hashlib
+import json
+import struct
 
 import meshoptimizer
 import numpy as np
@@ -11,15 +13,18 @@ import pytest
 from exporter.checks import check_glb
 from exporter.export import LEAF_POSITION_ERROR_M, is_compact, position_error_m
 from exporter.gltf import (
+    Image,
     Primitive,
     accessor_array,
     feature_vertices,
+    image_size,
     mesh_positions,
     node_positions,
     plan_quantization,
     property_table,
     quantization,
     read_glb,
+    view_bytes,
     write_glb,
 )
 from exporter.meshopt import CompressionError
@@ -84,9 +89,9 @@ def test_positions_within_the_bound_after_the_node_matrix(half, geometric_error,
     node = rigid(0.3, (1234.5, -20.0, 77.0))
     glb = write_glb(prim, compact=True, quantization=q, node_matrix=node)
     gltf, binary = read_glb(glb)
-    assert is_compact(glb) and set(gltf["extensionsRequired"]) == {"KHR_mesh_quantization", "EXT_meshopt_compression"}
+    assert is_compact(glb) and set(gltf["extensionsRequired"]) == {"KHR_mesh_quantization", "KHR_meshopt_compression"}
     assert gltf["buffers"][1] == {"byteLength": gltf["buffers"][1]["byteLength"],
-                                  "extensions": {"EXT_meshopt_compression": {"fallback": True}}}
+                                  "extensions": {"KHR_meshopt_compression": {"fallback": True}}}
     p = gltf["meshes"][0]["primitives"][0]
     assert gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5122  # SHORT
     # each stored vertex is one of the input's (reordered): match them by feature and nearest corner
@@ -141,32 +146,50 @@ def test_too_large_a_tile_keeps_float_positions_compressed() -> None:
     assert len(glb) < len(write_glb(prim)) * 0.8
 
 
-def test_a_wide_tile_is_cut_into_quantized_chunks_of_whole_features(tmp_path) -> None:
-    # 2 km across at 1 cm: one node and mesh per chunk of features, each SHORT around its own origin
+def test_a_wide_tile_keeps_one_mesh_of_exponential_float_positions_within_the_bound(tmp_path) -> None:
+    # 2 km across at 1 cm: int16 does not reach, so FLOAT positions rounded to a power-of-two step through the
+    # EXPONENTIAL filter, one mesh and node (no chunks: no extra primitives), within the same bound
     prim = city_block(np.random.default_rng(5), 1000.0)
-    chunks = plan_quantization([prim], prim.feature_count, 0.01)
-    assert len(chunks.quantizations) > 1 and all(q is not None for q in chunks.quantizations)
+    assert quantization([prim.positions], 0.01) is None
+    q = plan_quantization([prim], 0.01)
+    assert q.exponent == -7 and q.step == 2.0 ** -7 and q.scale == 1.0  # 7.8 mm steps: 6.8 mm at worst
     node = rigid(-0.7, (10.0, 20.0, 30.0))
-    glb = write_glb(prim, compact=True, quantization=chunks, node_matrix=node)
+    glb = write_glb(prim, compact=True, quantization=q, node_matrix=node)
     gltf, binary = read_glb(glb)
-    assert len(gltf["nodes"]) == len(gltf["meshes"]) == len(chunks.quantizations) == len(gltf["scenes"][0]["nodes"])
-    assert all(gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5122
-               for m in gltf["meshes"] for p in m["primitives"])
+    assert len(gltf["nodes"]) == len(gltf["meshes"]) == 1 and len(gltf["meshes"][0]["primitives"]) == 1
+    p = gltf["meshes"][0]["primitives"][0]
+    acc = gltf["accessors"][p["attributes"]["POSITION"]]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    assert acc["componentType"] == 5126 and view["byteStride"] == 12
+    assert view["extensions"]["KHR_meshopt_compression"]["filter"] == "EXPONENTIAL"
     got, fid = feature_vertices(gltf, binary)
     want = apply(node, prim.positions)
     worst = max(np.linalg.norm(got[fid == f][:, None] - want[prim.feature_ids == f][None], axis=2).min(axis=1).max()
                 for f in range(prim.feature_count))
-    assert worst <= 0.01
-    # the mesh frame of each feature is the tile's less its chunk's origin (what the landmark metadata uses)
+    assert 0.001 < worst <= 0.01
+    # min/max are exact for the decoded values (what a loader without the filter would read from the fallback)
+    stored = accessor_array(gltf, binary, p["attributes"]["POSITION"])
+    assert acc["min"] == stored.min(axis=0).tolist() and acc["max"] == stored.max(axis=0).tolist()
+    # the mesh frame (the landmark metadata's) is the tile's less the origin: positions in metres
     mesh, mfid = feature_vertices(gltf, binary, frame="mesh")
     for f in (0, 150, 299):
-        tile = mesh[mfid == f] + chunks.origins()[f]
+        tile = mesh[mfid == f] + np.asarray(q.origin)
         assert np.linalg.norm(tile[:, None] - prim.positions[prim.feature_ids == f][None], axis=2).min(axis=1).max() \
             <= 0.01
     assert check_glb(glb) == []
     (tmp_path / "wide.glb").write_bytes(glb)
     report = validate_glb(tmp_path)
     assert report["errors"] == 0 and report["warnings"] == 0, report
+
+
+def test_exponential_filter_round_trips_exactly() -> None:
+    from exporter.meshopt import decode_exp, encode_exp
+
+    v = np.array([[0.0, -1.5, 65000.123], [-8388607 * 2.0 ** -7, 3.0, 1e-3]])
+    got = np.frombuffer(decode_exp(encode_exp(v, -7).tobytes(), 2, 12), "<f4").reshape(2, 3)
+    np.testing.assert_array_equal(got, np.round(v / 2.0 ** -7) * 2.0 ** -7)
+    with pytest.raises(ValueError, match="24 bits"):
+        encode_exp(np.array([2.0 ** 17]), -7)
 
 
 def test_compact_glbs_pass_the_khronos_validator(tmp_path) -> None:
@@ -182,7 +205,7 @@ def test_compact_glbs_pass_the_khronos_validator(tmp_path) -> None:
         (tmp_path / name).write_bytes(glb)
         assert check_glb(glb) == [], name
     report = validate_glb(tmp_path)
-    # EXT_meshopt_compression is not one the validator knows: it reports it as an info (unsupported extension)
+    # KHR_meshopt_compression is not one the validator knows: it reports it as an info (unsupported extension)
     # and validates the decoded layout (buffer 1, the fallback, has no bytes it can check)
     assert report["files"] == 3 and report["errors"] == 0 and report["warnings"] == 0, report
 
@@ -230,23 +253,99 @@ def _geometry_views(gltf: dict) -> set[int]:
             for a in [*p["attributes"].values(), p["indices"]]}
 
 
-def test_chunks_share_one_view_per_attribute_and_read_back(tmp_path) -> None:
-    # a wide tile in chunks: every chunk's POSITION, NORMAL, COLOR_0, feature ids and indices go into one view
-    # each (accessors by byteOffset), so the views do not grow with the chunks; every triangle reads back
-    prim = city_block(np.random.default_rng(5), 1000.0)
-    chunks = plan_quantization([prim], prim.feature_count, 0.01)
-    gltf, binary = read_glb(write_glb(prim, compact=True, quantization=chunks))
-    prims = [p for m in gltf["meshes"] for p in m["primitives"]]
-    assert len(prims) == len(chunks.quantizations) > 3
-    assert len(_geometry_views(gltf)) == 5
+def test_primitives_share_one_view_per_attribute_and_read_back(tmp_path) -> None:
+    # several primitives (atlas pages): every one's POSITION, NORMAL, COLOR_0, feature ids and indices go into
+    # one view each (accessors by byteOffset), so the views do not grow with the primitives
+    prim = city_block(np.random.default_rng(5), 100.0)
+    half = np.arange(prim.feature_count) < 150
+    parts = [_features(prim, half), _features(prim, ~half)]
+    q = quantization([prim.positions], 0.01)
+    empty = Primitive(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4), np.uint16), np.zeros(0, np.int64),
+                      np.zeros(0, np.uint32), prim.properties, prim.feature_count)
+    glb = write_glb(empty, compact=True, quantization=q, textured=parts, images=[_ktx2_like(64, 32)] * 2)
+    gltf, binary = read_glb(glb)
+    prims = gltf["meshes"][0]["primitives"]
+    assert len(prims) == 2 and len(_geometry_views(gltf)) == 5
     assert sum(len(triangles(gltf, binary, p)) for p in prims) == len(prim.indices) // 3
     offsets = [gltf["accessors"][p["attributes"]["POSITION"]].get("byteOffset", 0) for p in prims]
-    assert len(set(offsets)) == len(prims)  # each chunk its own range of the pooled view
+    assert len(set(offsets)) == len(prims)  # each primitive its own range of the pooled view
     nrm = np.concatenate([accessor_array(gltf, binary, p["attributes"]["NORMAL"]) for p in prims]) / 127.0
     assert np.abs(np.linalg.norm(nrm, axis=1) - 1).max() < 0.02
-    (tmp_path / "pooled.glb").write_bytes(write_glb(prim, compact=True, quantization=chunks))
+
+
+def _features(prim: Primitive, keep: np.ndarray) -> Primitive:
+    """The vertices and triangles of the features ``keep`` selects, with made-up uvs in [0, 1] (page 0)."""
+    keep_v = keep[prim.feature_ids]
+    new = np.cumsum(keep_v) - 1
+    tris = prim.indices.reshape(-1, 3)
+    tris = tris[keep_v[tris[:, 0]]]
+    uv = np.random.default_rng(1).uniform(0, 1, (int(keep_v.sum()), 2))
+    return Primitive(prim.positions[keep_v], prim.normals[keep_v], np.zeros((0, 4), np.uint8),
+                     prim.feature_ids[keep_v], new[tris].reshape(-1).astype(np.uint32), uvs=uv, image=0)
+
+
+def _ktx2_like(width: int, height: int) -> Image:
+    """An image whose KTX2 header gives its size (the glb writer reads only that)."""
+    return Image(b"\xabKTX 20\xbb\r\n\x1a\n" + struct.pack("<IIII", 0, 1, width, height) + bytes(64), "image/ktx2")
+
+
+def test_texcoords_are_quarter_texels_scaled_back_by_the_texture_transform(tmp_path) -> None:
+    from etl.geom.atlas import encode_image
+
+    prim = city_block(np.random.default_rng(2), 100.0)
+    page = np.zeros((32, 64, 3), np.uint8)
+    webp, mime = encode_image(page, "webp")
+    empty = Primitive(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4), np.uint16), np.zeros(0, np.int64),
+                      np.zeros(0, np.uint32), prim.properties, prim.feature_count)
+    tp = _features(prim, np.ones(prim.feature_count, bool))
+    for image in (Image(webp, mime), _ktx2_like(64, 32)):
+        assert image_size(image) == (64, 32)
+        glb = write_glb(empty, compact=True, quantization=quantization([prim.positions], 0.01), textured=[tp],
+                        images=[image])
+        gltf, binary = read_glb(glb)
+        p = gltf["meshes"][0]["primitives"][0]
+        acc = gltf["accessors"][p["attributes"]["TEXCOORD_0"]]
+        assert acc["componentType"] == 5123 and not acc.get("normalized")
+        info = gltf["materials"][p["material"]]["pbrMetallicRoughness"]["baseColorTexture"]
+        scale = info["extensions"]["KHR_texture_transform"]["scale"]
+        assert scale == [1 / 256, 1 / 128]
+        assert "KHR_texture_transform" in gltf["extensionsRequired"]
+        # every vertex's texcoord, scaled back, within 1/8 texel of the input (matched through the positions)
+        got = accessor_array(gltf, binary, p["attributes"]["TEXCOORD_0"]) * np.asarray(scale)
+        pos = node_positions(gltf, binary, p["attributes"]["POSITION"])
+        near = np.linalg.norm(pos[:, None] - tp.positions[None], axis=2).argmin(axis=1)
+        texel_err = np.abs(got - tp.uvs[near]) * [64, 32]
+        assert texel_err.max() <= 1 / 8 + 1e-9 and texel_err.max() > 1 / 32
+        (tmp_path / f"uv_{image.mime.split('/')[1]}.glb").write_bytes(glb)
     report = validate_glb(tmp_path)
-    assert report["errors"] == 0 and report["warnings"] == 0, report
+    assert report["errors"] == 0, report
+    # an image whose size is unknown keeps normalized texcoords and no transform
+    gltf, _ = read_glb(write_glb(empty, compact=True, quantization=quantization([prim.positions], 0.01),
+                                 textured=[tp], images=[Image(b"not an image", "image/png")]))
+    assert gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"]]["normalized"]
+    assert "KHR_texture_transform" not in gltf["extensionsUsed"]
+
+
+def test_the_ext_variant_decodes_to_the_same_views_with_codec_version_0() -> None:
+    # --geometry compact-ext: EXT_meshopt_compression (vertex codec 0) for loaders without the KHR extension;
+    # the same decoded data, larger streams (random normals and colours here: 4 %; 11-29 % on real tiles)
+    prim = city_block(np.random.default_rng(9), 100.0)
+    q = quantization([prim.positions], 0.01)
+    khr, ext = (read_glb(write_glb(prim, compact=True, quantization=q, meshopt_extension=e))
+                for e in ("KHR_meshopt_compression", "EXT_meshopt_compression"))
+    assert "EXT_meshopt_compression" in ext[0]["extensionsRequired"]
+    assert "KHR_meshopt_compression" not in json.dumps(ext[0])
+    assert len(khr[0]["bufferViews"]) == len(ext[0]["bufferViews"])
+    sizes = {"KHR_meshopt_compression": 0, "EXT_meshopt_compression": 0}
+    for (g, binary), name in ((khr, "KHR_meshopt_compression"), (ext, "EXT_meshopt_compression")):
+        for v in g["bufferViews"]:
+            e = v.get("extensions", {}).get(name)
+            if e and e["mode"] == "ATTRIBUTES":
+                assert binary[e["byteOffset"]] == (0xA1 if name.startswith("KHR") else 0xA0)  # codec version
+                sizes[name] += e["byteLength"]
+    for i in range(len(khr[0]["bufferViews"])):
+        assert view_bytes(*khr, i) == view_bytes(*ext, i)
+    assert sizes["KHR_meshopt_compression"] < sizes["EXT_meshopt_compression"]
 
 
 def test_octahedral_normals_within_1_2_degrees() -> None:
@@ -265,7 +364,7 @@ def test_octahedral_normals_within_1_2_degrees() -> None:
     gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
     p = gltf["meshes"][0]["primitives"][0]
     view = gltf["bufferViews"][gltf["accessors"][p["attributes"]["NORMAL"]]["bufferView"]]
-    assert view["extensions"]["EXT_meshopt_compression"]["filter"] == "OCTAHEDRAL"
+    assert view["extensions"]["KHR_meshopt_compression"]["filter"] == "OCTAHEDRAL"
 
 
 def test_compact_tables_share_equal_columns_and_drop_all_nodata_optional_ones() -> None:
