@@ -170,6 +170,17 @@ def test_judge_and_section_when_the_streams_differ() -> None:
     assert "0.20×" in row and "2,750" in row and "**FAIL**" in row and "1.35×" in row
     assert "failed: tiles still loading" in text and "failed: a view failed" in text
     assert "| 1.25 | 1.00 % |" in text and "ASTC yes" in text and "ETC no" in text
+    assert "| compact-ext |" not in text  # not measured: no row
+
+    # compact-ext (the EXT_meshopt_compression variant) gets its own bytes rows, judged on nothing, not run in the
+    # client (it decodes to the same views as compact)
+    ext = _variant(2_900, 340, 420_000, 12.5, None)
+    del ext["client"]
+    res["compact-ext"] = ext
+    text = "\n".join(sb.section_lines([("liechtenstein_2022-07-24", res)]))
+    row = next(line for line in text.splitlines() if line.startswith("| liechtenstein_2022-07-24 | compact-ext |"))
+    assert "2,900" in row and "0.21×" in row and "**" not in row
+    assert not any(line.startswith("| liechtenstein_2022-07-24 | compact-ext | street") for line in text.splitlines())
 
 
 def test_section_records_failures_without_crashing() -> None:
