@@ -459,7 +459,7 @@ CLIENT_NOTE = (
     "is read: *textures*/*geometry* = texturesByteLength/geometryByteLength (GPU memory CesiumJS accounts, MB = "
     "10⁶ B). *batch/metadata* = batchTableByteLength, which CesiumJS 1.145 adds up once per glTF primitive "
     "(PrimitiveStatisticsPipelineStage counts a model's property tables for each of its primitives), so it grows "
-    "with the primitives (atlas pages, compact chunks), not with the metadata. Target: street textures ≤ {tm}× plain."
+    "with the primitives (one per atlas page), not with the metadata. Target: street textures ≤ {tm}× plain."
 )
 PIXEL_NOTE = (
     "Screenshots of the two streams at the same camera once their tiles loaded (build/bench/stream/<extract>/"
