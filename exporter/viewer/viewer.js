@@ -146,20 +146,25 @@
 
   // --- status line -----------------------------------------------------------------------------------------
   // What the drawn tiles hold, by the exporter's `kind` property: a far tile's features are blocks (buildings
-  // merged), so "features" alone would count a block of forty houses as one building. Each content is tallied
-  // once (WeakMap); tileVisible fires once per drawn tile per frame, so the frame's sums are final at postRender.
+  // merged), so "features" alone would count a block of forty houses as one building; a block's n_members says
+  // how many buildings it stands for, so the line can say how much of the city the view holds. Each content is
+  // tallied once (WeakMap); tileVisible fires once per drawn tile per frame, so the frame's sums are final at
+  // postRender.
   const KINDS = ['building', 'part', 'block'];
   const tallies = new WeakMap();
-  let frameKinds = { building: 0, part: 0, block: 0, other: 0 };
+  const emptyTally = () => ({ building: 0, part: 0, block: 0, other: 0, members: 0 });
+  let frameKinds = emptyTally();
   let shownKinds = { ...frameKinds };
 
   function tally(content) {
     let t = tallies.get(content);
     if (!t) {
-      t = { building: 0, part: 0, block: 0, other: 0 };
+      t = emptyTally();
       for (let i = 0; i < content.featuresLength; i++) {
-        const kind = content.getFeature(i).getProperty('kind');
+        const feature = content.getFeature(i);
+        const kind = feature.getProperty('kind');
         t[KINDS.includes(kind) ? kind : 'other'] += 1;
+        if (kind === 'block') t.members += Number(feature.getProperty('n_members') || 0);
       }
       tallies.set(content, t);
     }
@@ -167,7 +172,7 @@
   }
 
   scene.preRender.addEventListener(() => {
-    frameKinds = { building: 0, part: 0, block: 0, other: 0 };
+    frameKinds = emptyTally();
   });
 
   // Statistics are not public API in CesiumJS, hence the defensive reads.
@@ -179,20 +184,25 @@
       tilesWithContent: st.numberOfTilesWithContentReady || 0,
       triangles: st.numberOfTrianglesSelected || 0,
       features: st.numberOfFeaturesSelected || 0,
-      kinds: { ...shownKinds }, // features of the drawn tiles by kind (building, part, block, other)
+      // features of the drawn tiles by kind (building, part, block, other), and the buildings the blocks merge
+      kinds: { building: shownKinds.building, part: shownKinds.part, block: shownKinds.block,
+        other: shownKinds.other },
+      blockMembers: shownKinds.members,
       pending: (st.numberOfPendingRequests || 0) + (st.numberOfTilesProcessing || 0),
       allTilesLoaded: citylod.allTilesLoaded,
       tileFailures: citylod.tileFailures,
     };
   }
 
-  function kindsText(k) {
+  // "12,034 buildings shown: 379 on their own, 11,655 merged into 812 blocks": the buildings the view stands
+  // for, then how they are drawn (a far view draws most of a city as blocks)
+  function kindsText(k, members) {
     const fmt = (n) => n.toLocaleString('en');
-    const parts = [`${fmt(k.building)} buildings`];
+    const parts = [`${fmt(k.building)} on their own`];
     if (k.part) parts.push(`${fmt(k.part)} building parts`);
-    parts.push(`${fmt(k.block)} blocks (merged buildings)`);
+    parts.push(`${fmt(members)} merged into ${fmt(k.block)} blocks`);
     if (k.other) parts.push(`${fmt(k.other)} other features`);
-    return parts.join(', ') + ' shown';
+    return `${fmt(k.building + members)} buildings shown: ` + parts.join(', ');
   }
 
   let lastStatus = 0;
@@ -204,7 +214,7 @@
     const s = stats();
     const fmt = (n) => n.toLocaleString('en');
     statusEl.textContent = `${fmt(s.tilesWithContent)} tiles loaded · ${fmt(s.triangles)} triangles · ` +
-      kindsText(s.kinds) + (s.pending ? ` · loading ${s.pending}…` : '') +
+      kindsText(s.kinds, s.blockMembers) + (s.pending ? ` · loading ${s.pending}…` : '') +
       (s.tileFailures ? ` · ${s.tileFailures} failed` : '');
   });
 

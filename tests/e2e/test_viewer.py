@@ -148,10 +148,13 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
         kinds = view["kinds"]
         assert sum(kinds.values()) == view["features"] > 0 and kinds["other"] == 0, (view, context)
     for view in (res["overview"], res["far"]):
-        kinds = view["kinds"]
-        assert f"{kinds['building']:,} buildings" in view["status"], view["status"]
-        assert f"{kinds['block']:,} blocks (merged buildings) shown" in view["status"], view["status"]
-    assert res["far"]["kinds"]["block"] > 0, res["far"]
+        kinds, members = view["kinds"], view["blockMembers"]
+        assert members >= kinds["block"], view  # every block merges at least one building
+        # the buildings the view stands for first, then how they are drawn: on their own, merged into blocks
+        assert f"{kinds['building'] + members:,} buildings shown: {kinds['building']:,} on their own" \
+            in view["status"], view["status"]
+        assert f"{members:,} merged into {kinds['block']:,} blocks" in view["status"], view["status"]
+    assert res["far"]["kinds"]["block"] > 0 and res["far"]["blockMembers"] > res["far"]["kinds"]["block"], res["far"]
     picked = res["picked"]
     assert picked, f"nothing picked at {osm_type} {osm_id}\n{context}"
     assert int(picked["osm_id"]) == osm_id, context
