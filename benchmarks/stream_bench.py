@@ -327,16 +327,17 @@ def export_variants(url: str, root: Path, logs: Path, repeat: int) -> dict[str, 
 
 
 def browse(tiles: Path, cameras: Sequence[dict[str, Any]], shots: Path, logfile: Path,
-           timeout_s: float = 1800.0) -> dict[str, Any]:
-    """stream_view.mjs on ``tiles`` served by ``python -m exporter serve``: {gpu, views: {name: ...}} with a
-    failed view as {"error": ...}; a driver or server that fails entirely gives {"error": reason}."""
+           timeout_s: float = 1800.0, driver: Path = DRIVER) -> dict[str, Any]:
+    """stream_view.mjs (or ``driver``, which takes the same --url/--out/--cameras and reports views the same
+    way: benchmarks/fidelity_view.mjs) on ``tiles`` served by ``python -m exporter serve``: {gpu, views: {name:
+    ...}} with a failed view as {"error": ...}; a driver or server that fails entirely gives {"error": reason}."""
     node = shutil.which("node")
     if node is None:
         return {"error": "Node.js is not installed"}
     logfile.parent.mkdir(parents=True, exist_ok=True)
     try:
         with spawned(["exporter", "serve", "--dir", str(tiles), "--port", "0"]) as (base, _proc, _err):
-            r = subprocess.run([node, str(DRIVER), "--url", base, "--out", str(shots),
+            r = subprocess.run([node, str(driver), "--url", base, "--out", str(shots),
                                 "--cameras", json.dumps(list(cameras))],
                                cwd=REPO, capture_output=True, text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired:
