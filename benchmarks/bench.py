@@ -13,6 +13,8 @@ building at LOD3, benchmarks/view_bench.py), the texture atlases (benchmarks/rep
 utilization, pages and bytes per band, draw calls against one texture per building, shelf against xatlas) and
 the stream (benchmarks/stream_bench.py ``measure``: the compact stream against today's, both exported again
 from that database: bytes, export seconds, CesiumJS memory and screenshots at the street and overview cameras)
+and the far view fidelity (benchmarks/fidelity_bench.py ``measure``: the last repeat's export drawn as building
+masks in CesiumJS, streamed at SSE 16 against full detail, far to near; vertices and triangles per tree level)
 for every extract, and for the benchmark extract the tile server under 64 concurrent clients, cold and warm cache
 (benchmarks/serve_bench.py ``measure_db``). Last, the latency of api.lod_for_view at ~100k and ~1M buildings
 on two cached bench-only databases replicated from the benchmark extract (``view_bench.scale``; built once,
@@ -38,7 +40,7 @@ from typing import Any
 import psycopg
 from psycopg.conninfo import conninfo_to_dict
 
-from benchmarks import report_textures, stream_bench, view_bench
+from benchmarks import fidelity_bench, report_textures, stream_bench, view_bench
 from benchmarks.common import (
     HEADLINE,
     LOG_DIR,
@@ -158,6 +160,7 @@ class ExtractResult:
     server: dict[str, Any] | None = None  # serve_bench.measure_db (benchmark extract only)
     textures: dict[str, Any] | None = None  # report_textures.measure
     stream: dict[str, Any] | None = None  # stream_bench.measure
+    fidelity: dict[str, Any] | None = None  # fidelity_bench.measure
 
     @property
     def name(self) -> str:
@@ -202,7 +205,8 @@ class ExtractResult:
         return statistics.median(s.seconds for s in self.o2p)
 
 
-def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, stream: bool = True) -> ExtractResult:
+def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, stream: bool = True,
+                  fidelity: bool = True) -> ExtractResult:
     res = ExtractResult(path=path)
     url = cluster.database_url(BENCH_DB)
     o2p_url = cluster.database_url(O2P_DB)
@@ -251,6 +255,13 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, 
         except Exception as e:  # noqa: BLE001 - reported in the Stream table, the bench goes on
             res.stream = stream_bench.failed(str(e))
             log(f"{res.name} stream: FAILED {e}")
+    if fidelity:
+        # the database this run built and the export its last repeat wrote, as a client streams it and at full detail
+        try:
+            res.fidelity = fidelity_bench.measure(url, res.name, tiles=OUT_ROOT / res.name)
+        except Exception as e:  # noqa: BLE001 - reported in the fidelity table, the bench goes on
+            res.fidelity = fidelity_bench.failed(str(e))
+            log(f"{res.name} fidelity: FAILED {e}")
     if server and res.name == HEADLINE:
         res.server = measure_server(url, logs / "serve_bench.log")
         w, c = res.server["warm"], res.server["cold"]
@@ -619,6 +630,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     lines += _views_section(results)
     lines += _textures_section(results, head)
     lines += stream_bench.section_lines([(r.name, r.stream) for r in results if r.stream])
+    lines += fidelity_bench.section_lines([(r.name, r.fidelity) for r in results if r.fidelity])
     lines += _server_section(results)
     lines += _scale_section(scale)
 
@@ -652,6 +664,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-server", action="store_true", help="skip the serve --db load test")
     p.add_argument("--no-stream", action="store_true",
                    help="skip the Stream section (compact vs plain exports, CesiumJS in headless Chromium)")
+    p.add_argument("--no-fidelity", action="store_true",
+                   help="skip the Far view fidelity section (building masks streamed vs full detail in CesiumJS)")
     p.add_argument("--scale-json", type=Path,
                    help="take the latency at scale from this output of `python -m benchmarks.view_bench scale` "
                         "(a run on a quiet machine) instead of measuring it here")
@@ -673,7 +687,7 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --repeat {args.repeat}"
     if args.files:
         command += " --files " + " ".join(str(f) for f in args.files)
-    for flag in ("no_server", "no_stream", "no_scale"):
+    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale"):
         if getattr(args, flag):
             command += " --" + flag.replace("_", "-")
     if args.scale_json:
@@ -685,7 +699,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for f in files:
             results.append(bench_extract(f, args.repeat, admin_url, server=not args.no_server,
-                                         stream=not args.no_stream))
+                                         stream=not args.no_stream, fidelity=not args.no_fidelity))
         mach = machine(cluster.database_url(BENCH_DB))
         head = next((f for f in files if extract_name(f) == HEADLINE), None)
         if args.scale_json:
