@@ -135,7 +135,7 @@ bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsq
 	scripts/install-system.sh bench
 	$(PY) -m benchmarks.bench --write BENCHMARKS.md
 
-report-generalization: $(SETUP_REPORTS) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured -> build/reports/generalization.{md,json,png}
+report-generalization: $(SETUP_REPORTS) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured, with the last far view fidelity pictures (build/bench/fidelity) -> build/reports/generalization.{md,json,png}
 	$(PY) -m benchmarks.report_generalization --out build/reports $(if $(EXTRACTS),--extracts $(EXTRACTS))
 
 report-saliency: $(SETUP_REPORTS) ## [DATABASE_URL=url] per-frame view saliency over a ≥100-frame camera path and top-10 landmark visibility with/without the landmark rule -> build/reports/saliency*

@@ -331,6 +331,9 @@ def measure(url: str, name: str, tiles: Path | None = None, client: bool = True,
             log(f"fidelity {name} {n}: " + (v.get("error") or m.get("error") or
                 f"IoU {m['iou']:.3f}, area {m['area_ratio'] or 0:.3f}, triangles {tri[0]:,} / {tri[1]:,}"))
     res["seconds"] = round(time.perf_counter() - t0, 1)
+    # for make report-generalization, which carries the last run's pictures (report_generalization.FIDELITY_DIR)
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "fidelity.json").write_text(json.dumps({"name": name, **res}, indent=1))
     return res
 
 

@@ -19,7 +19,10 @@ streamed in batches from server-side cursors:
   that no result is refused for its error; the error is the measured surface Hausdorff distance.
 
 Writes ``generalization.md``, ``generalization.json`` and ``generalization.png`` into ``--out``. Progress goes to
-stderr; the children's output to <out>/logs/<extract>/.
+stderr; the children's output to <out>/logs/<extract>/. When a far view fidelity run (make bench, or
+``python -m benchmarks.fidelity_bench``) left its results under build/bench/fidelity/, the report also carries
+them: per extract and camera the IoU and drawn-area ratio, and the masks side by side (streamed | full detail |
+difference), copied to <out>/fidelity/<extract>/.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import time
 from collections import Counter
@@ -40,6 +44,7 @@ import psycopg
 import shapely
 
 from benchmarks.common import (
+    OUT_ROOT,
     SHARED_OSM,
     drop_db,
     extract_name,
@@ -68,6 +73,8 @@ EXTRACTS = {
 DEFAULT_EXTRACTS = ("munich", "london", "liechtenstein")
 DEFAULT_OUT = Path("build/reports")
 DB_PREFIX = "citylod_gen_"
+#: where benchmarks/fidelity_bench.py leaves <extract>/fidelity.json and its side-by-side pictures
+FIDELITY_DIR = OUT_ROOT / "fidelity"
 
 #: Footprint tolerances (m): simplification tolerance, and aggregation distance for the blocks.
 TOLERANCES_M = (1.0, 2.5, 5.0)
@@ -522,6 +529,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         notes = _status_notes(ex)
         if notes:
             lines += notes + [""]
+    lines += fidelity_lines(report.get("fidelity") or [])
     lines += machine_section(report["machine"])
     lines += ["", f"Total run time {report['seconds']:.0f} s.", "", "![reduction and error against threshold]"
               "(generalization.png)", ""]
@@ -544,6 +552,69 @@ def _status_notes(ex: dict[str, Any]) -> list[str]:
             out.append(f"* {r['kind']} at {threshold_label(r)}: {n:,} outline{'s' if n != 1 else ''} measured "
                        f"farther than the tolerance from the original, {holes:,} of them where a hole below "
                        "tolerance² was dropped.")
+    return out
+
+
+def collect_fidelity(src: Path, out: Path) -> list[dict[str, Any]]:
+    """The far view fidelity runs under ``src`` (<extract>/fidelity.json, written by benchmarks/fidelity_bench.py),
+    their side-by-side pictures copied to <out>/fidelity/<extract>/: per extract its cameras with IoU, drawn-area
+    ratio, triangles of both passes and the picture's path relative to ``out`` (None when missing)."""
+    found = []
+    for f in sorted(src.glob("*/fidelity.json")):
+        try:
+            res = json.loads(f.read_text())
+        except (OSError, ValueError):
+            continue
+        cams = {c.get("name"): c for c in res.get("cameras", [])}
+        rows = []
+        for name, v in (res.get("views") or {}).items():
+            m = v.get("masks") or {}
+            passes = v.get("passes") or {}
+            pic = Path(v["side_by_side"]) if v.get("side_by_side") else None
+            rel = None
+            if pic is not None and pic.is_file():
+                dest = out / "fidelity" / f.parent.name / pic.name
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(pic, dest)
+                rel = str(dest.relative_to(out))
+            rows.append({"camera": name, "height": cams.get(name, {}).get("height"),
+                         "pitch": cams.get(name, {}).get("pitch"), "iou": m.get("iou"),
+                         "area_ratio": m.get("area_ratio"), "error": v.get("error") or m.get("error"),
+                         "triangles": [passes.get(p, {}).get("trianglesSelected") for p in ("streamed", "full")],
+                         "picture": rel})
+        found.append({"name": res.get("name", f.parent.name), "cameras": rows, "error": res.get("error")})
+    return found
+
+
+def fidelity_lines(fidelity: Sequence[dict[str, Any]]) -> list[str]:
+    """The report's far view fidelity section (see collect_fidelity); nothing when no run was found."""
+    if not fidelity:
+        return []
+    out = ["## Far view fidelity", "",
+           "From the last far view fidelity run (make bench or `python -m benchmarks.fidelity_bench`, "
+           "`benchmarks/fidelity_bench.py`): CesiumJS draws the export as a building mask at cameras far to "
+           "near, once as a client streams it (maximumScreenSpaceError 16) and once at full detail; *IoU* = "
+           "building pixels in both / in either, *area* = streamed / full. Pictures: streamed | full detail | "
+           "difference (red: only at full detail, cyan: only streamed). Target (issue 18): IoU ≥ 0.90.", ""]
+    for ex in fidelity:
+        out += [f"### {ex['name']}", ""]
+        if ex.get("error") and not ex["cameras"]:
+            out += [f"failed: {ex['error']}", ""]
+            continue
+        rows = []
+        for c in ex["cameras"]:
+            where = "–" if c["height"] is None else f"{c['height']:,.0f} m, {c['pitch']:.0f}°"
+            if c["iou"] is None:
+                rows.append([c["camera"], where, f"failed: {c['error'] or 'not measured'}", "–", "–"])
+                continue
+            tri = " / ".join("–" if t is None else f"{t:,}" for t in c["triangles"])
+            rows.append([c["camera"], where, f"{c['iou']:.3f}",
+                         "–" if c["area_ratio"] is None else f"{c['area_ratio']:.3f}", tri])
+        out += markdown_table(["camera", "height, pitch", "IoU", "area", "triangles streamed / full"], rows,
+                              "llrrr")
+        out += [""]
+        out += [f"{c['camera']}:\n\n![{ex['name']} {c['camera']}]({c['picture']})\n" for c in ex["cameras"]
+                if c["picture"]]
     return out
 
 
@@ -672,6 +743,7 @@ def main(argv: list[str] | None = None) -> int:
                        "spacing_mesh_m": SPACING_MESH_M, "weld_m": WELD_M,
                        "pin": not args.no_pin, "max_area_change": settings.gen_max_area_change},
         "extracts": [r.as_dict() for r in reports],
+        "fidelity": collect_fidelity(FIDELITY_DIR, out),
         "seconds": round(time.perf_counter() - t0, 1),
     }
     (out / "generalization.json").write_text(json.dumps(report, indent=1) + "\n")

@@ -127,3 +127,28 @@ def test_plot_writes_a_png(tmp_path):
     path = tmp_path / "g.png"
     rg.plot(_report(), path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_report_carries_the_far_view_fidelity_pictures(tmp_path):
+    src, out = tmp_path / "fidelity", tmp_path / "reports"
+    (src / "city").mkdir(parents=True)
+    pic = src / "city" / "overview.png"
+    pic.write_bytes(b"\x89PNG\r\n\x1a\n")
+    (src / "city" / "fidelity.json").write_text(json.dumps({
+        "name": "city", "cameras": [{"name": "overview", "height": 7700.0, "pitch": -90.0}],
+        "views": {"overview": {"masks": {"iou": 0.58, "area_ratio": 0.55}, "side_by_side": str(pic),
+                               "passes": {"streamed": {"trianglesSelected": 1000},
+                                          "full": {"trianglesSelected": 90000}}},
+                  "oblique-low": {"error": "tiles still loading after 600000 ms"}}}))
+    (src / "broken").mkdir()
+    (src / "broken" / "fidelity.json").write_text("{not json")
+    fid = rg.collect_fidelity(src, out)
+    assert [f["name"] for f in fid] == ["city"]
+    assert (out / "fidelity" / "city" / "overview.png").read_bytes() == pic.read_bytes()
+    md = rg.render_markdown({**_report(), "fidelity": fid})
+    assert "## Far view fidelity" in md and "### city" in md
+    assert "| overview | 7,700 m, -90° | 0.580 | 0.550 | 1,000 / 90,000 |" in md
+    assert "| oblique-low | – | failed: tiles still loading after 600000 ms | – | – |" in md
+    assert "![city overview](fidelity/city/overview.png)" in md
+    assert "## Far view fidelity" not in rg.render_markdown(_report())
+    assert rg.collect_fidelity(tmp_path / "none", out) == []
