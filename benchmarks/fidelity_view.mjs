@@ -14,7 +14,8 @@
 // draws) and *full* (--full-sse, 0 by default: every tile with an error refines, so only leaves are drawn). A pass
 // places the camera (the camera's horizontal field of view, as stream_view.mjs), waits until the view's tiles are
 // loaded, unloads what it does not need (trimLoadedTiles, so the statistics are the view's alone), waits again,
-// records the tiles selected over one frame (how many, how many leaves, their levels) and tileset.statistics, and
+// records the tiles selected over one frame (how many, how many leaves, how many inner tiles drawn only because
+// none of their children is in view, their levels) and tileset.statistics, and
 // saves the canvas's drawing buffer as <out>/<camera>-<pass>.png.
 // Prints one JSON line {views: [{name, camera, loaded, ms, tileFailures, passes: {streamed: {...}, full: {...}}}
 // | {name, error}], mask, hosts,
@@ -114,11 +115,18 @@ async function measurePass([cam, sse, timeoutMs]) {
   await frames(1);
   tileset.tileVisible.removeEventListener(onVisible);
   const drawn = [...current];
+  // CesiumJS refines a tile only into children it sees; one whose error asks for refinement but none of whose
+  // children is in view (at the frustum's edge: its volume is, theirs are not) is drawn itself, however small the
+  // maximum error. Its children were judged this frame, as it was traversed. (_screenSpaceError is private.)
+  const edge = (t) => t.children.length > 0 && t._screenSpaceError > tileset.memoryAdjustedScreenSpaceError &&
+    !t.children.some((c) => c.isVisible);
   const levels = {};
+  const keys = [];
   for (const t of drawn) {
-    const m = /content\/(\d+)\/\d+\/\d+\.glb/.exec(t.content && t.content.url ? t.content.url : '');
+    const m = /content\/(\d+)\/(\d+)\/(\d+)\.glb/.exec(t.content && t.content.url ? t.content.url : '');
     const level = m ? m[1] : '?';
     levels[level] = (levels[level] || 0) + 1;
+    keys.push(m ? `${m[1]}/${m[2]}/${m[3]}` : '?');
   }
   const st = tileset.statistics;
   return {
@@ -133,7 +141,9 @@ async function measurePass([cam, sse, timeoutMs]) {
     tilesWithContent: st.numberOfTilesWithContentReady,
     tilesDrawn: drawn.length,
     leavesDrawn: drawn.filter((t) => t.children.length === 0).length,
+    edgeDrawn: drawn.filter(edge).length,
     levels,
+    drawnTiles: keys.sort(), // level/x/y
     geometryByteLength: st.geometryByteLength,
     drawingBuffer: [scene.drawingBufferWidth, scene.drawingBufferHeight],
     fovyDeg: Cesium.Math.toDegrees(viewer.camera.frustum.fovy),
