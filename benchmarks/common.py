@@ -69,6 +69,27 @@ def extract_name(path: Path) -> str:
     return name
 
 
+#: the stages that build what the export reads
+PIPELINE = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures")
+
+
+def build_pipeline_db(osm: Path, admin_url: str, name: str, logs_sub: str) -> str:
+    """A fresh database ``name`` (on ``admin_url``'s server) with the pipeline run on ``osm`` up to textures;
+    the stages' logs under LOG_DIR/<extract>/<logs_sub>. Returns its URL."""
+    from core import cluster
+
+    url = cluster.database_url(name)
+    env = {**os.environ, "DATABASE_URL": url}
+    logs = LOG_DIR / extract_name(osm) / logs_sub
+    recreate_db(admin_url, name)
+    run_child([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
+    for stage in PIPELINE:
+        log(f"{extract_name(osm)}: {stage}")
+        run_child([sys.executable, "-m", "etl", stage, *(["--osm", str(osm)] if stage == "ingest" else [])],
+                  env, logs / f"{stage}.log")
+    return url
+
+
 # --- machine block ------------------------------------------------------------------------------------------
 
 

@@ -50,13 +50,13 @@ from benchmarks import stream_bench, view_bench
 from benchmarks.common import (
     LOG_DIR,
     OUT_ROOT,
+    build_pipeline_db,
     db_name,
     drop_db,
     extract_name,
     log,
     markdown_table,
     pass_mark,
-    recreate_db,
     run_child,
 )
 from benchmarks.report_generalization import distinct_vertices, reduction_pct
@@ -66,7 +66,6 @@ from core.settings import REPO
 from core.wkb import decode_triangles
 
 FIDELITY_DB = "citylod_fidelity"
-PIPELINE = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures")
 DRIVER = Path(__file__).resolve().parent / "fidelity_view.mjs"
 FIDELITY_ROOT = OUT_ROOT / "fidelity"
 PASSES = ("streamed", "full")
@@ -441,16 +440,7 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]]) -> list[str]:
 
 def build_database(osm: Path, admin_url: str) -> str:
     """A fresh ``citylod_fidelity`` database with the pipeline run on ``osm`` up to textures."""
-    url = cluster.database_url(FIDELITY_DB)
-    env = {**os.environ, "DATABASE_URL": url}
-    logs = LOG_DIR / extract_name(osm) / "fidelity"
-    recreate_db(admin_url, FIDELITY_DB)
-    run_child([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
-    for stage in PIPELINE:
-        log(f"{extract_name(osm)}: {stage}")
-        run_child([sys.executable, "-m", "etl", stage, *(["--osm", str(osm)] if stage == "ingest" else [])],
-                  env, logs / f"{stage}.log")
-    return url
+    return build_pipeline_db(osm, admin_url, FIDELITY_DB, "fidelity")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -54,13 +54,13 @@ from benchmarks.common import (
     HEADLINE,
     LOG_DIR,
     OUT_ROOT,
+    build_pipeline_db,
     db_name,
     drop_db,
     extract_name,
     log,
     markdown_table,
     pass_mark,
-    recreate_db,
     run_child,
 )
 from benchmarks.servers import spawned
@@ -74,7 +74,6 @@ VARIANTS: dict[str, StreamOptions] = {"compact": COMPACT, "compact-ext": replace
 #: the streams CesiumJS is run on (compact-ext decodes to the same views as compact: its bytes are what differs)
 CLIENT_VARIANTS = ("compact", "plain")
 STREAM_DB = "citylod_stream"
-PIPELINE = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures")
 DRIVER = Path(__file__).resolve().parent / "stream_view.mjs"
 STREAM_ROOT = OUT_ROOT / "stream"
 CAMERAS = ("street", "overview")
@@ -592,16 +591,7 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
 
 def build_database(osm: Path, admin_url: str) -> str:
     """A fresh ``citylod_stream`` database with the pipeline run on ``osm`` up to textures (what export reads)."""
-    url = cluster.database_url(STREAM_DB)
-    env = {**os.environ, "DATABASE_URL": url}
-    logs = LOG_DIR / extract_name(osm) / "stream"
-    recreate_db(admin_url, STREAM_DB)
-    run_child([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
-    for stage in PIPELINE:
-        log(f"{extract_name(osm)}: {stage}")
-        run_child([sys.executable, "-m", "etl", stage, *(["--osm", str(osm)] if stage == "ingest" else [])],
-                  env, logs / f"{stage}.log")
-    return url
+    return build_pipeline_db(osm, admin_url, STREAM_DB, "stream")
 
 
 def main(argv: list[str] | None = None) -> int:
