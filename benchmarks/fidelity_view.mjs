@@ -37,7 +37,7 @@ const { values: opt } = parseArgs({
     timeout: { type: 'string', default: '600000' }, // ms per wait; a full-detail overview loads every leaf
   },
 });
-const { note, timeout, WAIT, open, finish } = startDriver('fidelity_view', opt, ['url', 'cameras', 'out'],
+const { note, timeout, open, openViewer, savePng, finish } = startDriver('fidelity_view', opt, ['url', 'cameras', 'out'],
   '--url URL --cameras JSON --out DIR [--max-sse 16] [--full-sse 0]');
 const cameras = JSON.parse(opt.cameras);
 const PASSES = [['streamed', Number(opt['max-sse'])], ['full', Number(opt['full-sse'])]];
@@ -88,24 +88,9 @@ function maskScene() {
 async function measurePass([cam, sse, timeoutMs]) {
   const { viewer, tileset } = window.citylod;
   const scene = viewer.scene;
-  const R = Cesium.Math.toRadians;
-  const frames = (n) => new Promise((resolve) => {
-    let k = 0;
-    const remove = scene.postRender.addEventListener(() => {
-      if (++k >= n) { remove(); resolve(); }
-    });
-  });
+  const frames = (n) => window.citylodCommon.frames(scene, n);
   tileset.maximumScreenSpaceError = sse;
-  viewer.camera.frustum.fov = R(cam.fovDeg);
-  viewer.camera.setView({
-    destination: Cesium.Cartesian3.fromDegrees(cam.lon, cam.lat, cam.height),
-    orientation: { heading: R(cam.heading), pitch: R(cam.pitch), roll: 0 },
-  });
-  const failuresBefore = window.citylod.tileFailures;
-  const first = await window.citylodCommon.settle(scene, () => tileset, timeoutMs);
-  tileset.trimLoadedTiles();
-  await frames(3);
-  const settled = await window.citylodCommon.settle(scene, () => tileset, timeoutMs);
+  const view = await window.citylodCommon.viewCamera(viewer, tileset, cam, timeoutMs);
   // The tiles selected for rendering in one whole frame (tileVisible fires once per drawn tile per frame).
   let current = new Set();
   const onVisible = (tile) => current.add(tile);
@@ -132,9 +117,7 @@ async function measurePass([cam, sse, timeoutMs]) {
   return {
     maximumScreenSpaceError: tileset.maximumScreenSpaceError,
     memoryAdjustedScreenSpaceError: tileset.memoryAdjustedScreenSpaceError,
-    loaded: first.loaded && settled.loaded,
-    ms: first.ms + settled.ms,
-    tileFailures: window.citylod.tileFailures - failuresBefore,
+    ...view,
     trianglesSelected: st.numberOfTrianglesSelected,
     featuresSelected: st.numberOfFeaturesSelected,
     tilesSelected: st.selected,
@@ -156,13 +139,7 @@ let browser;
 try {
   browser = await open('[citylod] all tiles');
   const page = browser.page;
-  // The cameras' viewport: the screen-space error depends on its height.
-  await page.setViewportSize({ width: cameras[0].width, height: cameras[0].height_px });
-  await page.goto(opt.url, { waitUntil: 'load', timeout });
-  await page.waitForFunction(() => window.citylod && (window.citylod.ready || window.citylod.error), null, WAIT);
-  const err = await page.evaluate(() => window.citylod.error);
-  if (err) throw new Error(`viewer error: ${err}`);
-  note('viewer ready');
+  await openViewer(page, cameras[0].width, cameras[0].height_px);
   result.mask = await page.evaluate(maskScene);
   fs.mkdirSync(path.resolve(opt.out), { recursive: true });
   for (const cam of cameras) {
@@ -171,7 +148,7 @@ try {
       for (const [pass, sse] of PASSES) {
         const p = await page.evaluate(measurePass, [cam, sse, timeout]);
         const shot = path.join(opt.out, `${cam.name}-${pass}.png`);
-        fs.writeFileSync(shot, Buffer.from(p.png.replace(/^data:image\/png;base64,/, ''), 'base64'));
+        savePng(p.png, shot);
         delete p.png;
         p.mask = shot;
         if (!p.loaded) problems.push(`${cam.name} ${pass}: tiles still loading after ${p.ms} ms`);

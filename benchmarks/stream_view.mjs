@@ -29,7 +29,7 @@ const { values: opt } = parseArgs({
     timeout: { type: 'string', default: '240000' }, // ms per wait; SwiftShader at 1080p is slow
   },
 });
-const { note, timeout, WAIT, open, finish } = startDriver('stream_view', opt, ['url', 'cameras', 'out'],
+const { note, timeout, open, openViewer, savePng, finish } = startDriver('stream_view', opt, ['url', 'cameras', 'out'],
   '--url URL --cameras JSON --out DIR [--max-sse 16]');
 const cameras = JSON.parse(opt.cameras);
 const maxSse = Number(opt['max-sse']);
@@ -40,34 +40,18 @@ const problems = [];
 async function measureView([cam, timeoutMs]) {
   const { viewer, tileset } = window.citylod;
   const scene = viewer.scene;
-  const R = Cesium.Math.toRadians;
-  const frames = (n) => new Promise((resolve) => {
-    let k = 0;
-    const remove = scene.postRender.addEventListener(() => {
-      if (++k >= n) { remove(); resolve(); }
-    });
-  });
-  viewer.camera.frustum.fov = R(cam.fovDeg);
-  viewer.camera.setView({
-    destination: Cesium.Cartesian3.fromDegrees(cam.lon, cam.lat, cam.height),
-    orientation: { heading: R(cam.heading), pitch: R(cam.pitch), roll: 0 },
-  });
-  const failuresBefore = window.citylod.tileFailures;
-  const first = await window.citylodCommon.settle(scene, () => tileset, timeoutMs);
   // What the session holds on arrival (the viewer's opening overview and earlier views included), for context;
   // then whatever this view does not use goes.
-  const held = { texturesByteLength: tileset.statistics.texturesByteLength,
-    geometryByteLength: tileset.statistics.geometryByteLength };
-  tileset.trimLoadedTiles();
-  await frames(3);
-  const settled = await window.citylodCommon.settle(scene, () => tileset, timeoutMs);
-  await frames(3);
+  let held;
+  const view = await window.citylodCommon.viewCamera(viewer, tileset, cam, timeoutMs, () => {
+    held = { texturesByteLength: tileset.statistics.texturesByteLength,
+      geometryByteLength: tileset.statistics.geometryByteLength };
+  });
+  await window.citylodCommon.frames(scene, 3);
   const st = tileset.statistics;
   return {
     name: cam.name,
-    loaded: first.loaded && settled.loaded,
-    ms: first.ms + settled.ms,
-    tileFailures: window.citylod.tileFailures - failuresBefore,
+    ...view,
     texturesByteLength: st.texturesByteLength,
     geometryByteLength: st.geometryByteLength,
     batchTableByteLength: st.batchTableByteLength,
@@ -89,13 +73,7 @@ let browser;
 try {
   browser = await open('[citylod] all tiles');
   const page = browser.page;
-  // The cameras' viewport: the screen-space error depends on its height.
-  await page.setViewportSize({ width: cameras[0].width, height: cameras[0].height_px });
-  await page.goto(opt.url, { waitUntil: 'load', timeout });
-  await page.waitForFunction(() => window.citylod && (window.citylod.ready || window.citylod.error), null, WAIT);
-  const err = await page.evaluate(() => window.citylod.error);
-  if (err) throw new Error(`viewer error: ${err}`);
-  note('viewer ready');
+  await openViewer(page, cameras[0].width, cameras[0].height_px);
   // Frames comparable between two streams: nothing scales or moves.
   result.tileset = await page.evaluate((sse) => {
     window.citylod.setExaggeration(false);
@@ -129,7 +107,7 @@ try {
     try {
       const view = await page.evaluate(measureView, [cam, timeout]);
       const shot = path.join(opt.out, `${cam.name}.png`);
-      fs.writeFileSync(shot, Buffer.from(view.png.replace(/^data:image\/png;base64,/, ''), 'base64'));
+      savePng(view.png, shot);
       delete view.png;
       view.screenshot = shot;
       if (!view.loaded) problems.push(`${cam.name}: tiles still loading after ${view.ms} ms`);

@@ -60,5 +60,37 @@
     });
   }
 
-  window.citylodCommon = { makeViewer, tilesetUrl, settle };
+  // Resolve after n rendered frames.
+  function frames(scene, n) {
+    return new Promise((resolve) => {
+      let k = 0;
+      const remove = scene.postRender.addEventListener(() => {
+        if (++k >= n) { remove(); resolve(); }
+      });
+    });
+  }
+
+  // Place the camera (cam: lon, lat, height above the ellipsoid in metres, heading, pitch, fovDeg: CesiumJS's
+  // field of view, the wider side's), wait until the view's tiles loaded, call beforeTrim() (what the session
+  // holds on arrival), unload every tile the view does not need (trimLoadedTiles, so the statistics are the
+  // view's alone) and wait again: {loaded, ms, tileFailures} of this view. The benchmark drivers' common step.
+  async function viewCamera(viewer, tileset, cam, timeoutMs, beforeTrim = () => {}) {
+    const scene = viewer.scene;
+    const R = Cesium.Math.toRadians;
+    viewer.camera.frustum.fov = R(cam.fovDeg);
+    viewer.camera.setView({
+      destination: Cesium.Cartesian3.fromDegrees(cam.lon, cam.lat, cam.height),
+      orientation: { heading: R(cam.heading), pitch: R(cam.pitch), roll: 0 },
+    });
+    const failuresBefore = window.citylod.tileFailures;
+    const first = await settle(scene, () => tileset, timeoutMs);
+    beforeTrim();
+    tileset.trimLoadedTiles();
+    await frames(scene, 3);
+    const settled = await settle(scene, () => tileset, timeoutMs);
+    return { loaded: first.loaded && settled.loaded, ms: first.ms + settled.ms,
+      tileFailures: window.citylod.tileFailures - failuresBefore };
+  }
+
+  window.citylodCommon = { makeViewer, tilesetUrl, settle, frames, viewCamera };
 })();

@@ -76,12 +76,26 @@ export function startDriver(name, opt, required, usage) {
   const note = (...a) => console.error(`${secs()}s`, ...a);
   const timeout = Number(opt.timeout);
   const traffic = { hosts: new Set(), consoleErrors: [], failedRequests: [], serverHost: new URL(opt.url).host };
+  // Poll on a timer: the default (every animation frame) lags seconds behind when SwiftShader frames are slow.
+  const WAIT = { timeout, polling: 200 };
   return {
     note,
     timeout,
-    // Poll on a timer: the default (every animation frame) lags seconds behind when SwiftShader frames are slow.
-    WAIT: { timeout, polling: 200 },
+    WAIT,
     open: (tag) => openBrowser({ chromiumPath: opt.chromium, ...traffic, note, tag }),
+    // The viewer page at opt.url in a width x height viewport (the screen-space error depends on its height),
+    // ready (window.citylod.ready) or thrown with the viewer's error.
+    async openViewer(page, width, height) {
+      await page.setViewportSize({ width, height });
+      await page.goto(opt.url, { waitUntil: 'load', timeout });
+      await page.waitForFunction(() => window.citylod && (window.citylod.ready || window.citylod.error), null, WAIT);
+      const err = await page.evaluate(() => window.citylod.error);
+      if (err) throw new Error(`viewer error: ${err}`);
+      note('viewer ready');
+    },
+    // Write a page's canvas.toDataURL('image/png') to file.
+    savePng: (dataUrl, file) => fs.writeFileSync(file, Buffer.from(dataUrl.replace(/^data:image\/png;base64,/, ''),
+      'base64')),
     finish(result, problems) {
       recordTraffic(result, problems, { ...traffic, seconds: Number(secs()) });
       console.log(JSON.stringify(result));
