@@ -557,3 +557,22 @@ def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max
                                                    densify=0.25)
     return Simplified(geoms=result, n_vertices_in=n_in, n_vertices_out=n_out, area_in=area_in, area_out=area_out,
                       hausdorff=hausdorff, status=status)
+
+
+def simplify_parts(geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area_change: float = 0.1) -> np.ndarray:
+    """Each polygon of each (multi)polygon simplified on its own (simplify_footprints), the results gathered back
+    into one MultiPolygon per input. A block of many outlines then keeps the original only of the outlines whose
+    simplification failed its checks, not of all of them (one outline's area change would otherwise keep the
+    whole block's vertices). Empty inputs give empty MultiPolygons."""
+    geoms = np.asarray(geoms, dtype=object)
+    n = len(geoms)
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (n,))
+    parts, owner = shapely.get_parts(geoms, return_index=True)
+    out = np.empty(n, dtype=object)
+    out[:] = shapely.MultiPolygon()
+    if len(parts) == 0:
+        return out
+    s = simplify_footprints(parts, tol[owner], max_area_change=max_area_change)
+    polys, sub = shapely.get_parts(s.geoms, return_index=True)
+    shapely.multipolygons(polys, indices=owner[sub], out=out)
+    return out

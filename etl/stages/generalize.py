@@ -16,15 +16,17 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
    Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
    same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
    large as a fine tile's instead of repeating every 10 m block of the city.
-   Selection: a block (of any of these bands) that lies within its band's tolerance of a single point (the
-   centre of its members' bounding circle at ground level: sqrt(radius² + height²) <= gen.tolerance) is marked
-   omitted and its tile does not draw it, as OpenMapTiles drops small blocks and PLATEAU small features per
-   level; its members are drawn again in the tiles below, and the coarser bands still merge it. Once the
-   hierarchy has its errors (4.), a block whose omission error is within its tile's geometric error is omitted
-   too (tiles.omit_within_error): the tile already claims that error, so it stays true, and a coarse tile
-   shown from kilometres away no longer draws thousands of blocks a few pixels big.
+   Every block is drawn: coarse levels aggregate what is close rather than omit what is small, so the far
+   view is the city with its blocks filled in, not the few blocks that were large enough for their tile.
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
+5. selection by pixel size (tiles.drop_below_pixel): a client at SSE max_sse (gen_max_sse, CesiumJS' 16) draws
+   a tile only while geometric_error × H / (d × 2 tan(fov/2)) <= max_sse, so wherever the tile is drawn one
+   pixel spans at least geometric_error / max_sse metres. A block whose collapse (its members shrunk to the
+   centre of their bounding circle at ground level, sqrt(radius² + height²), plus their own errors) is below
+   that pixel and that has no neighbour the tile draws within the band's aggregation distance is invisible
+   wherever the tile is drawn and is dropped; its members are drawn again in the tiles below, the coarser
+   bands still merge it, and since the drop's error is below a pixel the tile's geometric error stays true.
 
 Every generalized object stores error_m, the Hausdorff distance to what it replaces, and total_error_m, a
 bound on its distance to the full-detail LOD3 model: its own error plus that of its sources, plus the
@@ -32,8 +34,8 @@ LOD2-to-LOD3 step (the openings stand FacadeParams.depth out of the walls, by co
 buildings and decimated meshes are measured on the meshes (etl/geom/hausdorff.py, sampled surfaces, exact
 point-triangle distances). A block and its members are flat prisms, so their distance is bounded by
 sqrt(h² + dz²): h the larger of the outlines' Hausdorff distance (GEOS) and half the merge distance (the
-gaps the merge filled are at most that far from a member), dz the largest change of roof height. An omitted
-block's error is that of the omission, sqrt(radius² + height²).
+gaps the merge filled are at most that far from a member), dz the largest change of roof height. A dropped
+block's error is that of the drop, sqrt(radius² + height²) plus its members' errors.
 """
 
 from __future__ import annotations
@@ -52,10 +54,10 @@ from core.settings import Settings
 from core.wkb import decode_triangles, encode_triangles_batch
 
 from ..geom.decimate import decimate
-from ..geom.extrude import extrude
+from ..geom.extrude import extrude, without_floor
 from ..geom.facade import FacadeParams
 from ..geom.hausdorff import hausdorff, outline_hausdorff
-from ..geom.simplify import PIN_DISTANCE, simplify_footprints
+from ..geom.simplify import PIN_DISTANCE, simplify_footprints, simplify_parts
 
 BATCH = 2000
 OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of the walls
@@ -209,33 +211,38 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             n = len(rows)
             tol = np.array([r["tolerance"] for r in rows], float)
             merged = shapely.from_wkb([r["merged"] for r in rows])
-            s = simplify_footprints(merged, tol, max_area_change=settings.gen_max_area_change)
-            geoms = np.where(shapely.is_empty(s.geoms), merged, s.geoms)
+            # each outline of the block on its own: one that cannot be simplified keeps only its own vertices
+            s = simplify_parts(merged, tol, max_area_change=settings.gen_max_area_change)
+            geoms = np.where(shapely.is_empty(s), merged, s)
             top = np.array([r["height"] if r["height"] is not None else r["hmax"] for r in rows], float)
             ex, _ = _solids(geoms, np.zeros(n), top)
+            # a block stands on the ground: no camera above it sees its floor
+            triangles, offsets, semantics = without_floor(ex)
             members = [list(r["members"]) for r in rows]
             # prisms against prisms: the outlines' Hausdorff distance, the gaps the merge filled (at most half
-            # the distance) and the largest roof height change bound the distance between the solids
+            # the widest, gen.merge_gap) and the largest roof height change bound the distance between the solids
             joined = shapely.from_wkb([r["joined"] for r in rows])
             hmax = np.array([r["hmax"] for r in rows], float)
             outline = outline_hausdorff(geoms, joined, tol / 4)
-            gap = np.where(np.array([r["n_in"] for r in rows]) > 1, tol / 2, 0.0)  # only merges fill gaps
+            gap = np.where(np.array([r["n_in"] for r in rows]) > 1,  # only merges fill gaps
+                           np.array([r["merge_gap"] for r in rows], float) / 2, 0.0)
             dz = np.maximum(hmax - top, top - np.array([r["hmin"] for r in rows], float))
             err = np.hypot(np.maximum(outline, gap), np.maximum(dz, 0.0))
-            # selection: a block that fits within the band's tolerance of one point (the centre of its members'
-            # bounding circle, at ground level) is omitted from its tile; that collapse is then its error
+            # what dropping the block would cost (its members shrunk to the centre of their bounding circle at
+            # ground level): every block is drawn here; tiles.drop_below_pixel drops the isolated ones below
+            # their tile's pixel size once the hierarchy has its errors
             collapse = np.hypot(shapely.minimum_bounding_radius(joined), hmax)
-            omitted = collapse <= tol
-            err = np.where(omitted, collapse, err)
+            omitted = np.zeros(n, bool)
             total = err + np.array([float(r["members_error_m"]) for r in rows])
-            wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
+            wkbs = encode_triangles_batch(triangles, offsets, srid)
             fps = _ewkb(geoms, srid)
-            sem = ex.semantics.tobytes()
-            offs = ex.offsets.tolist()
+            sem = semantics.tobytes()
+            offs = offsets.tolist()
+            n_tri = np.diff(offsets)
             with cur.copy(f"COPY gen.block ({', '.join(_BLOCK_COLUMNS)}) FROM STDIN") as copy:
                 for j, r in enumerate(rows):
                     copy.write_row((r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
-                                    fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
+                                    fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(n_tri[j]),
                                     float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
                                     float(collapse[j])))
             stats["blocks"] += n
@@ -302,7 +309,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))
-        blk["omitted_within_tile_error"] = cur.execute("CALL tiles.omit_within_error(NULL, NULL)").fetchone()[0]
+        blk["dropped_below_pixel"] = cur.execute("CALL tiles.drop_below_pixel(NULL, %s, NULL)",
+                                                 (settings.gen_max_sse,)).fetchone()[0]
         store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()

@@ -1,0 +1,58 @@
+-- tiles.drop_below_pixel(max_level, max_sse DEFAULT 16, INOUT n_dropped) -> blocks dropped as below a pixel
+-- Selection by the traversal's own rule, once tiles.finish_hierarchy has measured every tile's geometric error:
+-- a client draws a tile only while its screen-space error, geometric_error × H / (d × 2 tan(fov/2)), is at most
+-- max_sse pixels, so wherever the tile is drawn one pixel spans at least geometric_error / max_sse metres (its
+-- pixel size). A drawn block whose collapse (gen.block.collapse_m: its members shrunk to one ground point) plus
+-- its members' own errors is within that pixel size, and that is isolated (no other feature the tile draws
+-- within the block band's aggregation distance, gen.tolerance(gen_level): nothing it could have been merged
+-- with), covers less than a pixel wherever the tile is drawn, and is dropped from the tile; its members are
+-- drawn again in the tiles below. Everything else stays: blocks aggregate what is close instead of being
+-- omitted one by one. The drop's error is at most geometric_error / max_sse, so the tile's geometric error
+-- stays true; content_error_m takes it. The block keeps its row (the coarser bands have merged it already)
+-- with the drop's error; its row in tiles.tile_content goes and the tile's content counts follow. Landmarks
+-- are never in blocks, so they stay. Tiles up to max_level (NULL: all).
+-- Example: CALL tiles.drop_below_pixel(NULL, 16, NULL);
+CREATE OR REPLACE PROCEDURE tiles.drop_below_pixel(max_level integer, max_sse double precision DEFAULT 16,
+                                                   INOUT n_dropped bigint DEFAULT NULL)
+LANGUAGE plpgsql
+AS $$
+BEGIN
+    CREATE TEMP TABLE _drop ON COMMIT DROP AS
+    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total
+    FROM gen.block k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
+    -- the bound on the distance to LOD3 once dropped: the collapse plus the members' own errors
+    CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
+    WHERE NOT k.omitted AND b.total <= t.geometric_error / max_sse
+      AND (max_level IS NULL OR t.level <= max_level)
+      -- isolated: no other block of the tile within the aggregation distance ...
+      AND NOT EXISTS (
+          SELECT FROM gen.block o
+          WHERE (o.level, o.x, o.y) = (k.level, k.x, k.y) AND o.block_id <> k.block_id AND NOT o.omitted
+            AND ST_DWithin(o.footprint, k.footprint, gen.tolerance(k.gen_level)))
+      -- ... and no landmark the tile draws (never merged, but a neighbour all the same)
+      AND NOT EXISTS (
+          SELECT FROM tiles.tile_content c JOIN osm.building n ON n.id = c.feature_id
+          WHERE (c.level, c.x, c.y) = (k.level, k.x, k.y) AND c.feature_kind <> 'block'
+            AND ST_DWithin(n.geom_local, k.footprint, gen.tolerance(k.gen_level)));
+
+    UPDATE gen.block k SET omitted = true, error_m = d.collapse_m, total_error_m = d.total
+    FROM _drop d WHERE k.block_id = d.block_id;
+
+    UPDATE tiles.tile t
+    SET content_features = t.content_features - s.n, content_triangles = t.content_triangles - s.tri,
+        content_error_m = greatest(t.content_error_m, s.err)
+    FROM (SELECT c.level, c.x, c.y, count(*) AS n, sum(c.n_triangles) AS tri, max(d.total) AS err
+          FROM _drop d JOIN tiles.tile_content c
+            ON (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (d.level, d.x, d.y, 'block', d.block_id)
+          GROUP BY 1, 2, 3) s
+    WHERE (t.level, t.x, t.y) = (s.level, s.x, s.y);
+
+    DELETE FROM tiles.tile_content c USING _drop d
+    WHERE (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (d.level, d.x, d.y, 'block', d.block_id);
+
+    SELECT count(*) INTO n_dropped FROM _drop;
+    DROP TABLE _drop;
+END
+$$;
+COMMENT ON PROCEDURE tiles.drop_below_pixel(integer, double precision, bigint) IS
+    'Drops every drawn block that is below its tile''s pixel size (collapse_m plus its members'' errors <= geometric_error / max_sse, the smallest pixel wherever a client at max_sse draws the tile) and isolated (nothing else the tile draws within gen.tolerance(gen_level)), in tiles up to max_level (NULL: all); updates tiles.tile_content and the tiles'' content counts; returns how many. Run by the generalize stage after tiles.finish_hierarchy. Example: CALL tiles.drop_below_pixel(NULL, 16, NULL);';
