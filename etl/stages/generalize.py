@@ -197,7 +197,7 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             coarse: tuple[int, int] | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
     ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already)."""
-    stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
+    stats = {"blocks": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
@@ -232,7 +232,6 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             # ground level): every block is drawn here; tiles.drop_below_pixel drops the isolated ones below
             # their tile's pixel size once the hierarchy has its errors
             collapse = np.hypot(shapely.minimum_bounding_radius(joined), hmax)
-            omitted = np.zeros(n, bool)
             total = err + np.array([float(r["members_error_m"]) for r in rows])
             wkbs = encode_triangles_batch(triangles, offsets, srid)
             fps = _ewkb(geoms, srid)
@@ -243,10 +242,9 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                 for j, r in enumerate(rows):
                     copy.write_row((r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
                                     fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(n_tri[j]),
-                                    float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
+                                    float(top[j]), float(err[j]), float(total[j]), False,
                                     float(collapse[j])))
             stats["blocks"] += n
-            stats["omitted"] += int(omitted.sum())
             stats["members"] += sum(len(m) for m in members)
             stats["max_error_m"] = max(stats["max_error_m"], float(err.max(initial=0.0)))
             progress.update(n)
@@ -257,18 +255,16 @@ def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_l
                   ) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
-    band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
-    "coarse_omitted": {g: n}})."""
+    band runs level by level). Returns the blocks of each band ({"coarse_blocks": {g: n}}); all are drawn
+    until tiles.drop_below_pixel has the tiles' errors."""
     pairs = [(int(g), int(lv)) for g, lv in conn.execute(
         "SELECT gen_level, level FROM gen.coarse_bands(%s)", (max_level,))]
     out: dict[int, int] = {}
-    omitted: dict[int, int] = {}
     for g, lv in pairs:
         conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
         st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))
         out[g] = out.get(g, 0) + int(st["blocks"])
-        omitted[g] = omitted.get(g, 0) + int(st["omitted"])
-    return {"coarse_blocks": out, "coarse_omitted": omitted}  # type: ignore[dict-item]
+    return {"coarse_blocks": out}  # type: ignore[dict-item]
 
 
 def store_boxes(cur: psycopg.Cursor) -> None:

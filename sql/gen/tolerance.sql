@@ -9,9 +9,9 @@
 --   2  LOD1: each building (with its parts) one solid on its footprint simplified at 2.5 m
 --   3  LOD2: roofs; meshes decimated where the measured error stays within 1.25 m
 --   4  LOD3: facades (windows, doors), no generalization
--- In every block band (<= 1) a block within the tolerance of one point (sqrt(radius² + height²)) is omitted from
--- its tile (selection; gen.block.omitted), and so is one within its tile's geometric error
--- (tiles.omit_within_error).
+-- In every block band (<= 1) the tolerance is the clustering distance of a block and its outlines' tolerance;
+-- the gaps its merge fills are at most gen.merge_gap(gen_level). Blocks are dropped only below their tile's
+-- pixel size and isolated (tiles.drop_below_pixel).
 -- Example: SELECT g, gen.tolerance(g) FROM generate_series(-2, 4) g;
 CREATE OR REPLACE FUNCTION gen.tolerance(gen_level integer)
 RETURNS double precision

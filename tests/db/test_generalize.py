@@ -434,8 +434,8 @@ def test_district_coarse_tiles_draw_the_houses_not_a_handful(district, conn_of) 
            WHERE t.gen_level <= 1""").fetchall()
     assert {r[3] for r in rows} >= {0, 1}, rows
     assert max(r[4] for r in rows) > 30, "the tower should give some coarse tile an error of tens of metres"
-    for level, x, y, band, ge, covered in rows:
-        assert covered >= 0.95, (level, x, y, band, ge, covered)
+    short = [r for r in rows if r[5] < 0.95]
+    assert short == [], short
 
 
 def test_district_isolated_subpixel_shed_is_dropped_within_the_error(district, conn_of) -> None:

@@ -400,3 +400,20 @@ def test_batch_of_10000_footprints(monkeypatch: pytest.MonkeyPatch) -> None:
     # Footprints that were all right angles still are.
     orthogonal = off_right_angle(g) == 0
     assert orthogonal.sum() > 5_000 and (off_right_angle(r.geoms)[orthogonal] == 0).all()
+
+
+def test_simplify_parts_holds_each_outline_to_its_own_area_limit() -> None:
+    # a block of two outlines: a small staircase whose simplification changes its area by a third, and a
+    # rectangle with a notch that simplifies within the limit. Simplified whole, the limit is on the block's
+    # area and the staircase loses a third; part by part it keeps its shape and only the rectangle changes.
+    stairs = shapely.Polygon([(0, 0), (2, 0), (2, 0.9), (1, 0.9), (1, 1.8), (0, 1.8)])
+    notched = shapely.Polygon([(10, 0), (13, 0), (13, 2), (10.3, 2), (10.3, 1.7), (10, 1.7)])
+    block = utm(shapely.MultiPolygon([stairs, notched]))
+    whole = simplify_footprints(np.array([block]), TOL, max_area_change=0.1)
+    assert whole.status[0] == "simplified" and whole.n_vertices_out[0] == 8  # both outlines changed
+    parts = simplify.simplify_parts(np.array([block, shapely.MultiPolygon()]), TOL, max_area_change=0.1)
+    assert shapely.get_num_geometries(parts[0]) == 2 and shapely.is_empty(parts[1])
+    got = sorted(shapely.get_parts(parts[0]), key=lambda g: shapely.bounds(g)[0])
+    assert shapely.equals(got[0], utm(stairs))  # kept as it was: a third of its area was too much
+    assert shapely.get_num_coordinates(got[1]) == 5  # the notch went
+    assert abs(shapely.area(got[1]) - shapely.area(notched)) <= 0.1 * shapely.area(notched)
