@@ -559,11 +559,18 @@ def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max
                       hausdorff=hausdorff, status=status)
 
 
-def simplify_parts(geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area_change: float = 0.1) -> np.ndarray:
+def simplify_parts(geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area_change: float = 0.1,
+                   max_shape_change: float | None = None, min_tolerance: float | None = None) -> np.ndarray:
     """Each polygon of each (multi)polygon simplified on its own (simplify_footprints), the results gathered back
     into one MultiPolygon per input. A block of many outlines then keeps the original only of the outlines whose
     simplification failed its checks, not of all of them (one outline's area change would otherwise keep the
-    whole block's vertices). Empty inputs give empty MultiPolygons."""
+    whole block's vertices). Empty inputs give empty MultiPolygons.
+
+    ``max_shape_change``: an outline is also held to this share of its area moved, |simplified △ original| /
+    |simplified ∪ original| (1 - their IoU): an area check alone passes a simplification that cuts one corner and
+    fills another. ``min_tolerance``: an outline whose simplification fails a check is tried again at half the
+    tolerance, down to this one (None: not tried again), so a block band's outline gets the largest tolerance its
+    shape allows instead of either its band's or none."""
     geoms = np.asarray(geoms, dtype=object)
     n = len(geoms)
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (n,))
@@ -572,7 +579,24 @@ def simplify_parts(geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area
     out[:] = shapely.MultiPolygon()
     if len(parts) == 0:
         return out
-    s = simplify_footprints(parts, tol[owner], max_area_change=max_area_change)
-    polys, sub = shapely.get_parts(s.geoms, return_index=True)
+    best = shapely.multipolygons(parts, indices=np.arange(len(parts)))
+    t = tol[owner].copy()
+    todo = np.arange(len(parts))
+    while len(todo):
+        s = simplify_footprints(parts[todo], t[todo], max_area_change=max_area_change)
+        ok = np.char.startswith(s.status.astype(str), "simplified") | (s.status == "unchanged")
+        if max_shape_change is not None and ok.any():
+            k = np.flatnonzero(ok & (s.status != "unchanged"))
+            a, b = s.geoms[k], parts[todo[k]]
+            moved = shapely.area(shapely.symmetric_difference(a, b)) / np.maximum(shapely.area(shapely.union(a, b)),
+                                                                                   1e-12)
+            ok[k[moved > max_shape_change]] = False
+        best[todo[ok]] = s.geoms[ok]
+        todo = todo[~ok]
+        if min_tolerance is None:
+            break
+        t[todo] /= 2
+        todo = todo[t[todo] >= min_tolerance]
+    polys, sub = shapely.get_parts(best, return_index=True)
     shapely.multipolygons(polys, indices=owner[sub], out=out)
     return out

@@ -10,14 +10,19 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 2. decimation (level 3): LOD2 meshes of at least gen_decimate_min_triangles triangles are decimated with
    fast-simplification, all of a batch in one call (etl/geom/decimate.py); a result is kept only when it is
    closed and within gen.tolerance(3) -> gen.building_mesh (gen_level 3; every feature has a row).
-3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it closer than
-   gen.tolerance(level) are clustered (ST_ClusterDBSCAN), merged by buffer-union-unbuffer, simplified at the
-   same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members.
+3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it that touch or
+   nearly touch (within gen.merge_gap, 2.5 m) are clustered (ST_ClusterDBSCAN) and merged by
+   buffer-union-unbuffer into one outline without interior walls; each outline is simplified at
+   gen.tolerance(level) as far as it keeps its shape (at most gen_block_max_shape_change of its area moved,
+   else at half the tolerance, down to gen_block_min_tolerance: etl/geom/simplify.simplify_parts), and
+   extruded flat, without a floor, to its members' area-weighted height -> gen.block with its members.
    Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
-   same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
-   large as a fine tile's instead of repeating every 10 m block of the city.
+   same way, simplified at 20 m, 40 m, 80 m, 160 m, level by level upwards.
    Every block is drawn: coarse levels aggregate what is close rather than omit what is small, so the far
-   view is the city with its blocks filled in, not the few blocks that were large enough for their tile.
+   view is the city with its blocks filled in, not the few blocks that were large enough for their tile
+   (issue 18: measured by what CesiumJS draws, benchmarks/fidelity_bench.py). The price is that a coarse
+   tile holds about as many outlines as the buildings below it: a drawing of the city's area within 1/20
+   of its full-detail triangles does not exist where most buildings stand apart (fidelity_bench.budget_bound).
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
 5. selection by pixel size (tiles.drop_below_pixel): a client at SSE max_sse (gen_max_sse, CesiumJS' 16) draws
@@ -213,7 +218,9 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             tol = np.array([r["tolerance"] for r in rows], float)
             merged = shapely.from_wkb([r["merged"] for r in rows])
             # each outline of the block on its own: one that cannot be simplified keeps only its own vertices
-            s = simplify_parts(merged, tol, max_area_change=settings.gen_max_area_change)
+            s = simplify_parts(merged, tol, max_area_change=settings.gen_max_area_change,
+                               max_shape_change=settings.gen_block_max_shape_change,
+                               min_tolerance=settings.gen_block_min_tolerance)
             geoms = np.where(shapely.is_empty(s), merged, s)
             top = np.array([r["height"] if r["height"] is not None else r["hmax"] for r in rows], float)
             ex, _ = _solids(geoms, np.zeros(n), top)

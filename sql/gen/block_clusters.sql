@@ -1,13 +1,13 @@
 -- gen.block_clusters() -> one row per block of the 10 m and 5 m bands (gen_level 0 and 1), before simplification
--- Per tile of those bands, its unprotected buildings (landmarks are never merged) clustered at the band's
--- distance, gen.tolerance(gen_level) (ST_ClusterDBSCAN on the level-2 footprints, gen.footprint), and each
--- cluster merged: the gaps up to gen.merge_gap(gen_level) filled by a closing (buffer-unbuffer with mitred
--- joins, which keeps right angles), wider ones left open (the block is then several outlines); a lone
--- building keeps its simplified footprint. The generalize stage simplifies, extrudes and measures them
+-- Per tile of those bands, its unprotected buildings (landmarks are never merged) clustered where they touch
+-- or nearly touch, within gen.merge_gap(gen_level) (ST_ClusterDBSCAN on the level-2 footprints,
+-- gen.footprint), and each cluster merged: those gaps filled by a closing (buffer-unbuffer with mitred joins,
+-- which keeps right angles), so a block is a terrace, a city block, a house and its garage, one outline with
+-- no interior walls and its own height; a lone building keeps its simplified footprint. The generalize stage simplifies, extrudes and measures them
 -- (gen.block). Ordered by tile and cluster (the order gen.block's ids are given in).
 --   level, x, y, gen_level  the tile and its band
---   tolerance               gen.tolerance(gen_level) (m): the clustering distance and outline tolerance
---   merge_gap               gen.merge_gap(gen_level) (m): the widest gap the merge fills
+--   tolerance               gen.tolerance(gen_level) (m): the outlines' simplification tolerance
+--   merge_gap               gen.merge_gap(gen_level) (m): the clustering distance, the widest gap the merge fills
 --   members                 osm.building ids of the outlines merged, ascending
 --   height                  the members' area-weighted height (m); hmax, hmin the largest and smallest
 --   members_error_m         the largest total_error_m of the members (gen.building_mesh, gen_level 2)
@@ -47,7 +47,7 @@ AS $$
         JOIN gen.footprint f ON f.building_id = bt.group_id
         JOIN gen.building_mesh g ON g.building_id = bt.group_id AND g.gen_level = 2
     ), c AS (
-        SELECT m.*, ST_ClusterDBSCAN(geom, eps := d, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid FROM m
+        SELECT m.*, ST_ClusterDBSCAN(geom, eps := gap, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid FROM m
     )
     SELECT level, x, y, gen_level, d, gap, members, height, hmax, err,
            ST_AsBinary(CASE WHEN closed IS NULL OR ST_IsEmpty(closed) THEN joined ELSE closed END),
@@ -66,4 +66,4 @@ AS $$
     ORDER BY level, x, y, cid
 $$;
 COMMENT ON FUNCTION gen.block_clusters() IS
-    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered at gen.tolerance(gen_level) and merged, gaps up to gen.merge_gap(gen_level) filled (closed union and plain union as WKB, members, heights, members'' error); tile and cluster order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';
+    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered within gen.merge_gap(gen_level) and merged, those gaps filled (closed union and plain union as WKB, members, heights, members'' error); tile and cluster order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';

@@ -1,8 +1,7 @@
 -- gen.coarse_block_clusters(band, tile_level) -> one row per block of the tiles of band `band` at tile_level
 -- The coarser bands (gen_level < 0, the tiles above height 4): per tile, what its children draw in its place
 -- (their blocks, gen.block, and for a child in a finer band its unprotected buildings' level-2 footprints),
--- clustered at gen.tolerance(band) and merged the same way as gen.block_clusters (gaps up to
--- gen.merge_gap(band) filled, wider ones left open). A
+-- clustered within gen.merge_gap(band) and merged the same way as gen.block_clusters (those gaps filled). A
 -- block's members are the union of its inputs' members and its height their area-weighted height (not the
 -- inputs', whose outlines were simplified and closed). The generalize stage builds the bands upwards, so the
 -- children's blocks exist. Same columns as gen.block_clusters; ordered by tile and cluster.
@@ -51,7 +50,7 @@ AS $$
         WHERE ch.cg > 1
     ), c AS MATERIALIZED (
         SELECT m.*,
-               ST_ClusterDBSCAN(geom, eps := d, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid
+               ST_ClusterDBSCAN(geom, eps := gap, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid
         FROM m
     ), mem AS (
         -- the members' area-weighted height, as in bands 0 and 1, not the inputs' (simplified and closed)
@@ -78,4 +77,4 @@ AS $$
     ORDER BY a.level, a.x, a.y, a.cid
 $$;
 COMMENT ON FUNCTION gen.coarse_block_clusters(integer, integer) IS
-    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered at gen.tolerance(band) and merged, gaps up to gen.merge_gap(band) filled; columns as gen.block_clusters; tile and cluster order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';
+    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered within gen.merge_gap(band) and merged, those gaps filled; columns as gen.block_clusters; tile and cluster order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';

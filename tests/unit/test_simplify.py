@@ -417,3 +417,27 @@ def test_simplify_parts_holds_each_outline_to_its_own_area_limit() -> None:
     assert shapely.equals(got[0], utm(stairs))  # kept as it was: a third of its area was too much
     assert shapely.get_num_coordinates(got[1]) == 5  # the notch went
     assert abs(shapely.area(got[1]) - shapely.area(notched)) <= 0.1 * shapely.area(notched)
+
+
+def test_simplify_parts_holds_the_shape_and_tries_smaller_tolerances() -> None:
+    # An L whose short arm (4 m × 4 m on a 20 m × 8 m body) is within a 10 m tolerance: cut off, the area changes
+    # by 9 % (within an area limit of 10 %) but the arm goes: the shape check (at most 5 % of the area moved)
+    # refuses it. A nub of 0.5 m on the body is within every tolerance down to 1 m: the ladder (10, 5, 2.5,
+    # 1.25 m) keeps the arm and drops the nub at the first tolerance that passes; without the ladder, a refused
+    # outline is kept whole, nub included.
+    ell = shapely.Polygon([(0, 0), (20, 0), (20, 3), (20.5, 3), (20.5, 3.5), (20, 3.5), (20, 8), (4, 8),
+                           (4, 12), (0, 12)])
+    g = np.array([utm(shapely.MultiPolygon([ell]))])
+    area_only = simplify.simplify_parts(g, 10.0, max_area_change=0.1)
+    assert not shapely.equals(area_only[0], g[0])
+    assert shapely.area(area_only[0]) < 0.95 * shapely.area(g[0])  # the arm went: allowed by the area check
+    kept = simplify.simplify_parts(g, 10.0, max_area_change=0.1, max_shape_change=0.05)
+    assert shapely.equals(kept[0], g[0])  # refused, and not tried again
+    ladder = simplify.simplify_parts(g, 10.0, max_area_change=0.1, max_shape_change=0.05, min_tolerance=1.25)
+    out = ladder[0]
+    assert shapely.get_num_coordinates(out) == 7  # 6 corners: the nub went, the arm stayed
+    moved = shapely.area(shapely.symmetric_difference(out, g[0])) / shapely.area(shapely.union(out, g[0]))
+    assert 0 < moved <= 0.05
+    # a ladder that stops above the tolerance the nub needs keeps the outline whole
+    high = simplify.simplify_parts(g, 10.0, max_area_change=0.1, max_shape_change=0.05, min_tolerance=6.0)
+    assert shapely.equals(high[0], g[0])
