@@ -178,7 +178,8 @@ def test_judge_the_targets() -> None:
 def test_section_shows_targets_failures_and_levels() -> None:
     res = result({"overview": view(0.58, 1000, 10_000), "down-mid": view(0.95, 900, 1000),
                   "oblique-low": view(None, 0, 0, error="tiles still loading after 600000 ms")})
-    broken = fb.failed("the driver | exited 1")
+    res["bound"] = {**fb.budget_bound(np.arange(1.0, 11.0), 1000), "iou_boxes": 0.61}
+    broken = {**fb.failed("the driver | exited 1"), "bound_error": "no tiles"}
     text = "\n".join(fb.section_lines([("city", res), ("other", broken), ("none", {})]))
     assert "## Far view fidelity" in text and "### Vertices and polygons per level" in text
     lines = text.splitlines()
@@ -194,6 +195,9 @@ def test_section_shows_targets_failures_and_levels() -> None:
     assert not any(line.startswith("| none |") for line in lines)
     assert "Targets missed: city overview." in text
     assert "| city | 0 | 1 | 10 (300) | 100 | 99.0 % | 50 | 99.5 % |" in text
+    assert "### What 1/20 of the triangles can draw" in text
+    assert "| city | 10 | 100 | 50 (5 outlines) | 0.727 | 0.610 |" in text
+    assert "| other | failed: no tiles |" in text
     assert fb.section_lines([]) == [] and fb.section_lines([("x", {})]) == []
     # every row has as many cells as the header
     for block in (t for t in text.split("\n\n") if t.startswith("|")):
@@ -236,3 +240,15 @@ def test_bench_report_has_the_fidelity_section() -> None:
     assert f"| {bench.HEADLINE} | overview | 1,000 m, -90° | 0.950 | **pass** |" in text
     res.fidelity = fb.failed("chromium not found")
     assert "failed: chromium not found" in bench.render([res], {"cores": "2"}, 1, "x")
+
+
+def test_budget_bound_keeps_the_largest_outlines_that_fit() -> None:
+    # 10 outlines, 1,000 full-detail triangles: 1/20 is 50 triangles, 5 outlines of 10 triangles. The largest five
+    # (10 + 9 + 8 + 7 + 6 = 40 of 55 m²) bound the IoU.
+    b = fb.budget_bound(np.arange(1.0, 11.0), 1000)
+    assert b["budget_triangles"] == 50 and b["outlines_in_budget"] == 5 and b["outlines"] == 10
+    assert b["min_triangles_all"] == 100
+    assert b["iou_bound"] == pytest.approx(40 / 55, abs=1e-4)
+    # a budget for every outline bounds nothing; an empty city has no bound
+    assert fb.budget_bound(np.arange(1.0, 11.0), 10_000)["iou_bound"] == 1.0
+    assert fb.budget_bound(np.zeros(0), 1000)["iou_bound"] is None
