@@ -65,13 +65,17 @@ AS $$
            ST_AsBinary(CASE WHEN closed IS NULL OR ST_IsEmpty(closed) THEN joined ELSE closed END),
            ST_AsBinary(joined), hmin, n_in
     FROM (
-        SELECT level, x, y, gen_level, d, gap, cid, count(*) AS n_in, max(height) AS hmax,
-               min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
+        -- grouped by the join's four keys only (gen_level, d and gap are the tile's), so both sides come sorted
+        -- by them and the join merges on all four: a join on the tile alone, cid as a filter, compares every
+        -- block of a tile with every other (tens of thousands squared in the top tiles of a large city)
+        SELECT level, x, y, min(gen_level) AS gen_level, min(d) AS d, min(gap) AS gap, cid, count(*) AS n_in,
+               max(height) AS hmax, min(height) AS hmin, max(total_error_m) AS err,
+               ST_Multi(ST_Union(geom)) AS joined,
                CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
-                   ST_Buffer(ST_Collect(geom), gap / 2, 'join=mitre mitre_limit=3'),
-                   -gap / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
+                   ST_Buffer(ST_Collect(geom), min(gap) / 2, 'join=mitre mitre_limit=3'),
+                   -min(gap) / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
         FROM c
-        GROUP BY level, x, y, gen_level, d, gap, cid
+        GROUP BY level, x, y, cid
     ) a
     JOIN mem ON (mem.level, mem.x, mem.y, mem.cid) = (a.level, a.x, a.y, a.cid)
     ORDER BY a.level, a.x, a.y, a.cid
