@@ -18,22 +18,29 @@ LANGUAGE plpgsql
 AS $$
 BEGIN
     CREATE TEMP TABLE _drop ON COMMIT DROP AS
-    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total
-    FROM gen.block k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
-    -- the bound on the distance to LOD3 once dropped: the collapse plus the members' own errors
-    CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
-    WHERE NOT k.omitted AND b.total <= t.geometric_error / max_sse
-      AND (max_level IS NULL OR t.level <= max_level)
-      -- isolated: no other block of the tile within the aggregation distance ...
-      AND NOT EXISTS (
-          SELECT FROM gen.block o
-          WHERE (o.level, o.x, o.y) = (k.level, k.x, k.y) AND o.block_id <> k.block_id AND NOT o.omitted
-            AND ST_DWithin(o.footprint, k.footprint, gen.tolerance(k.gen_level)))
-      -- ... and no landmark the tile draws (never merged, but a neighbour all the same)
-      AND NOT EXISTS (
-          SELECT FROM tiles.tile_content c JOIN osm.building n ON n.id = c.feature_id
-          WHERE (c.level, c.x, c.y) = (k.level, k.x, k.y) AND c.feature_kind <> 'block'
-            AND ST_DWithin(n.geom_local, k.footprint, gen.tolerance(k.gen_level)));
+    WITH f AS (
+        -- what each block-band tile draws: its blocks, and the buildings it draws whole (landmarks: never
+        -- merged, but neighbours all the same)
+        SELECT k.level, k.x, k.y, k.block_id, k.footprint AS geom, gen.tolerance(k.gen_level) AS d, k.collapse_m,
+               -- the bound on the distance to LOD3 once dropped: the collapse plus the members' own errors
+               k.collapse_m + (k.total_error_m - k.error_m) AS total
+        FROM gen.block k
+        WHERE NOT k.omitted AND (max_level IS NULL OR k.level <= max_level)
+        UNION ALL
+        SELECT c.level, c.x, c.y, NULL, n.geom_local, gen.tolerance(t.gen_level), NULL, NULL
+        FROM tiles.tile_content c JOIN tiles.tile t USING (level, x, y) JOIN osm.building n ON n.id = c.feature_id
+        WHERE c.feature_kind <> 'block' AND t.gen_level <= 1 AND (max_level IS NULL OR t.level <= max_level)
+    ), n AS (
+        -- isolated: alone in its cluster at the band's aggregation distance, i.e. nothing else the tile draws
+        -- within it. ST_ClusterDBSCAN indexes each tile's features itself (a self-join per tile compared every
+        -- block with every other: quadratic in the top tiles of a large city)
+        SELECT f.*, count(*) OVER (PARTITION BY level, x, y, cid) AS near
+        FROM (SELECT f.*, ST_ClusterDBSCAN(geom, eps := d, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid
+              FROM f) f
+    )
+    SELECT n.block_id, n.level, n.x, n.y, n.collapse_m, n.total
+    FROM n JOIN tiles.tile t ON (t.level, t.x, t.y) = (n.level, n.x, n.y)
+    WHERE n.block_id IS NOT NULL AND n.near = 1 AND n.total <= t.geometric_error / max_sse;
 
     UPDATE gen.block k SET omitted = true, error_m = d.collapse_m, total_error_m = d.total
     FROM _drop d WHERE k.block_id = d.block_id;
