@@ -18,11 +18,10 @@ box overlaps the viewport and spans at least ``--min-px`` pixels. Occlusion is n
 ordinary building. The tiles that draw it as itself in the block bands (gen_level <= 1) would instead merge it
 with every building whose simplified footprint lies within the band's aggregation distance (gen.tolerance;
 ST_DWithin on gen.footprint over the buildings below the tile, which is how ST_ClusterDBSCAN with minpoints 1
-joins them), or, alone, draw it as a one-member block unless that block is dropped (sqrt(radius² + height²)
-within the tile's pixel size, geometric_error / 16, as tiles.drop_below_pixel selects). In band 2 it would
-be LOD1 instead of the LOD2 lm.lod2_band gives it. So it is visible without the rule in a frame iff it is
-visible with it and the drawing tile is in band >= 2, or in a block band where it has no neighbour within the
-tolerance and is not below the pixel. The tile
+joins them), or, alone, draw it as a one-member block unless that block is omitted (sqrt(radius² + height²) <=
+the tolerance, as the generalize stage selects). In band 2 it would be LOD1 instead of the LOD2 lm.lod2_band
+gives it. So it is visible without the rule in a frame iff it is visible with it and the drawing tile is in
+band >= 2, or in a block band where it has no neighbour within the tolerance and is not too small. The tile
 walk itself is taken as is: without protection the block tiles' geometric errors (and so the walk) could
 change a little. For coarser bands (gen_level < 0) the footprint test is a lower bound on merging. Buildings
 that are not landmarks are the same with and without.
@@ -100,18 +99,18 @@ ORDER BY l.rank
 """
 # Without the rule, per landmark of the top and block-band tile above it: would it be merged with a neighbour
 # (a simplified footprint within the band's tolerance, as ST_ClusterDBSCAN(eps, minpoints 1) joins them), and
-# would it, alone, be dropped as below its tile's pixel (the generalize stage's selection, tiles.drop_below_pixel)?
+# would it, alone, be omitted as too small (the generalize stage's selection)?
 _WITHOUT = """
 WITH top AS (
     SELECT building_id FROM lm.building WHERE rank <= %(top)s AND is_landmark
 ), t AS (
-    SELECT level, x, y, gen.tolerance(gen_level) AS d, geometric_error / 16 AS px FROM tiles.tile WHERE gen_level <= 1
+    SELECT level, x, y, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level <= 1
 )
 SELECT top.building_id, t.level, t.x, t.y,
        EXISTS (SELECT FROM tiles.building_tiles_below(t.level, t.x, t.y) b
                JOIN gen.footprint n ON n.building_id = b.group_id
                WHERE b.group_id <> top.building_id AND ST_DWithin(n.geom, f.geom, t.d)) AS merged,
-       sqrt((ST_MinimumBoundingRadius(f.geom)).radius ^ 2 + g.height ^ 2) <= t.px AS omitted
+       sqrt((ST_MinimumBoundingRadius(f.geom)).radius ^ 2 + g.height ^ 2) <= t.d AS omitted
 FROM t
 JOIN top ON top.building_id IN (SELECT b.group_id FROM tiles.building_tiles_below(t.level, t.x, t.y) b)
 JOIN gen.footprint f ON f.building_id = top.building_id
@@ -518,8 +517,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         "treated as an ordinary building. Where a block-band tile (gen_level ≤ 1) draws it as itself, it would "
         "be merged with every building whose simplified footprint lies within the band's aggregation distance "
         "(gen.tolerance; what ST_ClusterDBSCAN with minpoints 1 joins), or, alone, become a one-member block, "
-        "dropped when sqrt(radius² + height²) ≤ the tile's pixel size (geometric error / 16); in band 2 it "
-        "is LOD1 instead of LOD2. Computed "
+        "omitted when sqrt(radius² + height²) ≤ the tolerance; in band 2 it is LOD1 instead of LOD2. Computed "
         "once per (landmark, block tile) from gen.footprint; the tile walk is kept as with the rule (without "
         "protection the block tiles' geometric errors could differ slightly). Non-landmarks are the same with and "
         "without, so *with < without* cannot happen.",

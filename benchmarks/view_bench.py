@@ -470,8 +470,8 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
     """``up`` new levels above the copies' roots, built as the pipeline builds them: each tile's band from its
     height and width (gen.level_for_height), its blocks merged from its children's by the generalize stage's
     own code (generalize.coarse_blocks), its content listed in tiles.tile_content, its geometric error the
-    larger of its content's and its children's, the isolated blocks below its pixel size dropped
-    (tiles.drop_below_pixel); then every tile's box from its region."""
+    larger of its content's and its children's, the blocks within it omitted (tiles.omit_within_error); then
+    every tile's box from its region."""
     copy_band = conn.execute("SELECT min(gen_level) FROM tiles.tile WHERE level = %s", (up,)).fetchone()[0]  # type: ignore[index]
     if copy_band > 1:
         raise RuntimeError("the copies' roots are not in a block band: too few levels to stack")
@@ -515,9 +515,9 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
             FROM (SELECT x >> 1 AS x, y >> 1 AS y, max(geometric_error) AS ge FROM tiles.tile
                   WHERE level = %s GROUP BY 1, 2) k
             WHERE p.level = %s AND (p.x, p.y) = (k.x, k.y)""", (lvl + 1, lvl))
-    # the selection by pixel size, then boxes from the regions, as the generalize stage does
+    # the selection on tile error, then boxes from the regions, as the generalize stage does
     with conn.transaction(), conn.cursor() as cur:
-        cur.execute("CALL tiles.drop_below_pixel(%s, %s, NULL)", (up - 1, Settings().gen_max_sse))
+        cur.execute("CALL tiles.omit_within_error(%s, NULL)", (up - 1,))
         store_boxes(cur)
 
 

@@ -73,14 +73,6 @@ class Settings:
     gen_decimate_min_triangles: int = 64
     #: ... by this fraction of their triangles (fast-simplification), kept only within gen.tolerance(3).
     gen_decimate_reduction: float = 0.5
-    #: The client's maximum screen-space error (CesiumJS' default 16): wherever a tile is drawn one pixel spans at
-    #: least its geometric error / this, and an isolated block smaller than that is dropped (tiles.drop_below_pixel).
-    gen_max_sse: float = 16.0
-    #: A block's outline is simplified at its band's tolerance only while it moves at most this share of its
-    #: area (1 - IoU with the merged outline, etl/geom/simplify.simplify_parts) ...
-    gen_block_max_shape_change: float = 0.1
-    #: ... else at half of it, and so on down to this tolerance (m), below which it keeps its merged outline.
-    gen_block_min_tolerance: float = 1.25
 
     # --- landmarks (saliency weights: 0 leaves a measure out; etl/stages/landmarks.py) --------------------------
     #: Weight of the height (the thesis' proof of concept used height alone).

@@ -130,12 +130,3 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
 def _area(tri2d: np.ndarray) -> np.ndarray:
     a, b, c = tri2d[:, 0], tri2d[:, 1], tri2d[:, 2]
     return 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-
-
-def without_floor(ex: Extrusion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The triangles, offsets and semantics of ``ex`` without the bottom caps: for solids standing on the
-    ground, whose floor no camera above the ground sees (a third of a complex prism's triangles)."""
-    keep = ex.semantics != SEM_GROUND
-    owner = np.repeat(np.arange(len(ex.offsets) - 1), np.diff(ex.offsets))
-    counts = np.bincount(owner[keep], minlength=len(ex.offsets) - 1)
-    return ex.triangles[keep], np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), ex.semantics[keep]

@@ -10,38 +10,30 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 2. decimation (level 3): LOD2 meshes of at least gen_decimate_min_triangles triangles are decimated with
    fast-simplification, all of a batch in one call (etl/geom/decimate.py); a result is kept only when it is
    closed and within gen.tolerance(3) -> gen.building_mesh (gen_level 3; every feature has a row).
-3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it that touch or
-   nearly touch (within gen.merge_gap, 2.5 m) are clustered (ST_ClusterDBSCAN) and merged by
-   buffer-union-unbuffer into one outline without interior walls; each outline is simplified at
-   gen.tolerance(level) as far as it keeps its shape (at most gen_block_max_shape_change of its area moved,
-   else at half the tolerance, down to gen_block_min_tolerance: etl/geom/simplify.simplify_parts), and
-   extruded flat, without a floor, to its members' area-weighted height -> gen.block with its members.
+3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it closer than
+   gen.tolerance(level) are clustered (ST_ClusterDBSCAN), merged by buffer-union-unbuffer, simplified at the
+   same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members.
    Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
-   same way, simplified at 20 m, 40 m, 80 m, 160 m, level by level upwards.
-   Every block is drawn: coarse levels aggregate what is close rather than omit what is small, so the far
-   view is the city with its blocks filled in, not the few blocks that were large enough for their tile
-   (issue 18: measured by what CesiumJS draws, benchmarks/fidelity_bench.py). The price is that a coarse
-   tile holds about as many outlines as the buildings below it: a drawing of the city's area within 1/20
-   of its full-detail triangles does not exist where most buildings stand apart (fidelity_bench.budget_bound).
+   same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
+   large as a fine tile's instead of repeating every 10 m block of the city.
+   Selection: a block (of any of these bands) that lies within its band's tolerance of a single point (the
+   centre of its members' bounding circle at ground level: sqrt(radius² + height²) <= gen.tolerance) is marked
+   omitted and its tile does not draw it, as OpenMapTiles drops small blocks and PLATEAU small features per
+   level; its members are drawn again in the tiles below, and the coarser bands still merge it. Once the
+   hierarchy has its errors (4.), a block whose omission error is within its tile's geometric error is omitted
+   too (tiles.omit_within_error): the tile already claims that error, so it stays true, and a coarse tile
+   shown from kilometres away no longer draws thousands of blocks a few pixels big.
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
-5. selection by pixel size (tiles.drop_below_pixel): a client at SSE max_sse (gen_max_sse, CesiumJS' 16) draws
-   a tile only while geometric_error × H / (d × 2 tan(fov/2)) <= max_sse, so wherever the tile is drawn one
-   pixel spans at least geometric_error / max_sse metres. A block whose collapse (its members shrunk to the
-   centre of their bounding circle at ground level, sqrt(radius² + height²), plus their own errors) is below
-   that pixel and that has no neighbour the tile draws within the band's aggregation distance is invisible
-   wherever the tile is drawn and is dropped; its members are drawn again in the tiles below, the coarser
-   bands still merge it, and since the drop's error is below a pixel the tile's geometric error stays true.
 
 Every generalized object stores error_m, the Hausdorff distance to what it replaces, and total_error_m, a
 bound on its distance to the full-detail LOD3 model: its own error plus that of its sources, plus the
 LOD2-to-LOD3 step (the openings stand FacadeParams.depth out of the walls, by construction). Simplified
 buildings and decimated meshes are measured on the meshes (etl/geom/hausdorff.py, sampled surfaces, exact
 point-triangle distances). A block and its members are flat prisms, so their distance is bounded by
-sqrt(h² + dz²): h the larger of the outlines' Hausdorff distance (sampled every tolerance / 4, plus the
-tolerance / 8 sampling may miss, so a bound) and half the widest gap the merge filled (gen.merge_gap: a
-filled gap is at most that far from a member), dz the largest change of roof height. A dropped block's error
-is that of the drop, sqrt(radius² + height²) plus its members' errors.
+sqrt(h² + dz²): h the larger of the outlines' Hausdorff distance (GEOS) and half the merge distance (the
+gaps the merge filled are at most that far from a member), dz the largest change of roof height. An omitted
+block's error is that of the omission, sqrt(radius² + height²).
 """
 
 from __future__ import annotations
@@ -60,10 +52,10 @@ from core.settings import Settings
 from core.wkb import decode_triangles, encode_triangles_batch
 
 from ..geom.decimate import decimate
-from ..geom.extrude import extrude, without_floor
+from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
 from ..geom.hausdorff import hausdorff, outline_hausdorff
-from ..geom.simplify import PIN_DISTANCE, simplify_footprints, simplify_parts
+from ..geom.simplify import PIN_DISTANCE, simplify_footprints
 
 BATCH = 2000
 OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of the walls
@@ -203,7 +195,7 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             coarse: tuple[int, int] | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
     ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already)."""
-    stats = {"blocks": 0, "members": 0, "max_error_m": 0.0}
+    stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
@@ -217,46 +209,37 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             n = len(rows)
             tol = np.array([r["tolerance"] for r in rows], float)
             merged = shapely.from_wkb([r["merged"] for r in rows])
-            # each outline of the block on its own: one that cannot be simplified keeps only its own vertices
-            s = simplify_parts(merged, tol, max_area_change=settings.gen_max_area_change,
-                               max_shape_change=settings.gen_block_max_shape_change,
-                               min_tolerance=settings.gen_block_min_tolerance)
-            geoms = np.where(shapely.is_empty(s), merged, s)
+            s = simplify_footprints(merged, tol, max_area_change=settings.gen_max_area_change)
+            geoms = np.where(shapely.is_empty(s.geoms), merged, s.geoms)
             top = np.array([r["height"] if r["height"] is not None else r["hmax"] for r in rows], float)
             ex, _ = _solids(geoms, np.zeros(n), top)
-            # a block stands on the ground: no camera above it sees its floor
-            triangles, offsets, semantics = without_floor(ex)
             members = [list(r["members"]) for r in rows]
             # prisms against prisms: the outlines' Hausdorff distance, the gaps the merge filled (at most half
-            # the widest, gen.merge_gap) and the largest roof height change bound the distance between the solids
+            # the distance) and the largest roof height change bound the distance between the solids
             joined = shapely.from_wkb([r["joined"] for r in rows])
             hmax = np.array([r["hmax"] for r in rows], float)
-            # sampled every tol / 4, the measure is within tol / 8 below the true distance: add that, so the
-            # error is a bound (an unchanged outline measures 0 exactly). Finer sampling costs minutes: a block
-            # of a coarse band has thousands of vertices
             outline = outline_hausdorff(geoms, joined, tol / 4)
-            outline = np.where(outline > 0, outline + tol / 8, 0.0)
-            gap = np.where(np.array([r["n_in"] for r in rows]) > 1,  # only merges fill gaps
-                           np.array([r["merge_gap"] for r in rows], float) / 2, 0.0)
+            gap = np.where(np.array([r["n_in"] for r in rows]) > 1, tol / 2, 0.0)  # only merges fill gaps
             dz = np.maximum(hmax - top, top - np.array([r["hmin"] for r in rows], float))
             err = np.hypot(np.maximum(outline, gap), np.maximum(dz, 0.0))
-            # what dropping the block would cost (its members shrunk to the centre of their bounding circle at
-            # ground level): every block is drawn here; tiles.drop_below_pixel drops the isolated ones below
-            # their tile's pixel size once the hierarchy has its errors
+            # selection: a block that fits within the band's tolerance of one point (the centre of its members'
+            # bounding circle, at ground level) is omitted from its tile; that collapse is then its error
             collapse = np.hypot(shapely.minimum_bounding_radius(joined), hmax)
+            omitted = collapse <= tol
+            err = np.where(omitted, collapse, err)
             total = err + np.array([float(r["members_error_m"]) for r in rows])
-            wkbs = encode_triangles_batch(triangles, offsets, srid)
+            wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
             fps = _ewkb(geoms, srid)
-            sem = semantics.tobytes()
-            offs = offsets.tolist()
-            n_tri = np.diff(offsets)
+            sem = ex.semantics.tobytes()
+            offs = ex.offsets.tolist()
             with cur.copy(f"COPY gen.block ({', '.join(_BLOCK_COLUMNS)}) FROM STDIN") as copy:
                 for j, r in enumerate(rows):
                     copy.write_row((r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
-                                    fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(n_tri[j]),
-                                    float(top[j]), float(err[j]), float(total[j]), False,
+                                    fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
+                                    float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
                                     float(collapse[j])))
             stats["blocks"] += n
+            stats["omitted"] += int(omitted.sum())
             stats["members"] += sum(len(m) for m in members)
             stats["max_error_m"] = max(stats["max_error_m"], float(err.max(initial=0.0)))
             progress.update(n)
@@ -267,16 +250,18 @@ def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_l
                   ) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
-    band runs level by level). Returns the blocks of each band ({"coarse_blocks": {g: n}}); all are drawn
-    until tiles.drop_below_pixel has the tiles' errors."""
+    band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
+    "coarse_omitted": {g: n}})."""
     pairs = [(int(g), int(lv)) for g, lv in conn.execute(
         "SELECT gen_level, level FROM gen.coarse_bands(%s)", (max_level,))]
     out: dict[int, int] = {}
+    omitted: dict[int, int] = {}
     for g, lv in pairs:
         conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
         st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))
         out[g] = out.get(g, 0) + int(st["blocks"])
-    return {"coarse_blocks": out}  # type: ignore[dict-item]
+        omitted[g] = omitted.get(g, 0) + int(st["omitted"])
+    return {"coarse_blocks": out, "coarse_omitted": omitted}  # type: ignore[dict-item]
 
 
 def store_boxes(cur: psycopg.Cursor) -> None:
@@ -317,8 +302,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))
-        blk["dropped_below_pixel"] = cur.execute("CALL tiles.drop_below_pixel(NULL, %s, NULL)",
-                                                 (settings.gen_max_sse,)).fetchone()[0]
+        blk["omitted_within_tile_error"] = cur.execute("CALL tiles.omit_within_error(NULL, NULL)").fetchone()[0]
         store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()

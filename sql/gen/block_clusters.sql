@@ -1,13 +1,11 @@
 -- gen.block_clusters() -> one row per block of the 10 m and 5 m bands (gen_level 0 and 1), before simplification
--- Per tile of those bands, its unprotected buildings (landmarks are never merged) clustered where they touch
--- or nearly touch, within gen.merge_gap(gen_level) (ST_ClusterDBSCAN on the level-2 footprints,
--- gen.footprint), and each cluster merged: those gaps filled by a closing (buffer-unbuffer with mitred joins,
--- which keeps right angles), so a block is a terrace, a city block, a house and its garage, one outline with
--- no interior walls and its own height; a lone building keeps its simplified footprint. The generalize stage simplifies, extrudes and measures them
+-- Per tile of those bands, its unprotected buildings (landmarks are never merged) clustered at the band's
+-- distance, gen.tolerance(gen_level) (ST_ClusterDBSCAN on the level-2 footprints, gen.footprint), and each
+-- cluster merged: closing by buffer-unbuffer with mitred joins, which keeps right angles; a lone building
+-- keeps its simplified footprint. The generalize stage simplifies, extrudes and measures them
 -- (gen.block). Ordered by tile and cluster (the order gen.block's ids are given in).
 --   level, x, y, gen_level  the tile and its band
---   tolerance               gen.tolerance(gen_level) (m): the outlines' simplification tolerance
---   merge_gap               gen.merge_gap(gen_level) (m): the clustering distance, the widest gap the merge fills
+--   tolerance               gen.tolerance(gen_level) (m): the merge distance
 --   members                 osm.building ids of the outlines merged, ascending
 --   height                  the members' area-weighted height (m); hmax, hmin the largest and smallest
 --   members_error_m         the largest total_error_m of the members (gen.building_mesh, gen_level 2)
@@ -23,7 +21,6 @@ RETURNS TABLE (
     y               integer,
     gen_level       smallint,
     tolerance       double precision,
-    merge_gap       double precision,
     members         bigint[],
     height          real,
     hmax            real,
@@ -36,10 +33,9 @@ RETURNS TABLE (
 LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     WITH t AS (
-        SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d, gen.merge_gap(gen_level) AS gap
-        FROM tiles.tile WHERE gen_level IN (0, 1)
+        SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level IN (0, 1)
     ), m AS (
-        SELECT t.level, t.x, t.y, t.gen_level, t.d, t.gap, f.building_id, f.geom, g.height, g.total_error_m,
+        SELECT t.level, t.x, t.y, t.gen_level, t.d, f.building_id, f.geom, g.height, g.total_error_m,
                ST_Area(f.geom) AS area
         FROM t
         CROSS JOIN LATERAL (SELECT DISTINCT b.group_id FROM tiles.building_tiles_below(t.level, t.x, t.y) b) bt
@@ -47,23 +43,23 @@ AS $$
         JOIN gen.footprint f ON f.building_id = bt.group_id
         JOIN gen.building_mesh g ON g.building_id = bt.group_id AND g.gen_level = 2
     ), c AS (
-        SELECT m.*, ST_ClusterDBSCAN(geom, eps := gap, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid FROM m
+        SELECT m.*, ST_ClusterDBSCAN(geom, eps := d, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid FROM m
     )
-    SELECT level, x, y, gen_level, d, gap, members, height, hmax, err,
+    SELECT level, x, y, gen_level, d, members, height, hmax, err,
            ST_AsBinary(CASE WHEN closed IS NULL OR ST_IsEmpty(closed) THEN joined ELSE closed END),
            ST_AsBinary(joined), hmin, n_in
     FROM (
-        SELECT level, x, y, gen_level, d, gap, cid, count(*) AS n_in,
+        SELECT level, x, y, gen_level, d, cid, count(*) AS n_in,
                array_agg(building_id ORDER BY building_id) AS members,
                (sum(height * area) / nullif(sum(area), 0))::real AS height, max(height) AS hmax,
                min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
                CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
-                   ST_Buffer(ST_Collect(geom), gap / 2, 'join=mitre mitre_limit=3'),
-                   -gap / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
+                   ST_Buffer(ST_Collect(geom), d / 2, 'join=mitre mitre_limit=3'),
+                   -d / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
         FROM c
-        GROUP BY level, x, y, gen_level, d, gap, cid
+        GROUP BY level, x, y, gen_level, d, cid
     ) a
     ORDER BY level, x, y, cid
 $$;
 COMMENT ON FUNCTION gen.block_clusters() IS
-    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered within gen.merge_gap(gen_level) and merged, those gaps filled (closed union and plain union as WKB, members, heights, members'' error); tile and cluster order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';
+    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered at gen.tolerance(gen_level) and merged (closed union and plain union as WKB, members, heights, members'' error); tile and cluster order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';

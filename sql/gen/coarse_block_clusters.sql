@@ -1,7 +1,8 @@
 -- gen.coarse_block_clusters(band, tile_level) -> one row per block of the tiles of band `band` at tile_level
 -- The coarser bands (gen_level < 0, the tiles above height 4): per tile, what its children draw in its place
 -- (their blocks, gen.block, and for a child in a finer band its unprotected buildings' level-2 footprints),
--- clustered within gen.merge_gap(band) and merged the same way as gen.block_clusters (those gaps filled). A
+-- clustered at gen.tolerance(band) and merged the same way as gen.block_clusters, the inputs simplified
+-- at a quarter of the distance first (the closing's cost grows steeply with vertices and distance). A
 -- block's members are the union of its inputs' members and its height their area-weighted height (not the
 -- inputs', whose outlines were simplified and closed). The generalize stage builds the bands upwards, so the
 -- children's blocks exist. Same columns as gen.block_clusters; ordered by tile and cluster.
@@ -16,7 +17,6 @@ RETURNS TABLE (
     y               integer,
     gen_level       smallint,
     tolerance       double precision,
-    merge_gap       double precision,
     members         bigint[],
     height          real,
     hmax            double precision,
@@ -29,19 +29,19 @@ RETURNS TABLE (
 LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     WITH t AS (
-        SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d, gen.merge_gap(gen_level) AS gap
-        FROM tiles.tile WHERE gen_level = $1 AND level = $2
+        SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile
+        WHERE gen_level = $1 AND level = $2
     ), ch AS (
-        SELECT t.level, t.x, t.y, t.gen_level, t.d, t.gap, c.level AS cl, c.x AS cx, c.y AS cy, c.gen_level AS cg
+        SELECT t.level, t.x, t.y, t.gen_level, t.d, c.level AS cl, c.x AS cx, c.y AS cy, c.gen_level AS cg
         FROM t JOIN tiles.tile c ON c.level = t.level + 1 AND c.x BETWEEN 2 * t.x AND 2 * t.x + 1
                                AND c.y BETWEEN 2 * t.y AND 2 * t.y + 1
     ), m AS (
-        SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, ch.gap, k.members, k.footprint AS geom,
+        SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, k.members, k.footprint AS geom,
                k.height::float8 AS height, k.total_error_m
         FROM ch JOIN gen.block k ON k.level = ch.cl AND k.x = ch.cx AND k.y = ch.cy
         WHERE ch.cg <= 1
         UNION ALL
-        SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, ch.gap, ARRAY[f.building_id], f.geom, g.height, g.total_error_m
+        SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, ARRAY[f.building_id], f.geom, g.height, g.total_error_m
         FROM ch
         CROSS JOIN LATERAL (SELECT DISTINCT b.group_id FROM tiles.building_tiles_below(ch.cl, ch.cx, ch.cy) b) bt
         JOIN osm.building o ON o.id = bt.group_id AND NOT o.protected
@@ -50,7 +50,7 @@ AS $$
         WHERE ch.cg > 1
     ), c AS MATERIALIZED (
         SELECT m.*,
-               ST_ClusterDBSCAN(geom, eps := gap, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid
+               ST_ClusterDBSCAN(geom, eps := d, minpoints := 1) OVER (PARTITION BY level, x, y) AS cid
         FROM m
     ), mem AS (
         -- the members' area-weighted height, as in bands 0 and 1, not the inputs' (simplified and closed)
@@ -61,24 +61,22 @@ AS $$
         JOIN gen.building_mesh g ON g.building_id = u AND g.gen_level = 2
         GROUP BY 1, 2, 3, 4
     )
-    SELECT a.level, a.x, a.y, gen_level, d, gap, mem.members, mem.height, hmax, err,
+    SELECT a.level, a.x, a.y, gen_level, d, mem.members, mem.height, hmax, err,
            ST_AsBinary(CASE WHEN closed IS NULL OR ST_IsEmpty(closed) THEN joined ELSE closed END),
            ST_AsBinary(joined), hmin, n_in
     FROM (
-        -- grouped by the join's four keys only (gen_level, d and gap are the tile's), so both sides come sorted
-        -- by them and the join merges on all four: a join on the tile alone, cid as a filter, compares every
-        -- block of a tile with every other (tens of thousands squared in the top tiles of a large city)
-        SELECT level, x, y, min(gen_level) AS gen_level, min(d) AS d, min(gap) AS gap, cid, count(*) AS n_in,
-               max(height) AS hmax, min(height) AS hmin, max(total_error_m) AS err,
-               ST_Multi(ST_Union(geom)) AS joined,
+        SELECT level, x, y, gen_level, d, cid, count(*) AS n_in, max(height) AS hmax,
+               min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
+               -- inputs simplified at d / 4 first: the closing's cost grows steeply with vertices and distance
                CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
-                   ST_Buffer(ST_Collect(geom), min(gap) / 2, 'join=mitre mitre_limit=3'),
-                   -min(gap) / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
+                   ST_Buffer(ST_Collect(ST_SimplifyPreserveTopology(geom, d / 4)), d / 2,
+                             'join=mitre mitre_limit=3'),
+                   -d / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
         FROM c
-        GROUP BY level, x, y, cid
+        GROUP BY level, x, y, gen_level, d, cid
     ) a
     JOIN mem ON (mem.level, mem.x, mem.y, mem.cid) = (a.level, a.x, a.y, a.cid)
     ORDER BY a.level, a.x, a.y, a.cid
 $$;
 COMMENT ON FUNCTION gen.coarse_block_clusters(integer, integer) IS
-    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered within gen.merge_gap(band) and merged, those gaps filled; columns as gen.block_clusters; tile and cluster order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';
+    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered at gen.tolerance(band) and merged; columns as gen.block_clusters; tile and cluster order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';

@@ -15,7 +15,7 @@ from core.geodesy import region_box
 from core.tiles3d import expand
 from exporter.checks import check_tileset
 from exporter.traverse import select
-from tests.conftest import FIXTURES, run_etl
+from tests.conftest import run_etl
 
 BUDGET = {"CITYLOD_TILE_MAX_FEATURES": "40", "CITYLOD_TILE_MAX_TRIANGLES": "4000"}
 
@@ -98,14 +98,14 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
         "SELECT count(*), count(*) FILTER (WHERE n_members > 1) FROM gen.block").fetchone()
     assert multi > 20 and n_blocks > multi
     assert conn.execute("SELECT count(*) FROM gen.block WHERE n_members <> cardinality(members)").fetchone()[0] == 0
-    # no two buildings of different blocks in one tile are within the merge gap (else one cluster); the
+    # no two buildings of different blocks in one tile are within the band's distance (else one cluster); the
     # coarser bands cluster their children's simplified blocks, whose outlines moved, so only bands 0 and 1
     close = conn.execute(
         """SELECT a.block_id, b.block_id FROM gen.block a
            JOIN gen.block b ON (a.level, a.x, a.y) = (b.level, b.x, b.y) AND a.block_id < b.block_id
            JOIN gen.footprint fa ON fa.building_id = ANY(a.members)
            JOIN gen.footprint fb ON fb.building_id = ANY(b.members)
-           WHERE a.gen_level >= 0 AND ST_DWithin(fa.geom, fb.geom, gen.merge_gap(a.gen_level) * 0.999)
+           WHERE a.gen_level >= 0 AND ST_DWithin(fa.geom, fb.geom, gen.tolerance(a.gen_level) * 0.999)
            LIMIT 3""").fetchall()
     assert close == []
     # members of one block are chained by gaps of at most the distance: the block covers its members (in the
@@ -139,32 +139,49 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
     assert off == []
 
 
-def test_blocks_are_dropped_only_below_their_tiles_pixel_and_isolated(deep, conn_of) -> None:
-    # Was: a block within its band's tolerance of one point, or within its tile's geometric error, was omitted;
-    # at a far tile that is nearly every block, so the far view had holes (issue 18). Now a block is dropped
-    # exactly when it is below its tile's pixel size (geometric_error / 16) and isolated.
+def test_blocks_too_small_for_their_band_are_omitted_with_their_error(deep, conn_of) -> None:
     conn = conn_of(deep[0])
-    rows = conn.execute(
-        """SELECT k.omitted, k.collapse_m + (k.total_error_m - k.error_m) AS total, k.total_error_m,
-                  t.geometric_error,
-                  EXISTS (SELECT FROM gen.block o WHERE (o.level, o.x, o.y) = (k.level, k.x, k.y)
-                            AND o.block_id <> k.block_id AND NOT o.omitted
-                            AND ST_DWithin(o.footprint, k.footprint, gen.tolerance(k.gen_level))) AS neighbour
-           FROM gen.block k JOIN tiles.tile t USING (level, x, y)""").fetchall()
-    assert rows
-    for omitted, total, stored, ge, neighbour in rows:
-        if omitted:  # below the pixel, alone, and its stored error is the drop's
-            assert total <= ge / 16 + 1e-4 and not neighbour and stored == pytest.approx(total, abs=1e-3)
-        else:
-            assert total > ge / 16 - 1e-4 or neighbour
-    # never drawn, and the tile's geometric error covers the drop
+    # the rule: omitted exactly when the members fit within the band's tolerance of one ground point
+    by_rule = conn.execute(
+        """WITH k AS (
+               SELECT k.block_id, k.omitted, k.gen_level, k.error_m,
+                      sqrt((ST_MinimumBoundingRadius(ST_Collect(f.geom))).radius ^ 2 + max(g.height) ^ 2) AS collapse,
+                      -- the selection on tile error (tiles.omit_within_error)
+                      bool_or(k.omitted AND k.total_error_m <= t.geometric_error) AS within_tile_error
+               FROM gen.block k JOIN gen.footprint f ON f.building_id = ANY(k.members)
+               JOIN gen.building_mesh g ON g.building_id = f.building_id AND g.gen_level = 2
+               JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
+               WHERE k.gen_level >= 0  -- the coarser bands measure their inputs' simplified outlines
+               GROUP BY k.block_id)
+           SELECT count(*) FILTER (WHERE omitted), count(*) FILTER (WHERE NOT omitted),
+                  count(*) FILTER (WHERE omitted <> (collapse <= gen.tolerance(gen_level) + 1e-3 OR within_tile_error)
+                                   AND abs(collapse - gen.tolerance(gen_level)) > 1e-3),
+                  count(*) FILTER (WHERE omitted AND abs(error_m - collapse) > 1e-3),
+                  count(*) FILTER (WHERE within_tile_error AND collapse > gen.tolerance(gen_level) + 1e-3)
+           FROM k""").fetchone()
+    assert by_rule[0] > 0 and by_rule[1] > 0, by_rule
+    assert by_rule[2:4] == (0, 0), by_rule
+    assert by_rule[4] > 0, "no block omitted on its tile's error alone"
+    # the selection on tile error: no drawn block fits within its tile's error
+    drawn_within = conn.execute(
+        """SELECT count(*) FROM gen.block k JOIN tiles.tile t USING (level, x, y)
+           WHERE NOT k.omitted AND k.collapse_m + (k.total_error_m - k.error_m) <= t.geometric_error""").fetchone()[0]
+    assert drawn_within == 0
+    # never drawn, and the tile's geometric error covers the omission
     drawn = conn.execute(
         """SELECT count(*) FROM gen.block k JOIN tiles.tile_content c
              ON c.feature_kind = 'block' AND c.feature_id = k.block_id WHERE k.omitted""").fetchone()[0]
     assert drawn == 0
-    # most blocks are drawn: aggregation, not omission
-    n, dropped = conn.execute("SELECT count(*), count(*) FILTER (WHERE omitted) FROM gen.block").fetchone()
-    assert dropped < 0.1 * n, (dropped, n)
+    under = conn.execute(
+        """SELECT count(*) FROM gen.block k JOIN tiles.tile t USING (level, x, y)
+           WHERE k.omitted AND t.geometric_error < k.total_error_m - 1e-3""").fetchone()[0]
+    assert under == 0
+    # the coarser bands still merge omitted blocks: some block of a band < 0 has an omitted child block's members
+    merged = conn.execute(
+        """SELECT count(*) FROM gen.block p JOIN gen.block c
+             ON c.level = p.level + 1 AND c.x >> 1 = p.x AND c.y >> 1 = p.y AND c.omitted AND c.members <@ p.members
+           WHERE p.gen_level < 0 AND p.n_members > c.n_members""").fetchone()[0]
+    assert merged > 0
 
 
 def test_footprints_are_valid_close_and_smaller(deep, conn_of) -> None:
@@ -215,11 +232,9 @@ def test_geometric_error_is_measured_and_monotone(deep, conn_of) -> None:
             assert ge >= ce > 0
             kids = [rows[k][1] for k in ((lv + 1, 2 * x + i, 2 * y + j) for i in (0, 1) for j in (0, 1)) if k in rows]
             assert kids and ge == pytest.approx(max(ce, *kids))
-    # LOD1 (flattened parts) carries more error than LOD2, which is near-exact; the block bands merge only what
-    # nearly touches, so their largest error is a merged block's one height, not the gaps (at most 1.25 m)
+    # the coarsest band carries the 10 m aggregation and more; LOD2 tiles are near-exact
     by_band = dict(conn.execute("SELECT gen_level, max(content_error_m) FROM tiles.tile GROUP BY 1").fetchall())
-    assert by_band[2] > by_band[3] > 0 and by_band[4] == 0
-    assert by_band[0] > 2 * conn.execute("SELECT gen.merge_gap(0)").fetchone()[0]
+    assert by_band[0] > by_band[2] > by_band[3] > 0 and by_band[4] == 0
 
 
 def test_tileset_is_replace_with_content_everywhere(deep, conn_of) -> None:
@@ -399,101 +414,3 @@ def test_a_tile_missing_buildings_is_refused(deep, conn_of) -> None:
             conn.transaction():
         conn.execute("DELETE FROM gen.block WHERE block_id = (SELECT min(block_id) FROM gen.block)")
         conn.execute("CALL tiles.finish_hierarchy(0)")
-
-
-# --- the district fixture (tests/fixtures/osm_fixtures.py, 300): aggregation at the coarse levels ---------------
-
-
-@pytest.fixture(scope="module")
-def district(new_db):
-    """Fixture 300 with 6 features per leaf: an 8 x 8 grid of houses 6 m apart (a block each: 6 m is wider than
-    gen.merge_gap), a 90 m tower 2 m beside it, merged with its neighbours into blocks whose one height gives the
-    coarse tiles errors of tens of metres, a terrace of four houses wall to wall and a lone 2 m shed far away."""
-    url = new_db("gen_district")
-    run_etl(url, "ingest", "--osm", str(FIXTURES / "300_district.osm"))
-    run_etl(url, "lod")
-    run_etl(url, "tiles", env={"CITYLOD_TILE_MAX_FEATURES": "6", "CITYLOD_TILE_MAX_TRIANGLES": "100000"})
-    run_etl(url, "generalize")
-    return url
-
-
-def test_district_coarse_tiles_draw_the_houses_not_a_handful(district, conn_of) -> None:
-    # every block-band tile draws (blocks and buildings) nearly all of the footprint of the buildings below it;
-    # omitting every block within the tile's error (the tower makes it ~50 m) left a handful of houses
-    conn = conn_of(district)
-    rows = conn.execute(
-        """SELECT t.level, t.x, t.y, t.gen_level, t.geometric_error,
-                  ST_Area(ST_Intersection(d.geom, b.geom)) / ST_Area(b.geom) AS covered
-           FROM tiles.tile t
-           CROSS JOIN LATERAL (
-               SELECT ST_Union(coalesce(k.footprint, f.geom)) AS geom FROM tiles.tile_content c
-               LEFT JOIN gen.block k ON c.feature_kind = 'block' AND k.block_id = c.feature_id
-               LEFT JOIN gen.footprint f ON c.feature_kind <> 'block' AND f.building_id = c.feature_id
-               WHERE (c.level, c.x, c.y) = (t.level, t.x, t.y)) d
-           CROSS JOIN LATERAL (
-               SELECT ST_Union(o.geom_local) AS geom FROM osm.building o
-               WHERE o.id IN (SELECT group_id FROM tiles.building_tiles_below(t.level, t.x, t.y))) b
-           WHERE t.gen_level <= 1""").fetchall()
-    assert {r[3] for r in rows} >= {0, 1}, rows
-    assert max(r[4] for r in rows) > 30, "the tower should give some coarse tile an error of tens of metres"
-    short = [r for r in rows if r[5] < 0.95]
-    assert short == [], short
-
-
-def test_district_isolated_subpixel_shed_is_dropped_within_the_error(district, conn_of) -> None:
-    conn = conn_of(district)
-    shed = conn.execute("SELECT id FROM osm.building WHERE name = 'shed'").fetchone()[0]
-    rows = conn.execute(
-        """SELECT k.omitted, k.n_members, k.total_error_m, t.geometric_error, t.gen_level
-           FROM gen.block k JOIN tiles.tile t USING (level, x, y) WHERE %s = ANY(k.members)""", (shed,)).fetchall()
-    assert rows, "the shed is in no block"
-    for omitted, n_members, total, ge, _band in rows:
-        assert omitted and n_members == 1, rows  # alone and below the pixel in every block band
-        assert 0 < total <= ge / 16 + 1e-4, rows  # the drop is within a pixel of the tile, so within its error
-    # drawn again in the tiles below: its leaf has it at LOD3
-    assert conn.execute(
-        """SELECT count(*) FROM tiles.tile_content c JOIN tiles.tile t USING (level, x, y)
-           WHERE c.feature_kind <> 'block' AND c.feature_id = %s AND t.is_leaf""", (shed,)).fetchone()[0] == 1
-
-
-def test_district_touching_buildings_merge_into_one_outline(district, conn_of) -> None:
-    # the terrace's houses stand wall to wall: a block of them is one outline with no wall between them
-    conn = conn_of(district)
-    rows = conn.execute(
-        """SELECT k.block_id, k.n_members, ST_NumGeometries(k.footprint), ST_NRings(k.footprint),
-                  ST_NPoints(k.footprint), w.walls, k.n_triangles,
-                  (SELECT sum(g.n_triangles) FROM gen.building_mesh g
-                   WHERE g.building_id = ANY(k.members) AND g.gen_level = 2) AS members_triangles
-           FROM gen.block k
-           CROSS JOIN LATERAL (SELECT count(*) FILTER (WHERE get_byte(k.semantics, i) = 1) AS walls
-                               FROM generate_series(0, length(k.semantics) - 1) i) w
-           WHERE k.members && ARRAY(SELECT id FROM osm.building WHERE name LIKE 'terrace %%')""").fetchall()
-    assert any(r[1] >= 2 for r in rows), rows
-    for _bid, n_members, n_polys, n_rings, n_points, walls, tris, members_tris in rows:
-        assert n_polys == 1 and n_rings == 1, rows  # one outline, no hole
-        assert walls == 2 * (n_points - 1), rows  # two triangles per outline edge: no interior wall
-        if n_members >= 2:
-            assert tris < members_tris, rows
-
-
-def test_district_no_tile_draws_more_error_than_it_claims(district, deep, conn_of) -> None:
-    for url in (district, deep[0]):
-        conn = conn_of(url)
-        # content error within the geometric error; every drawn feature's error bound within it too
-        assert conn.execute(
-            """SELECT count(*) FROM tiles.tile WHERE content_error_m > geometric_error + 1e-4""").fetchone()[0] == 0
-        assert conn.execute(
-            """SELECT count(*) FROM tiles.tile_content c JOIN tiles.tile t USING (level, x, y)
-               WHERE c.error_m > t.geometric_error + 1e-4""").fetchone()[0] == 0
-        # a drawn block is within its error bound of its members: outline (PostGIS' Hausdorff distance to the
-        # members' footprints) and roof height
-        worst = conn.execute(
-            """SELECT k.block_id, h.d, k.total_error_m FROM gen.block k
-               CROSS JOIN LATERAL (
-                   SELECT ST_HausdorffDistance(k.footprint, ST_Union(f.geom), 0.1) AS d,
-                          max(abs(g.height - k.height)) AS dz
-                   FROM gen.footprint f JOIN gen.building_mesh g ON g.building_id = f.building_id AND g.gen_level = 2
-                   WHERE f.building_id = ANY(k.members)) h
-               WHERE NOT k.omitted AND (h.d > k.total_error_m + 0.05 OR h.dz > k.total_error_m + 0.05)
-               LIMIT 5""").fetchall()
-        assert worst == [], (url, worst)

@@ -3,7 +3,7 @@ band exists, as tests/db/test_generalize.py builds it), served by ``python -m ex
 CesiumJS in headless Chromium (tests/e2e/lod_views_e2e.mjs) with the plain traversal (maximumScreenSpaceError 16;
 no dynamic or foveated screen-space error, no skipLevelOfDetail).
 
-* A far camera (the whole centre from 3.7 km up) draws only coarse tiles: no leaf, features of LOD 0 and 1.
+* A far camera (the whole centre from 6 km up) draws only coarse tiles: no leaf, features of LOD 0 and 1.
 * A near camera (30 m above the street) draws leaves and their LOD3 features.
 * REPLACE refinement: no tile is ever drawn together with one of its ancestors.
 * What CesiumJS draws agrees with api.lod_for_view for the same camera, given CesiumJS's own viewport height,
@@ -44,9 +44,8 @@ MAX_SSE = 16.0
 
 #: Degrees, metres above the ellipsoid (Helsinki's ground is at height 0 in this tileset), no roll.
 VIEWS: dict[str, dict[str, float]] = {
-    # The whole centre straight down from 3.7 km: the root refines (SSE ~21), its four children do not (7-13).
-    # (From 6 km until issue 18: its blocks filled every gap up to 20 m; filling only 2.5 m ones halved its error.)
-    "far": {"lon": 24.944, "lat": 60.1715, "height": 3700.0, "heading": 0.0, "pitch": -90.0},
+    # The whole centre straight down from 6 km: the root refines (SSE ~24), its four children do not (6-10).
+    "far": {"lon": 24.944, "lat": 60.1715, "height": 6000.0, "heading": 0.0, "pitch": -90.0},
     # 150 m up, oblique to the south-east over the roofs (a camera of test_generalize's CAMERAS).
     "mid": {"lon": 24.941, "lat": 60.170, "height": 150.0, "heading": 120.0, "pitch": -20.0},
     # 30 m above the streets in the middle of the centre, looking north.

@@ -77,19 +77,3 @@ def test_wkb_roundtrip_and_batch() -> None:
         assert np.array_equal(decode_triangles(blob), ex.of(k))
         assert blob == encode_triangles(ex.of(k), srid=32635)
     assert decode_triangles(encode_triangles(ex.of(0))).shape == (12, 3, 3)
-
-
-def test_without_floor_drops_exactly_the_bottom_caps() -> None:
-    from core.semantics import SEM_GROUND
-    from etl.geom.extrude import without_floor
-
-    geoms = np.array(list(shapes().values()), dtype=object)
-    ex = extrude(geoms, np.zeros(len(geoms)), np.full(len(geoms), 10.0))
-    tri, offsets, sem = without_floor(ex)
-    assert SEM_GROUND in ex.semantics and SEM_GROUND not in sem
-    floor = np.add.reduceat((ex.semantics == SEM_GROUND).astype(int), ex.offsets[:-1])
-    np.testing.assert_array_equal(np.diff(offsets), ex.counts - floor)
-    for k in range(len(geoms)):  # the remaining triangles of each solid in order: walls and roof
-        keep = ex.semantics[ex.offsets[k]:ex.offsets[k + 1]] != SEM_GROUND
-        np.testing.assert_array_equal(tri[offsets[k]:offsets[k + 1]], ex.of(k)[keep])
-        assert (tri[offsets[k]:offsets[k + 1]][:, :, 2] > 0).any(axis=1).all()  # nothing lies flat on the ground

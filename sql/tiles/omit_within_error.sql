@@ -1,0 +1,43 @@
+-- tiles.omit_within_error(max_level, INOUT n_omitted) -> blocks omitted by the selection on tile error
+-- Selection bounded by what a tile already claims: once tiles.finish_hierarchy has measured every tile's
+-- geometric error (the largest error of its content and of its children), a drawn block whose omission error
+-- (gen.block.collapse_m: its members collapsed to one ground point) plus its members' own errors is within
+-- that error is omitted as well. The tile's geometric error stays true, so no camera refines differently, and
+-- a coarse tile seen from kilometres away stops drawing thousands of blocks a few pixels big (a block band's
+-- largest errors come from towers flattened into blocks, tens of metres; most blocks are a few houses).
+-- Landmarks are never in blocks, so they stay. The block keeps its row (the coarser bands have merged it
+-- already) with the omission's error; its row in tiles.tile_content goes, and the tile's content counts and
+-- content error follow. Tiles up to max_level (NULL: all).
+-- Example: CALL tiles.omit_within_error(NULL, NULL);
+CREATE OR REPLACE PROCEDURE tiles.omit_within_error(max_level integer, INOUT n_omitted bigint DEFAULT NULL)
+LANGUAGE plpgsql
+AS $$
+BEGIN
+    CREATE TEMP TABLE _omit ON COMMIT DROP AS
+    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total
+    FROM gen.block k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
+    -- the bound on the distance to LOD3 once omitted: the omission plus the members' own errors
+    CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
+    WHERE NOT k.omitted AND b.total <= t.geometric_error AND (max_level IS NULL OR t.level <= max_level);
+
+    UPDATE gen.block k SET omitted = true, error_m = o.collapse_m, total_error_m = o.total
+    FROM _omit o WHERE k.block_id = o.block_id;
+
+    UPDATE tiles.tile t
+    SET content_features = t.content_features - s.n, content_triangles = t.content_triangles - s.tri,
+        content_error_m = greatest(t.content_error_m, s.err)
+    FROM (SELECT c.level, c.x, c.y, count(*) AS n, sum(c.n_triangles) AS tri, max(o.total) AS err
+          FROM _omit o JOIN tiles.tile_content c
+            ON (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (o.level, o.x, o.y, 'block', o.block_id)
+          GROUP BY 1, 2, 3) s
+    WHERE (t.level, t.x, t.y) = (s.level, s.x, s.y);
+
+    DELETE FROM tiles.tile_content c USING _omit o
+    WHERE (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (o.level, o.x, o.y, 'block', o.block_id);
+
+    SELECT count(*) INTO n_omitted FROM _omit;
+    DROP TABLE _omit;
+END
+$$;
+COMMENT ON PROCEDURE tiles.omit_within_error(integer, bigint) IS
+    'Omits every drawn block whose omission error (gen.block.collapse_m) is within its tile''s geometric error, in tiles up to max_level (NULL: all), and updates tiles.tile_content and the tiles'' content counts; returns how many. Run by the generalize stage after tiles.finish_hierarchy. Example: CALL tiles.omit_within_error(NULL, NULL);';
