@@ -133,14 +133,15 @@ def read_buildings(
                 yield _reject("W", obj.id, parsed, tags, "unclosed_way",
                               f"{len(nodes)} nodes, first node {first} != last node {last}")
                 continue
-            missing = [n.ref for n in nodes if not n.location.valid()]
-            if missing:
+            try:
+                line = wkb.create_linestring(obj)
+            except osmium.InvalidLocationError:
+                # the nodes are only walked in Python for the rare way that needs the list
+                missing = [n.ref for n in nodes if not n.location.valid()]
                 shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
                 yield _reject("W", obj.id, parsed, tags, "missing_nodes",
                               f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
                 continue
-            try:
-                line = wkb.create_linestring(obj)
             except RuntimeError as e:  # e.g. every node at one spot: no linestring, let alone a ring
                 yield _reject("W", obj.id, parsed, tags, "degenerate_ring", str(e))
                 continue
