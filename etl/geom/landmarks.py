@@ -4,7 +4,10 @@ exaggeration of a landmark with the displacement of the buildings its enlarged f
 
 Pure numpy/scipy on arrays of all buildings at once; the only Python loops run over hierarchy levels and over
 landmarks, never over buildings. Neighbourhoods are CSR lists ``(indptr, indices)``: the neighbours of building i
-are ``indices[indptr[i]:indptr[i + 1]]`` (``radius_neighbours`` builds them; self-loops are ignored).
+are ``indices[indptr[i]:indptr[i + 1]]`` (``radius_neighbours`` builds them; self-loops are ignored), or, for a
+whole city, only the sums over them (``neighbour_sums``: count, sum of values), computed in blocks of query points
+so that memory follows the block and the local density, never the number of pairs in the city (at a 150 m radius
+a dense city has hundreds of neighbours per building: the CSR lists of 107k buildings took ~300 MB).
 
 Coordinates may be projected (~1e6 m): they are taken relative to their mean before any triangulation.
 """
@@ -61,8 +64,35 @@ def radius_neighbours(xy: np.ndarray, radius: float) -> tuple[np.ndarray, np.nda
     return indptr, cols[order]
 
 
-def relative_height(heights: np.ndarray, indptr: np.ndarray, indices: np.ndarray,
-                    min_height: float = 1.0) -> np.ndarray:
+def neighbour_sums(xy: np.ndarray, radius: float, values: np.ndarray,
+                   block: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """``(count (n,), sums (n, m))``: per point, how many other points lie within ``radius`` and the sum of their
+    ``values`` rows, what the CSR lists of ``radius_neighbours`` give, without them: the pairs of ``block`` query
+    points at a time are found, summed and dropped. Duplicates of a point count as its neighbours."""
+    xy = _as_xy(xy)
+    n = len(xy)
+    v = np.asarray(values, dtype=np.float64)
+    v = v[:, None] if v.ndim == 1 else v
+    count = np.zeros(n, dtype=np.int64)
+    sums = np.zeros(v.shape, dtype=np.float64)
+    if n == 0:
+        return count, sums
+    local = xy - xy.mean(axis=0)
+    tree = cKDTree(local)
+    for start in range(0, n, block):
+        stop = min(start + block, n)
+        pairs = cKDTree(local[start:stop]).sparse_distance_matrix(tree, radius, output_type="ndarray")
+        i, j = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+        other = i + start != j  # the self-pair goes; a duplicate (distance 0 too) stays
+        i, j = i[other], j[other]
+        count[start:stop] = np.bincount(i, minlength=stop - start)
+        for c in range(v.shape[1]):
+            sums[start:stop, c] = np.bincount(i, weights=v[j, c], minlength=stop - start)
+    return count, sums
+
+
+def relative_height(heights: np.ndarray, indptr: np.ndarray | None = None, indices: np.ndarray | None = None,
+                    min_height: float = 1.0, *, sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(n,) height / mean height of the building's neighbours: > 1 stands out, ~1 blends in.
 
     A building without neighbours gets 1.0 (nothing to stand out from). The mean is floored at ``min_height``
@@ -70,10 +100,15 @@ def relative_height(heights: np.ndarray, indptr: np.ndarray, indices: np.ndarray
     (``normalize`` then maps them to 0).
     """
     h = np.asarray(heights, dtype=np.float64)
-    adj = _adjacency(indptr, indices, len(h))
-    count = adj.sum(axis=1)
+    if sums is None:  # from the CSR lists; ``sums`` = neighbour_sums(xy, radius, h) gives the same
+        if indptr is None or indices is None:
+            raise ValueError("relative_height needs the CSR lists or their sums")
+        adj = _adjacency(indptr, indices, len(h))
+        count, total = adj.sum(axis=1), adj @ h
+    else:
+        count, total = sums[0], np.asarray(sums[1], dtype=np.float64).reshape(len(h))
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = adj @ h / count
+        mean = total / count
     rel = h / np.maximum(mean, min_height)
     return np.where(count > 0, rel, 1.0)
 
@@ -94,9 +129,19 @@ def shape_descriptors(area: np.ndarray, perimeter: np.ndarray, mrr_area: np.ndar
     return np.column_stack([compact, rect, np.log(nv), np.log(np.maximum(a, 1e-6))])
 
 
+def fill_descriptors(descriptors: np.ndarray) -> np.ndarray:
+    """(n, k) descriptors with each NaN replaced by its column's mean, as shape_distinctiveness compares them."""
+    x = np.asarray(descriptors, dtype=np.float64)
+    x = x[:, None] if x.ndim == 1 else x
+    if len(x) == 0:
+        return x
+    return np.where(np.isnan(x), np.nanmean(x, axis=0), x)
+
+
 def shape_distinctiveness(descriptors: np.ndarray, indptr: np.ndarray | None = None,
                           indices: np.ndarray | None = None, min_neighbours: int = 3,
-                          min_std_fraction: float = 0.1) -> np.ndarray:
+                          min_std_fraction: float = 0.1, *,
+                          sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(n,) how unusual each footprint is among its neighbours: the root mean square of the per-descriptor
     z-scores of its descriptor row against the mean and standard deviation of its neighbours' rows.
 
@@ -106,6 +151,8 @@ def shape_distinctiveness(descriptors: np.ndarray, indptr: np.ndarray | None = N
     deviation is floored at ``min_std_fraction`` x that descriptor's global one, so a row of identical houses
     does not turn a small difference into a huge score; a descriptor constant over the whole set counts 0.
     NaN descriptors count as 0 (typical). 0 = typical, ~1 = one standard deviation off on average.
+    Instead of the CSR lists, ``sums`` = neighbour_sums(xy, radius, [x, x²]) of ``fill_descriptors(descriptors)``
+    (k columns of x, then k of x²) gives the same.
     """
     x = np.asarray(descriptors, dtype=np.float64)
     if x.ndim == 1:
@@ -118,14 +165,20 @@ def shape_distinctiveness(descriptors: np.ndarray, indptr: np.ndarray | None = N
     x = np.where(np.isnan(x), g_mean, x)
     mean = np.broadcast_to(g_mean, (n, k)).copy()
     std = np.broadcast_to(g_std, (n, k)).copy()
-    if indptr is not None and indices is not None:
+    count = None
+    if sums is not None:
+        count, s12 = sums
+        s12 = np.asarray(s12, dtype=np.float64).reshape(n, 2 * k)
+        all_s1, all_s2 = s12[:, :k], s12[:, k:]
+    elif indptr is not None and indices is not None:
         adj = _adjacency(indptr, indices, n)
-        count = adj.sum(axis=1)
+        count, all_s1, all_s2 = adj.sum(axis=1), adj @ x, adj @ x**2
+    if count is not None:
         local = count >= max(min_neighbours, 1)
         if local.any():
             c = count[local, None]
-            s1 = (adj @ x)[local]
-            s2 = (adj @ x**2)[local]
+            s1 = all_s1[local]
+            s2 = all_s2[local]
             mean[local] = s1 / c
             std[local] = np.sqrt(np.maximum(s2 / c - (s1 / c) ** 2, 0.0))
     std = np.maximum(std, min_std_fraction * g_std)

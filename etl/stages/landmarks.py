@@ -14,7 +14,8 @@ Runs after lod (it measures the LOD2 meshes) and before tiles/generalize (landma
    etl.geom.landmarks.exaggeration_intervals), which api.landmark_scale and api.landmark_exaggeration read.
 
 The hierarchy needs every point at once, so the stage holds a few float arrays per building (~100 bytes each,
-100 MB at 1M buildings), never the geometries.
+100 MB at 1M buildings), never the geometries, and never the neighbour pairs of the whole city: those are summed
+a block of buildings at a time (etl.geom.landmarks.neighbour_sums).
 """
 
 from __future__ import annotations
@@ -46,6 +47,10 @@ _TYPES = ("int8", "bytea", "float4", "float8", "float8", "float4", "float4", "fl
           "int4", "int2", "bool", "int2", "float4", "float4[]", "float4[]")
 
 
+_BOOL = ("worship", "religious", "tower", "historic", "wikidata", "tourism", "named")
+_DTYPE: dict[str, type] = {"building_id": np.int64, **dict.fromkeys(_BOOL, np.bool_)}
+
+
 def weights(settings: Settings) -> dict[str, float]:
     return {"height": settings.lm_w_height, "volume": settings.lm_w_volume, "area": settings.lm_w_area,
             "relative_height": settings.lm_w_relative_height, "shape": settings.lm_w_shape,
@@ -67,26 +72,32 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     srid = working_srid(conn)
     # lm.building_measures (sql/lm/building_measures.sql), an inlined SQL function streamed into columns by name
+    # Each batch becomes numpy columns at once: a list of Python objects per column and building cost ~15x
+    # the memory of the arrays (a third of the stage's peak at 107k buildings).
     with conn.cursor(name="lm_units") as src:
         src.itersize = 20_000
         src.execute("SELECT * FROM lm.building_measures(%s, %s)", (RELIGIOUS, TOWERS))
         assert src.description is not None
-        cols: dict[str, list[object]] = {d.name: [] for d in src.description}
+        chunks: dict[str, list[np.ndarray]] = {d.name: [] for d in src.description}
         while rows := src.fetchmany(20_000):
-            for c, vals in zip(cols.values(), zip(*rows, strict=True), strict=True):
-                c.extend(vals)
-    ids = np.array(cols["building_id"], dtype=np.int64)
+            for (name, c), vals in zip(chunks.items(), zip(*rows, strict=True), strict=True):
+                c.append(np.array(vals, dtype=_DTYPE.get(name, np.float64)))
+    cols = {k: np.concatenate(v) if v else np.zeros(0, dtype=_DTYPE.get(k, np.float64)) for k, v in chunks.items()}
+    ids = cols["building_id"]
     n = len(ids)
     xy = np.column_stack([np.array(cols["x"], float), np.array(cols["y"], float)]) if n else np.zeros((0, 2))
     area, perimeter, mrr, nverts, height, volume = (
         np.array(cols[k], dtype=float) for k in ("area", "perimeter", "envelope_area", "n_points", "height", "volume"))
-    flags = (np.array([cols[k] for k in ("worship", "religious", "tower", "historic", "wikidata", "tourism", "named")],
-                      dtype=bool).T if n else np.zeros((0, len(SEMANTIC)), bool))
+    flags = np.column_stack([cols[k] for k in _BOOL]) if n else np.zeros((0, len(SEMANTIC)), bool)
     radius = np.array(cols["radius"], dtype=float)
 
-    indptr, indices = lm.radius_neighbours(xy, settings.lm_neighbour_radius_m)
-    relative = lm.relative_height(height, indptr, indices)
-    shape = lm.shape_distinctiveness(lm.shape_descriptors(area, perimeter, mrr, nverts), indptr, indices)
+    # one pass over the neighbour pairs, summed block by block (never all pairs at once): sum of heights for the
+    # relative height, sums of descriptors and of their squares for the shape
+    desc = lm.fill_descriptors(lm.shape_descriptors(area, perimeter, mrr, nverts))
+    count, sums = lm.neighbour_sums(xy, settings.lm_neighbour_radius_m,
+                                    np.column_stack([height, desc, desc**2]) if n else np.zeros((0, 9)))
+    relative = lm.relative_height(height, sums=(count, sums[:, 0]))
+    shape = lm.shape_distinctiveness(desc, sums=(count, sums[:, 1:]))
     semantic = flags.astype(float) @ np.array(list(SEMANTIC.values()))
     # volume, area and relative height are heavy-tailed: logs, so one hangar does not squash the city to ~0
     measures = {"height": height, "volume": np.log1p(volume), "area": np.log1p(area),

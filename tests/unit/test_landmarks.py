@@ -12,7 +12,9 @@ from etl.geom.landmarks import (
     displacement,
     exaggeration_intervals,
     exaggeration_scale,
+    fill_descriptors,
     interval_arrays,
+    neighbour_sums,
     normalize,
     promote,
     radius_neighbours,
@@ -78,6 +80,28 @@ def test_radius_neighbours_matches_brute_force() -> None:
         assert np.array_equal(np.sort(indices[indptr[i]:indptr[i + 1]]), expected)
     indptr, indices = radius_neighbours(np.zeros((0, 2)), 5.0)
     assert indptr.tolist() == [0] and len(indices) == 0
+
+
+def test_neighbour_sums_in_blocks_equal_the_csr_lists() -> None:
+    rng = np.random.default_rng(5)
+    xy = OFF + rng.uniform(0, 300, (400, 2))
+    xy[7] = xy[3]  # a duplicate point counts as a neighbour, not as itself
+    vals = np.column_stack([rng.uniform(3, 40, 400), rng.normal(size=400)])
+    indptr, indices = radius_neighbours(xy, 30.0)
+    adj = np.zeros((400, 400))
+    np.add.at(adj, (np.repeat(np.arange(400), np.diff(indptr)), indices), 1.0)
+    for block in (1, 37, 4096):
+        count, sums = neighbour_sums(xy, 30.0, vals, block=block)
+        assert np.array_equal(count, np.diff(indptr))
+        assert np.allclose(sums, adj @ vals)
+    assert count[3] >= 1 and 7 in indices[indptr[3]:indptr[4]]
+    h = vals[:, 0]
+    assert np.allclose(relative_height(h, sums=(count, sums[:, 0])), relative_height(h, indptr, indices))
+    desc = fill_descriptors(np.column_stack([vals, vals**2]))
+    c2, s2 = neighbour_sums(xy, 30.0, np.column_stack([desc, desc**2]), block=50)
+    assert np.allclose(shape_distinctiveness(desc, sums=(c2, s2)), shape_distinctiveness(desc, indptr, indices))
+    c0, s0 = neighbour_sums(np.zeros((0, 2)), 5.0, np.zeros((0, 3)))
+    assert c0.shape == (0,) and s0.shape == (0, 3)
 
 
 def test_relative_height_flags_the_tower() -> None:
