@@ -18,7 +18,7 @@ SETUP_REPORTS := $(VENV)/.installed-reports
 SETUP_NODE := node_modules/.installed
 
 .PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
-        test-unit test-extracts bench report-generalization report-saliency report-textures lint clean distclean
+        test-unit test-extracts bench bench-scale report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-21s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -131,9 +131,13 @@ test-unit: $(SETUP_REPORTS) $(SETUP_NODE) ## only the pure tests (no database, n
 lint: $(SETUP_PY) ## ruff
 	$(PY) -m ruff check core etl exporter tests benchmarks
 
-bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md
+bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md [SCALE_STAGES=json of bench-scale]
 	scripts/install-system.sh bench
-	$(PY) -m benchmarks.bench --write BENCHMARKS.md
+	$(PY) -m benchmarks.bench --write BENCHMARKS.md $(if $(SCALE_STAGES),--scale-stages-json $(SCALE_STAGES))
+
+bench-scale: setup ## every stage on the benchmark extract, its 6x and ~1M (56x) replicas -> build/bench/scale-stages.json (for make bench SCALE_STAGES=...)
+	scripts/install-system.sh bench
+	$(PY) -m benchmarks.scale_bench --copies 1 6 56 --json build/bench/scale-stages.json
 
 report-generalization: $(SETUP_REPORTS) ## [EXTRACTS=munich,london,liechtenstein,malta]: thesis Table 3.1 measured, with the last far view fidelity pictures (build/bench/fidelity) -> build/reports/generalization.{md,json,png}
 	$(PY) -m benchmarks.report_generalization --out build/reports $(if $(EXTRACTS),--extracts $(EXTRACTS))

@@ -38,12 +38,12 @@ from pathlib import Path
 from typing import Any
 
 import psycopg
-from psycopg.conninfo import conninfo_to_dict
 
-from benchmarks import fidelity_bench, report_textures, stream_bench, view_bench
+from benchmarks import fidelity_bench, report_textures, scale_bench, stream_bench, view_bench
 from benchmarks.common import (
     HEADLINE,
     LOG_DIR,
+    O2P_DB,
     OUT_ROOT,
     SHARED_OSM,
     drop_db,
@@ -52,6 +52,7 @@ from benchmarks.common import (
     machine,
     machine_section,
     markdown_table,
+    osm2pgsql_cmd,
     pass_mark,
     recreate_db,
     run_child,
@@ -68,8 +69,6 @@ DEFAULT_EXTRACTS = (
     "london_city.osm.pbf",
 )
 BENCH_DB = "citylod_bench"
-O2P_DB = "citylod_bench_o2p"
-STYLE = Path(__file__).resolve().parent / "osm2pgsql" / "buildings.lua"
 STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export")
 # Which pipeline_run count is "the buildings this stage handled".
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
@@ -121,20 +120,6 @@ def last_run(url: str, stage: str) -> tuple[dict[str, Any], float | None]:
     if row is None or row[0] != "ok":
         raise RuntimeError(f"{stage}: no successful meta.pipeline_run row (got {row!r})")
     return dict(row[1] or {}), (float(row[2]) if row[2] is not None else None)
-
-
-def osm2pgsql_cmd(url: str, path: Path) -> tuple[list[str], dict[str, str]]:
-    """The osm2pgsql command line for ``url`` (-H/-P/-U/-d), plus PGPASSWORD when the URL carries one."""
-    info = conninfo_to_dict(url)
-    cmd = ["osm2pgsql"]
-    for flag, key in (("-H", "host"), ("-P", "port"), ("-U", "user")):
-        if info.get(key):
-            cmd += [flag, str(info[key])]
-    cmd += ["-d", str(info["dbname"]), "-O", "flex", "-S", str(STYLE), "--create", str(path)]
-    env = dict(os.environ)
-    if info.get("password"):
-        env["PGPASSWORD"] = str(info["password"])
-    return cmd, env
 
 
 def measure_server(url: str, logfile: Path) -> dict[str, Any]:
@@ -543,7 +528,7 @@ def _scale_section(scale: dict[str, Any] | None) -> list[str]:
 
 
 def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, command: str,
-           scale: dict[str, Any] | None = None) -> str:
+           scale: dict[str, Any] | None = None, scale_stages: dict[str, Any] | None = None) -> str:
     n = f"{repeat} run" + ("s" if repeat != 1 else "")
     lines = [
         "# citylod benchmarks", "",
@@ -632,6 +617,7 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
     lines += stream_bench.section_lines([(r.name, r.stream) for r in results if r.stream])
     lines += fidelity_bench.section_lines([(r.name, r.fidelity) for r in results if r.fidelity])
     lines += _server_section(results)
+    lines += scale_bench.section(scale_stages)
     lines += _scale_section(scale)
 
     drifted = [f"{r.name} ({', '.join(d)})" for r in results if (d := r.drift())]
@@ -669,6 +655,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scale-json", type=Path,
                    help="take the latency at scale from this output of `python -m benchmarks.view_bench scale` "
                         "(a run on a quiet machine) instead of measuring it here")
+    p.add_argument("--scale-stages-json", type=Path,
+                   help="take the Scale section (every stage on the extract and its replicas) from this output of "
+                        "`python -m benchmarks.scale_bench --json` (make bench-scale: with the ~1M replica)")
+    p.add_argument("--no-scale-stages", action="store_true",
+                   help="skip the Scale section (the pipeline on the benchmark extract and its 6x replica, ~10 min)")
     p.add_argument("--no-scale", action="store_true",
                    help="skip api.lod_for_view at ~100k/~1M buildings (its cached databases take ~15 min to build)")
     args = p.parse_args(argv)
@@ -687,14 +678,17 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --repeat {args.repeat}"
     if args.files:
         command += " --files " + " ".join(str(f) for f in args.files)
-    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale"):
+    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale", "no_scale_stages"):
         if getattr(args, flag):
             command += " --" + flag.replace("_", "-")
+    if args.scale_stages_json:
+        command += f" --scale-stages-json {args.scale_stages_json}"
     if args.scale_json:
         command += f" --scale-json {args.scale_json}  # from: python -m benchmarks.view_bench scale > {args.scale_json}"
 
     results: list[ExtractResult] = []
     scale: dict[str, Any] | None = None
+    scale_stages: dict[str, Any] | None = None
     t0 = time.perf_counter()
     try:
         for f in files:
@@ -702,6 +696,10 @@ def main(argv: list[str] | None = None) -> int:
                                          stream=not args.no_stream, fidelity=not args.no_fidelity))
         mach = machine(cluster.database_url(BENCH_DB))
         head = next((f for f in files if extract_name(f) == HEADLINE), None)
+        if args.scale_stages_json:
+            scale_stages = json.loads(args.scale_stages_json.read_text())
+        elif head is not None and not args.no_scale_stages:
+            scale_stages = scale_bench.measure(head, [1, 6], admin_url)
         if args.scale_json:
             scale = json.loads(args.scale_json.read_text())
         elif head is not None and not args.no_scale:
@@ -712,7 +710,7 @@ def main(argv: list[str] | None = None) -> int:
                 drop_db(admin_url, db)
             log(f"dropped {BENCH_DB}, {O2P_DB} (use --keep to keep them)")
 
-    report = render(results, mach, args.repeat, command, scale)
+    report = render(results, mach, args.repeat, command, scale, scale_stages)
     if args.write:
         Path(args.write).write_text(report)
         log(f"wrote {args.write}")

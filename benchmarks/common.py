@@ -50,6 +50,24 @@ def run_child(cmd: Sequence[str], env: dict[str, str], logfile: Path) -> tuple[f
     return seconds, usage.ru_maxrss / 1024  # Linux reports ru_maxrss in KiB
 
 
+O2P_DB = "citylod_bench_o2p"
+STYLE = Path(__file__).resolve().parent / "osm2pgsql" / "buildings.lua"
+
+
+def osm2pgsql_cmd(url: str, path: Path) -> tuple[list[str], dict[str, str]]:
+    """The osm2pgsql command line for ``url`` (-H/-P/-U/-d), plus PGPASSWORD when the URL carries one."""
+    info = conninfo_to_dict(url)
+    cmd = ["osm2pgsql"]
+    for flag, key in (("-H", "host"), ("-P", "port"), ("-U", "user")):
+        if info.get(key):
+            cmd += [flag, str(info[key])]
+    cmd += ["-d", str(info["dbname"]), "-O", "flex", "-S", str(STYLE), "--create", str(path)]
+    env = dict(os.environ)
+    if info.get("password"):
+        env["PGPASSWORD"] = str(info["password"])
+    return cmd, env
+
+
 def recreate_db(admin_url: str, name: str) -> None:
     with psycopg.connect(admin_url, autocommit=True) as conn:
         conn.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))

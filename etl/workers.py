@@ -1,33 +1,49 @@
-"""Worker processes that one hung or crashed item cannot stop: ``imap_isolated(fn, items, ...)``.
+"""Units of work as Dask tasks that one hung or crashed unit cannot stop: ``imap_isolated(fn, items, ...)``.
 
-A stage that hands its items to native code (xatlas, OpenImageIO) in worker processes needs what
-concurrent.futures cannot give: to know which item a dead worker was on, and to go on without it. Here each
-worker takes one item at a time over its own pipe, so the parent always knows it; a worker that dies (a
-signal, an abort in native code) or runs past ``timeout`` loses only that item, which comes back as a
-``Lost``; a fresh worker takes the next one. Hangs are caught twice: faulthandler's watchdog thread in the
-worker (it needs no GIL, so it fires inside native code too) prints every thread's Python stack to stderr
-and exits, and the parent kills a worker that is still on its item ``GRACE_S`` later. A worker that will not
-exit at the end (static destructors of native libraries have hung process exits) is killed too, so the
-caller never waits on a process it no longer needs.
+The engine is Dask distributed: by default a ``LocalCluster`` of ``workers`` single-threaded worker processes
+(spawned, never forked: the caller holds database connections and native thread pools), or the existing cluster
+whose scheduler ``CITYLOD_DASK_SCHEDULER=tcp://host:port`` names (its workers run this repository's code in the
+same environment and reach the same PostGIS; ``workers`` is then the cluster's business). Every item is one
+task; ``fn`` gets it on whichever worker the scheduler picks, after ``initializer(*initargs)`` has run once in
+that worker process (e.g. to open its database connection).
 
-Workers are spawned, never forked: the parent holds database connections and native thread pools.
+What a stage needs beyond a pool, kept from the process pool this replaced:
+
+* a hung unit loses only itself: each task arms faulthandler's watchdog (a C thread, so it fires inside native
+  code holding the GIL too), which prints the worker's Python stacks to its stderr and ends the process after
+  ``timeout`` seconds; a task still running ``GRACE_S`` later (its watchdog did not fire) has its worker
+  restarted by its nanny from here;
+* a crashed unit (a signal, an abort in native code) loses only itself;
+* a worker that dies is replaced and its task is run once more on another worker
+  (``distributed.scheduler.allowed-failures`` = ``ALLOWED_FAILURES`` on the local cluster), so a worker killed
+  from outside loses nothing; a task whose workers die ``ALLOWED_FAILURES + 1`` times comes back as a ``Lost``,
+  "hung" when its last attempt ran past the time limit, "crashed" otherwise, and the caller records its units;
+* results come back in item order; an exception raised by ``fn`` is the caller's bug and is raised here as a
+  ``WorkerError`` with the worker's traceback;
+* the local cluster is closed at the end, its worker processes killed if they will not exit.
 """
 
 from __future__ import annotations
 
 import contextlib
 import faulthandler
+import hashlib
+import logging
 import multiprocessing
+import os
+import pickle
 import time
 import traceback
-from collections import deque
+import uuid
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from multiprocessing.connection import Connection, wait
 from typing import Any
 
+SCHEDULER_ENV = "CITYLOD_DASK_SCHEDULER"
+ALLOWED_FAILURES = 1  # a task is run again once after its worker died; the second death loses it
 GRACE_S = 30.0  # after the watchdog's own exit should have happened
 EXIT_WAIT_S = 10.0
+POLL_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -42,119 +58,154 @@ class Lost:
     def detail(self) -> str:
         if self.reason == "hung":
             return f"its worker ran {self.seconds:.0f} s, past the time limit; its stacks went to stderr"
-        return f"its worker died (exit code {self.exitcode}) after {self.seconds:.1f} s; its stacks went to stderr"
+        code = f" (exit code {self.exitcode})" if self.exitcode is not None else ""
+        return (f"its worker died{code} after {self.seconds:.1f} s, on every attempt "
+                f"({ALLOWED_FAILURES + 1}); its stacks went to the worker's stderr")
 
 
 class WorkerError(RuntimeError):
     """``fn`` raised in a worker (the item is not lost: the caller's code is at fault); carries its traceback."""
 
 
-def _serve(conn: Connection, fn: Callable[[Any], Any], initializer: Callable[..., None] | None,
-           initargs: tuple, timeout: float) -> None:
-    faulthandler.enable()  # a fatal signal in native code prints the Python stacks too
-    if initializer is not None:
-        initializer(*initargs)
-    while (msg := conn.recv()) is not None:
-        i, item = msg
-        faulthandler.dump_traceback_later(timeout, exit=True)
+# --- in the worker process ---------------------------------------------------------------------------------
+
+_READY: set[str] = set()
+
+
+def _run_item(fn: Callable[[Any], Any], initializer: Callable[..., None] | None, initargs: tuple, token: str,
+              timeout: float, item: Any) -> Any:
+    if token not in _READY:
+        faulthandler.enable()  # a fatal signal in native code prints the Python stacks too
+        if initializer is not None:
+            initializer(*initargs)
+        _READY.add(token)
+    faulthandler.dump_traceback_later(timeout, exit=True)
+    try:
+        return fn(item)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+
+
+# --- in the caller -----------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def dask_client(workers: int) -> Iterator[Any]:
+    """A Client on ``CITYLOD_DASK_SCHEDULER``'s cluster, else on a fresh LocalCluster of ``workers`` processes."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    address = os.environ.get(SCHEDULER_ENV)
+    if address:
+        client = Client(address, timeout=30)
         try:
-            out = (i, True, fn(item))
-        except Exception:  # noqa: BLE001 -- sent to the parent, which raises it
-            out = (i, False, traceback.format_exc())
+            yield client
         finally:
-            faulthandler.cancel_dump_traceback_later()
-        conn.send(out)
-    conn.close()
+            client.close()
+        return
+    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+                          "distributed.worker.multiprocessing-method": "spawn",
+                          "distributed.worker.daemon": True,
+                          # one task per worker at a time: what the scheduler calls processing is what runs, so
+                          # a task's time on its worker is measured from here (and no queued task dies with it)
+                          "distributed.scheduler.worker-saturation": 1.0,
+                          "distributed.nanny.environ": {"MALLOC_TRIM_THRESHOLD_": 65536}}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.CRITICAL, scheduler_port=0)
+        client = Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
+            _close_cluster(cluster)
 
 
-@dataclass
-class _Worker:
-    proc: multiprocessing.process.BaseProcess
-    conn: Connection
-    item: int | None = None
-    since: float = 0.0
+def _close_cluster(cluster: Any) -> None:
+    """Close the local cluster; worker processes that do not exit in time (static destructors of native
+    libraries have hung process exits) are killed, so the caller never waits on a process it no longer needs."""
+    with contextlib.suppress(Exception):
+        cluster.close(timeout=EXIT_WAIT_S)
+    # the nannies' processes, spawned from here; a restart still under way can start one late
+    deadline = time.monotonic() + EXIT_WAIT_S
+    while time.monotonic() < deadline:
+        left = [p for p in multiprocessing.active_children() if p.name.startswith("Dask Worker process")]
+        if not left:
+            break
+        for proc in left:
+            proc.kill()
+            proc.join(1.0)
+        time.sleep(POLL_S)
+
+
+def _token(fn: Callable[..., Any], initializer: Callable[..., None] | None, initargs: tuple) -> str:
+    blob = pickle.dumps((fn.__module__, fn.__qualname__, initializer and initializer.__qualname__, initargs))
+    return hashlib.sha1(blob).hexdigest()[:12]
 
 
 def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, timeout: float,
                   initializer: Callable[..., None] | None = None, initargs: tuple = ()) -> Iterator[Any]:
-    """``fn(item)`` for every item in ``workers`` spawned processes, yielded in item order; an item whose
-    worker hung (past ``timeout`` seconds) or died yields a ``Lost`` instead. ``fn`` and ``initializer``
+    """``fn(item)`` for every item as Dask tasks, yielded in item order; an item whose worker hung (past
+    ``timeout`` seconds) or died on every attempt yields a ``Lost`` instead. ``fn`` and ``initializer``
     must be importable module-level functions. An exception raised by ``fn`` is re-raised as WorkerError."""
     if workers < 1 or timeout <= 0:
         raise ValueError("workers must be >= 1 and timeout > 0")
-    ctx = multiprocessing.get_context("spawn")
-    todo = deque(enumerate(items))
-    n = len(todo)
-    done: dict[int, Any] = {}
-    pool: list[_Worker] = []
+    todo = list(items)
+    if not todo:
+        return
+    from distributed import KilledWorker, wait
 
-    def start() -> None:
-        parent, child = ctx.Pipe()
-        proc = ctx.Process(target=_serve, args=(child, fn, initializer, initargs, timeout), daemon=True)
-        proc.start()
-        child.close()
-        pool.append(_Worker(proc, parent))
-
-    def feed(w: _Worker) -> None:
-        if not todo:
-            return
-        i, item = todo.popleft()
-        w.item, w.since = i, time.monotonic()
+    token = _token(fn, initializer, initargs)
+    run = uuid.uuid4().hex[:8]
+    keys = [f"citylod-{fn.__name__}-{run}-{i}" for i in range(len(todo))]
+    with dask_client(min(workers, len(todo))) as client:
+        futures = client.map(_run_item, [fn] * len(todo), [initializer] * len(todo), [initargs] * len(todo),
+                             [token] * len(todo), [timeout] * len(todo), todo, key=keys, pure=False)
+        started: dict[str, tuple[str, float]] = {}  # key -> (worker, when this attempt was first seen running)
+        ran: dict[str, float] = {}  # key -> how long its last finished attempt was seen running
         try:
-            w.conn.send((i, item))
-        except OSError:  # it died between items: the item was never its own
-            todo.appendleft((i, item))
-            w.item = None
-            lose(w, "crashed")
-
-    def lose(w: _Worker, reason: str) -> None:
-        w.proc.kill()
-        w.proc.join()
-        w.conn.close()
-        pool.remove(w)
-        if w.item is not None:
-            done[w.item] = Lost(reason, w.proc.exitcode, time.monotonic() - w.since)
-        if todo:
-            start()
-            feed(pool[-1])
-
-    try:
-        for _ in range(min(workers, n)):
-            start()
-        for w in pool:
-            feed(w)
-        nxt = 0
-        while nxt < n:
-            while nxt in done:
-                yield done.pop(nxt)
-                nxt += 1
-            if nxt >= n:
-                break
-            busy = [w for w in pool if w.item is not None]
-            now = time.monotonic()
-            limit = min(w.since + timeout + GRACE_S for w in busy) - now
-            ready = wait([w.conn for w in busy], timeout=max(limit, 0.0))
-            for w in [w for w in busy if w.conn in ready]:
+            for i, fut in enumerate(futures):
+                while not fut.done():
+                    with contextlib.suppress(TimeoutError):
+                        wait(fut, timeout=POLL_S)
+                    _watch(client, started, ran, timeout)
                 try:
-                    i, ok, out = w.conn.recv()
-                except (EOFError, OSError):
-                    lose(w, "hung" if time.monotonic() - w.since >= timeout else "crashed")
-                    continue
-                if not ok:
-                    raise WorkerError(f"item {i} raised in its worker:\n{out}")
-                done[i] = out
-                w.item = None
-                feed(w)
-            for w in [w for w in busy if w.conn not in ready and time.monotonic() - w.since > timeout + GRACE_S]:
-                lose(w, "hung")
-    finally:
-        for w in pool:
-            with contextlib.suppress(OSError):
-                w.conn.send(None)
-        deadline = time.monotonic() + EXIT_WAIT_S
-        for w in pool:
-            w.proc.join(max(0.0, deadline - time.monotonic()))
-            if w.proc.is_alive():
-                w.proc.kill()
-                w.proc.join()
-            w.conn.close()
+                    out = fut.result()
+                except KilledWorker:
+                    k = keys[i]
+                    seconds = time.monotonic() - started[k][1] if k in started else ran.get(k, 0.0)
+                    # seen running up to a poll late: a watchdog exit at the limit must not read as a crash
+                    out = Lost("hung" if seconds + 2 * POLL_S >= timeout else "crashed", None, seconds)
+                except Exception as e:  # noqa: BLE001 -- the caller's code raised in the worker
+                    tb = "".join(traceback.format_exception(type(e), e, e.__traceback__))
+                    raise WorkerError(f"item {i} raised in its worker:\n{tb}") from None
+                futures[i] = None  # type: ignore[call-overload]  # its result leaves the cluster once yielded
+                fut.release()
+                yield out
+        finally:
+            client.cancel([f for f in futures if f is not None])
+
+
+def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float) -> None:
+    """Note when each running task started and how long its last attempt ran (a retry runs on another worker),
+    and restart the worker of a task past ``timeout`` + GRACE_S, whose watchdog should have ended it."""
+    now = time.monotonic()
+    try:
+        processing = client.processing()
+    except Exception:  # noqa: BLE001 -- the scheduler is busy replacing a worker; look again next poll
+        return
+    running = {str(k) for keys in processing.values() for k in keys}
+    for key in [k for k in started if k not in running]:
+        ran[key] = now - started.pop(key)[1]
+    for worker, keys in processing.items():
+        for key in keys:
+            if not str(key).startswith("citylod-"):
+                continue
+            seen = started.get(key)
+            if seen is None or seen[0] != worker:
+                if seen is not None:
+                    ran[key] = now - seen[1]
+                started[key] = (worker, now)
+            elif now - seen[1] > timeout + GRACE_S:
+                with contextlib.suppress(Exception):
+                    client.restart_workers([worker], timeout=EXIT_WAIT_S)
+                started[key] = (worker, now - timeout)  # its next attempt, if any, is judged from here

@@ -5,8 +5,13 @@ atlas page (not per building), the DB server's bytes the file's, windows where t
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import http.client
+import os
+import subprocess
+import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -25,7 +30,7 @@ from exporter.gltf import read_glb
 from exporter.server.app import make_app
 from exporter.server.reader import reader_url
 from exporter.server.source import DbTileSource
-from tests.conftest import helsinki, run_etl, validate_glb
+from tests.conftest import REPO, helsinki, run_etl, validate_glb
 from tests.unit.test_ktx2 import IDENTIFIER, assert_ktx2_report, read_ktx2
 
 S = Settings()
@@ -130,23 +135,95 @@ def test_coarser_tiles_get_fewer_texels_per_metre(textured, conn_of) -> None:
     assert root[0] < min(leaves) / 4  # the root's blocks at a fraction of the leaves' resolution
 
 
-def test_a_second_run_gives_the_same_bytes(textured, conn_of) -> None:
+def _digest(conn: psycopg.Connection) -> tuple[str, str]:
+    a = hashlib.sha256()
+    for row in conn.execute("SELECT level, x, y, page_no, bytes, ktx2 FROM tex.page ORDER BY 1, 2, 3, 4"):
+        a.update(repr(row[:4]).encode() + bytes(row[4]) + bytes(row[5] or b""))
+    b = hashlib.sha256()
+    for row in conn.execute("SELECT level, x, y, feature_kind, feature_id, page, uv FROM tex.feature_uv "
+                            "ORDER BY 1, 2, 3, 4, 5"):
+        b.update(repr(row[:5]).encode() + bytes(row[5]) + bytes(row[6]))
+    return a.hexdigest(), b.hexdigest()
+
+
+def _tiles_digest(url: str, out: Path) -> str:
+    run_etl(url, "export", "--out", str(out))
+    h = hashlib.sha256()
+    for f in sorted(out.rglob("*")):
+        if f.is_file():
+            h.update(f.relative_to(out).as_posix().encode() + f.read_bytes())
+    return h.hexdigest()
+
+
+@contextlib.contextmanager
+def dask_cluster(extra_workers: int = 1):
+    """A LocalCluster of 2 workers in this process plus ``extra_workers`` `dask worker` processes started
+    separately, as a user would add a machine: (scheduler address, the extra workers' Popen objects)."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        extra = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", cluster.scheduler_address,
+                                   "--nthreads", "1", "--no-dashboard", "--name", f"extra-{i}"],
+                                  cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 for i in range(extra_workers)]
+        try:
+            client.wait_for_workers(2 + extra_workers, timeout=60)
+            yield cluster.scheduler_address, extra
+        finally:
+            for proc in extra:
+                proc.kill()
+                proc.wait(30)
+
+
+def test_the_same_bytes_with_1_and_2_workers_and_an_extra_dask_worker(textured, conn_of, tmp_path) -> None:
+    """Units are Dask tasks: one in-process worker, a LocalCluster of 2, and an existing cluster (2 local workers
+    plus a `dask worker` started separately) give the same pages, UVs and tiles."""
     url = textured[0]
     conn = conn_of(url)
+    before = _digest(conn)
+    tiles = _tiles_digest(url, tmp_path / "first")
+    run_etl(url, "textures", env={"CITYLOD_TEX_WORKERS": "1"})
+    assert _digest(conn) == before
+    run_etl(url, "textures", env={"CITYLOD_TEX_WORKERS": "2"})
+    assert _digest(conn) == before
+    with dask_cluster() as (address, _):
+        proc = run_etl(url, "textures", env={"CITYLOD_DASK_SCHEDULER": address, "CITYLOD_TEX_WORKERS": "2"})
+        assert "textures: in" in proc.stdout
+    assert _digest(conn) == before
+    assert _tiles_digest(url, tmp_path / "again") == tiles
 
-    def digest() -> tuple[str, str]:
-        a = hashlib.sha256()
-        for row in conn.execute("SELECT level, x, y, page_no, bytes FROM tex.page ORDER BY 1, 2, 3, 4"):
-            a.update(repr(row[:4]).encode() + bytes(row[4]))
-        b = hashlib.sha256()
-        for row in conn.execute("SELECT level, x, y, feature_kind, feature_id, page, uv FROM tex.feature_uv "
-                                "ORDER BY 1, 2, 3, 4, 5"):
-            b.update(repr(row[:5]).encode() + bytes(row[5]) + bytes(row[6]))
-        return a.hexdigest(), b.hexdigest()
 
-    before = digest()
-    run_etl(url, "textures", env={"CITYLOD_TEX_WORKERS": "1"})  # another process layout, same bytes
-    assert digest() == before
+def test_a_worker_killed_mid_run_loses_nothing(textured, conn_of) -> None:
+    """The extra `dask worker` is killed while the stage runs: its task runs again on another worker, so the
+    pages are the same bytes and no feature goes to tex.failure."""
+    url = textured[0]
+    conn = conn_of(url)
+    before = _digest(conn)
+    failed_before = conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0]
+    with dask_cluster() as (address, extra):
+        env = {**os.environ, "DATABASE_URL": url, "CITYLOD_DASK_SCHEDULER": address, "CITYLOD_TEX_WORKERS": "2"}
+        stage = subprocess.Popen([sys.executable, "-m", "etl", "textures"], cwd=REPO, env=env,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        # the extra worker dies while it runs a unit of the stage
+        from distributed import Client
+
+        busy = False
+        with Client(address) as client:
+            addr = next(a for a, w in client.scheduler_info()["workers"].items() if w.get("name") == "extra-0")
+            deadline = time.monotonic() + 300
+            while not busy and time.monotonic() < deadline and stage.poll() is None:
+                busy = any(str(k).startswith("citylod-") for k in client.processing().get(addr, ()))
+                time.sleep(0.02)
+            extra[0].kill()
+        out, err = stage.communicate(timeout=900)
+        assert busy, "the extra worker never ran a unit"
+    assert stage.returncode == 0, err
+    assert _digest(conn) == before
+    assert conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0] == failed_before
+    run = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
+                       "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    assert run["units_lost"] == 0
 
 
 def test_every_page_is_stored_as_webp_and_as_ktx2_with_its_mip_chain(textured, conn_of) -> None:
