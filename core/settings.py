@@ -57,6 +57,15 @@ class Settings:
     #: "panel" = only its 2-triangle front face. On Liechtenstein boxes make LOD3 8.9 M triangles instead of
     #: 1.8 M and the lod stage about 4× slower (20 s against 4.7 s, measured by hand at 7f4c184).
     lod3_openings: str = "panel"
+    #: Worker processes building the meshes, one batch of buildings per Dask task (0: one per CPU core but the
+    #: one the database's COPY needs, at most 4; 1 builds them in the stage's own process, the default on 2
+    #: cores, where it is the faster). The meshes are the same whatever the count.
+    lod_workers: int = 0
+    #: Buildings per batch (one Dask task); the meshes are the same whatever the size.
+    lod_batch_size: int = 2000
+    #: A batch still being built after this many seconds is hung, not slow (Liechtenstein's 2,000-building
+    #: batches take ~0.5 s): its worker is stopped and its buildings recorded as rejects (lod_hung).
+    lod_batch_timeout_s: float = 600.0
 
     # --- tiles ----------------------------------------------------------------------------------------------
     #: Quadtree budget: a cell is split while it holds more features (buildings + parts) than this ...

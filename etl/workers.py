@@ -25,6 +25,7 @@ What a stage needs beyond a pool, kept from the process pool this replaced:
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import faulthandler
 import hashlib
@@ -44,6 +45,8 @@ ALLOWED_FAILURES = 1  # a task is run again once after its worker died; the seco
 GRACE_S = 30.0  # after the watchdog's own exit should have happened
 EXIT_WAIT_S = 10.0
 POLL_S = 0.2
+NO_WORKER_S = 120.0
+_END = object()
 
 
 @dataclass(frozen=True)
@@ -143,56 +146,86 @@ def _token(fn: Callable[..., Any], initializer: Callable[..., None] | None, init
 
 
 def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, timeout: float,
-                  initializer: Callable[..., None] | None = None, initargs: tuple = ()) -> Iterator[Any]:
+                  initializer: Callable[..., None] | None = None, initargs: tuple = (),
+                  window: int | None = None) -> Iterator[Any]:
     """``fn(item)`` for every item as Dask tasks, yielded in item order; an item whose worker hung (past
     ``timeout`` seconds) or died on every attempt yields a ``Lost`` instead. ``fn`` and ``initializer``
-    must be importable module-level functions. An exception raised by ``fn`` is re-raised as WorkerError."""
-    if workers < 1 or timeout <= 0:
-        raise ValueError("workers must be >= 1 and timeout > 0")
-    todo = list(items)
-    if not todo:
+    must be importable module-level functions. An exception raised by ``fn`` is re-raised as WorkerError.
+    ``items`` is read lazily, at most ``window`` of them in flight (None: all at once), so a stream of batches
+    is never held whole."""
+    if workers < 1 or timeout <= 0 or (window is not None and window < 1):
+        raise ValueError("workers must be >= 1, timeout > 0 and window >= 1")
+    source = iter(items)
+    first = next(source, _END)
+    if first is _END:
         return
     from distributed import KilledWorker, wait
 
     token = _token(fn, initializer, initargs)
     run = uuid.uuid4().hex[:8]
-    keys = [f"citylod-{fn.__name__}-{run}-{i}" for i in range(len(todo))]
-    with dask_client(min(workers, len(todo))) as client:
-        futures = client.map(_run_item, [fn] * len(todo), [initializer] * len(todo), [initargs] * len(todo),
-                             [token] * len(todo), [timeout] * len(todo), todo, key=keys, pure=False)
+    with dask_client(workers) as client:
+        flight: collections.deque[tuple[str, Any]] = collections.deque()  # (key, future), in item order
+        submitted = 0
+        pending: Any = first
+
+        def submit() -> None:
+            nonlocal submitted, pending
+            while pending is not _END and (window is None or len(flight) < window):
+                key = f"citylod-{fn.__name__}-{run}-{submitted}"
+                flight.append((key, client.submit(_run_item, fn, initializer, initargs, token, timeout, pending,
+                                                  key=key, pure=False)))
+                submitted += 1
+                pending = next(source, _END)
+
         started: dict[str, tuple[str, float]] = {}  # key -> (worker, when this attempt was first seen running)
         ran: dict[str, float] = {}  # key -> how long its last finished attempt was seen running
+        alive = [time.monotonic()]  # when the cluster last had a worker
+        i = 0
         try:
-            for i, fut in enumerate(futures):
+            submit()
+            while flight:
+                key, fut = flight[0]
                 while not fut.done():
                     with contextlib.suppress(TimeoutError):
                         wait(fut, timeout=POLL_S)
-                    _watch(client, started, ran, timeout)
+                    _watch(client, started, ran, timeout, alive)
                 try:
                     out = fut.result()
                 except KilledWorker:
-                    k = keys[i]
-                    seconds = time.monotonic() - started[k][1] if k in started else ran.get(k, 0.0)
+                    seconds = time.monotonic() - started[key][1] if key in started else ran.get(key, 0.0)
                     # seen running up to a poll late: a watchdog exit at the limit must not read as a crash
                     out = Lost("hung" if seconds + 2 * POLL_S >= timeout else "crashed", None, seconds)
                 except Exception as e:  # noqa: BLE001 -- the caller's code raised in the worker
                     tb = "".join(traceback.format_exception(type(e), e, e.__traceback__))
                     raise WorkerError(f"item {i} raised in its worker:\n{tb}") from None
-                futures[i] = None  # type: ignore[call-overload]  # its result leaves the cluster once yielded
-                fut.release()
+                flight.popleft()
+                fut.release()  # its result leaves the cluster once yielded
+                started.pop(key, None)
+                ran.pop(key, None)
+                submit()
+                i += 1
                 yield out
         finally:
-            client.cancel([f for f in futures if f is not None])
+            client.cancel([f for _, f in flight])
 
 
-def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float) -> None:
+def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float,
+           alive: list[float]) -> None:
     """Note when each running task started and how long its last attempt ran (a retry runs on another worker),
-    and restart the worker of a task past ``timeout`` + GRACE_S, whose watchdog should have ended it."""
+    and restart the worker of a task past ``timeout`` + GRACE_S, whose watchdog should have ended it. A cluster
+    left without any worker for NO_WORKER_S (a nanny that could not start its replacement on a machine under
+    heavy load) fails the run with that message instead of waiting forever."""
     now = time.monotonic()
     try:
         processing = client.processing()
     except Exception:  # noqa: BLE001 -- the scheduler is busy replacing a worker; look again next poll
         return
+    if processing:
+        alive[0] = now
+    elif now - alive[0] > NO_WORKER_S:
+        raise RuntimeError(f"the Dask cluster has had no worker for {NO_WORKER_S:.0f} s "
+                           f"({os.environ.get(SCHEDULER_ENV) or 'the local cluster'}): its workers died and none "
+                           "came back; the unit's stacks are in the workers' stderr")
     running = {str(k) for keys in processing.values() for k in keys}
     for key in [k for k in started if k not in running]:
         ran[key] = now - started.pop(key)[1]

@@ -7,7 +7,9 @@ once (etl/geom/extrude.py); pitched roofs are built per footprint from the strai
 in the same query (lod.straight_skeleton, etl/geom/roofs.py); LOD3 adds windows and doors for the whole batch
 (etl/geom/facade.py). Every LOD2 solid is measured (closed, consistently wound, volume > 0,
 etl/geom/check.py) and failures are recorded. Meshes are COPYed as POLYHEDRALSURFACE Z EWKB with one
-surface-semantic byte per triangle.
+surface-semantic byte per triangle. The batches are built as Dask tasks (etl/workers.py; settings.lod_workers),
+a few in flight, while one thread COPYs the built ones in input order; a batch whose worker hangs or dies on
+every attempt becomes rejects (lod_hung / lod_crashed), never a stopped run.
 
 Outlines whose parts cover them (settings.outline_part_coverage, the S3DB outline rule) are not drawn: their
 parts are, and the outline gets an ``outline_hidden_by_parts`` diagnostic. When parts cover less, only what
@@ -19,9 +21,12 @@ the roof. in = buildings drawn + outlines hidden by parts + rejects (osm.reject,
 
 from __future__ import annotations
 
+import collections
+import os
 import queue
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,8 +46,8 @@ from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams, facades
+from ..workers import Lost, imap_isolated
 
-BATCH = 2000
 ROOF_SLAB_M = 0.3  # thickness of a roof drawn without walls (building:part=roof)
 LODS = (1, 2, 3)
 _SKELETON_VALUES = sorted(roofs.NEEDS_SKELETON | {k for k, v in roofs.ALIASES.items() if v in roofs.NEEDS_SKELETON})
@@ -382,6 +387,49 @@ def build_batch(rows: list[dict[str, Any]], settings: Settings, srid: int) -> Ba
     return out
 
 
+def _build(item: tuple[list[dict[str, Any]], Settings, int]) -> Batch:
+    return build_batch(*item)
+
+
+def _lost_batch(rows: list[dict[str, Any]], lost: Lost) -> Batch:
+    """A batch whose worker hung or died on it: its buildings become rejects with the reason, so none is lost
+    (the outlines without a footprint are drawn by their parts, as build_batch would say)."""
+    out = Batch()
+    for r in rows:
+        if r["footprint"] is None:
+            out.hidden += 1
+            out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_hidden_by_parts",
+                                    "the parts leave only slivers (< 1 m²) of the outline uncovered"))
+        else:
+            out.rejects.append((r["osm_type"], r["osm_id"], f"lod_{lost.reason}",
+                                f"its batch of {len(rows)} buildings: {lost.detail}"))
+    return out
+
+
+def _built(src: psycopg.Cursor, settings: Settings, srid: int,
+           failure: list[BaseException]) -> Iterator[tuple[list[dict[str, Any]], Batch]]:
+    """(rows, their Batch) for every batch of the input, in input order: built here with one worker, else as
+    Dask tasks (etl/workers.py) with a few batches in flight, so the city is never held whole."""
+    batches = iter(lambda: [] if failure else src.fetchmany(settings.lod_batch_size), [])
+    # the database COPYs the meshes while they are built: it keeps a core (on 2 cores the stage's own process
+    # and the COPY thread were faster than 2 Dask workers: 15 s against 21 s on Liechtenstein x6, measured)
+    workers = settings.lod_workers or min(4, max(1, (os.cpu_count() or 1) - 1))
+    if workers <= 1:
+        for rows in batches:
+            yield rows, build_batch(rows, settings, srid)
+        return
+    flight: collections.deque[list[dict[str, Any]]] = collections.deque()
+
+    def items() -> Iterator[tuple[list[dict[str, Any]], Settings, int]]:
+        for rows in batches:
+            flight.append(rows)
+            yield rows, settings, srid
+
+    for out in imap_isolated(_build, items(), workers, settings.lod_batch_timeout_s, window=2 * workers):
+        rows = flight.popleft()
+        yield rows, (_lost_batch(rows, out) if isinstance(out, Lost) else out)
+
+
 def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     srid = working_srid(conn)
@@ -410,7 +458,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         hidden = cur.execute("CALL lod.diagnose_hidden_outlines(%s, NULL)", (coverage,)).fetchone()[0]  # type: ignore[index]
         progress.total = total - hidden
         with reader.cursor(name="lod_input", row_factory=dict_row) as src:
-            src.itersize = BATCH
+            src.itersize = settings.lod_batch_size
             src.execute("SELECT * FROM lod.building_input(%s, %s)", (coverage, _SKELETON_VALUES))
             # The database parses and indexes a batch (COPY) while Python builds the next: two cores busy.
             pending: queue.Queue[Batch | None] = queue.Queue(maxsize=2)
@@ -442,8 +490,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
             writer = threading.Thread(target=write, name="lod-copy")
             writer.start()
             try:
-                while not failure and (rows := src.fetchmany(BATCH)):
-                    b = build_batch(rows, settings, srid)
+                for rows, b in _built(src, settings, srid, failure):
                     for key, v in b.seconds.items():
                         seconds[key] += v
                     counts["buildings"] += b.drawn

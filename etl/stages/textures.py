@@ -330,7 +330,8 @@ def _map_units(work: list[list[Tile]], url: str, settings: Settings, workers: in
         finally:
             _WORKER.pop("conn").close()
         return
-    yield from imap_isolated(_do_unit, work, workers, settings.tex_unit_timeout_s, _init_worker, (url, settings))
+    yield from imap_isolated(_do_unit, work, min(workers, len(work)), settings.tex_unit_timeout_s, _init_worker,
+                             (url, settings))
 
 
 def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[Result]:

@@ -149,3 +149,34 @@ def test_real_extract_solids_are_closed(city, conn_of, name, min_meshes) -> None
     assert bad == []
     c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod'").fetchone()[0]
     assert c["in"] == c["buildings"] + c["hidden_by_parts"] + c["rejected"]
+
+
+def _mesh_digest(conn) -> str:
+    rows = conn.execute("""SELECT md5(string_agg(building_id || ':' || lod || ':' || md5(ST_AsEWKB(geom)::text)
+                                                 || ':' || md5(semantics::text), ',' ORDER BY building_id, lod))
+                           FROM lod.building_mesh""").fetchone()
+    return rows[0]
+
+
+def test_the_same_meshes_with_one_worker_or_dask_tasks_and_a_hung_batch_is_rejects(new_db, conn_of) -> None:
+    """Batches of 50 buildings of Helsinki as Dask tasks on 2 workers give the meshes one process gives; with a
+    time limit every batch exceeds, every building is a reject with the reason and the run still balances."""
+    from tests.conftest import helsinki
+
+    url = new_db("lod_workers")
+    run_etl(url, "ingest", "--osm", str(helsinki()))
+    conn = conn_of(url)
+    run_etl(url, "lod", env={"CITYLOD_LOD_WORKERS": "1"})
+    one = _mesh_digest(conn)
+    run_etl(url, "lod", env={"CITYLOD_LOD_WORKERS": "2", "CITYLOD_LOD_BATCH_SIZE": "50"})
+    assert _mesh_digest(conn) == one
+    proc = run_etl(url, "lod", env={"CITYLOD_LOD_WORKERS": "2", "CITYLOD_LOD_BATCH_SIZE": "50",
+                                    "CITYLOD_LOD_BATCH_TIMEOUT_S": "0.001"})
+    assert "Timeout (" in proc.stderr
+    c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
+                     "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    assert c["buildings"] == 0 and c["rejected"] > 500 and c["in"] == c["hidden_by_parts"] + c["rejected"]
+    reasons = conn.execute("SELECT reason, count(*), bool_and(detail LIKE '%time limit%') FROM osm.reject "
+                           "WHERE stage = 'lod' GROUP BY 1").fetchall()
+    assert reasons == [("lod_hung", c["rejected"], True)]
+    assert conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0] == 0
