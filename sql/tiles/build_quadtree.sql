@@ -48,6 +48,8 @@ BEGIN
     JOIN osm.building o ON o.id = g.group_id
     CROSS JOIN LATERAL (SELECT ST_Centroid(ST_Envelope(o.geom_local)) AS pt) c;
 
+    ANALYZE _grp;  -- temporary tables get no statistics from autovacuum: without them every join below is a guess
+
     IF NOT EXISTS (SELECT 1 FROM _grp) THEN
         RAISE EXCEPTION 'no LOD% meshes: run the lod stage first', lod;
     END IF;
@@ -82,6 +84,9 @@ BEGIN
         EXIT WHEN NOT EXISTS (SELECT 1 FROM _grp WHERE lvl IS NULL);
         v_level := v_level + 1;
     END LOOP;
+
+    ANALYZE _grp;
+    ANALYZE _cell;
 
     -- Leaves: region of their meshes at every LOD (each mesh's working-CRS box, reprojected).
     INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri,
@@ -134,6 +139,10 @@ BEGIN
     JOIN osm.building b ON b.id = m.building_id
     JOIN _grp g ON g.group_id = coalesce(b.parent_id, b.id)
     WHERE m.lod = build_quadtree.lod;
+
+    -- for the generalize stage's first statements, before autovacuum sees the committed tables
+    ANALYZE tiles.tile;
+    ANALYZE tiles.building_tile;
 END
 $$;
 COMMENT ON PROCEDURE tiles.build_quadtree(integer, integer, integer, integer, double precision) IS
