@@ -62,8 +62,8 @@ class Lost:
         if self.reason == "hung":
             return f"its worker ran {self.seconds:.0f} s, past the time limit; its stacks went to stderr"
         code = f" (exit code {self.exitcode})" if self.exitcode is not None else ""
-        return (f"its worker died{code} after {self.seconds:.1f} s, on every attempt "
-                f"({ALLOWED_FAILURES + 1}); its stacks went to the worker's stderr")
+        return (f"its worker died{code} after {self.seconds:.1f} s, on every attempt; its stacks went to the "
+                "worker's stderr")
 
 
 class WorkerError(RuntimeError):
@@ -109,10 +109,8 @@ def dask_client(workers: int) -> Iterator[Any]:
     with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
                           "distributed.worker.multiprocessing-method": "spawn",
                           "distributed.worker.daemon": True,
-                          # one task per worker at a time: what the scheduler calls processing is what runs, so
-                          # a task's time on its worker is measured from here (and no queued task dies with it)
-                          "distributed.scheduler.worker-saturation": 1.0,
-                          "distributed.nanny.environ": {"MALLOC_TRIM_THRESHOLD_": 65536}}):
+                          "distributed.scheduler.worker-saturation": 1.0}):
+        before = {p.pid for p in multiprocessing.active_children()}
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                silence_logs=logging.CRITICAL, scheduler_port=0)
         client = Client(cluster)
@@ -120,18 +118,20 @@ def dask_client(workers: int) -> Iterator[Any]:
             yield client
         finally:
             client.close()
-            _close_cluster(cluster)
+            _close_cluster(cluster, before)
 
 
-def _close_cluster(cluster: Any) -> None:
+def _close_cluster(cluster: Any, before: set[int | None]) -> None:
     """Close the local cluster; worker processes that do not exit in time (static destructors of native
-    libraries have hung process exits) are killed, so the caller never waits on a process it no longer needs."""
+    libraries have hung process exits) are killed, so the caller never waits on a process it no longer needs.
+    Only this cluster's: the worker processes spawned since it was made (``before``: the children then)."""
     with contextlib.suppress(Exception):
         cluster.close(timeout=EXIT_WAIT_S)
     # the nannies' processes, spawned from here; a restart still under way can start one late
     deadline = time.monotonic() + EXIT_WAIT_S
     while time.monotonic() < deadline:
-        left = [p for p in multiprocessing.active_children() if p.name.startswith("Dask Worker process")]
+        left = [p for p in multiprocessing.active_children()
+                if p.name.startswith("Dask Worker process") and p.pid not in before]
         if not left:
             break
         for proc in left:
@@ -169,8 +169,12 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
         pending: Any = first
 
         def submit() -> None:
+            # never more in flight than the cluster has threads: a task queued behind another on a worker would
+            # die with that worker (and count a failure) and be timed from when it was queued
             nonlocal submitted, pending
-            while pending is not _END and (window is None or len(flight) < window):
+            threads = max(1, sum(client.nthreads().values()))
+            limit = threads if window is None else min(window, threads)
+            while pending is not _END and len(flight) < limit:
                 key = f"citylod-{fn.__name__}-{run}-{submitted}"
                 flight.append((key, client.submit(_run_item, fn, initializer, initargs, token, timeout, pending,
                                                   key=key, pure=False)))
@@ -188,7 +192,7 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
                 while not fut.done():
                     with contextlib.suppress(TimeoutError):
                         wait(fut, timeout=POLL_S)
-                    _watch(client, started, ran, timeout, alive)
+                    _watch(client, started, ran, timeout, alive, f"citylod-{fn.__name__}-{run}-")
                 try:
                     out = fut.result()
                 except KilledWorker:
@@ -210,7 +214,7 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
 
 
 def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float,
-           alive: list[float]) -> None:
+           alive: list[float], prefix: str) -> None:
     """Note when each running task started and how long its last attempt ran (a retry runs on another worker),
     and restart the worker of a task past ``timeout`` + GRACE_S, whose watchdog should have ended it. A cluster
     left without any worker for NO_WORKER_S (a nanny that could not start its replacement on a machine under
@@ -219,19 +223,21 @@ def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, fl
     try:
         processing = client.processing()
     except Exception:  # noqa: BLE001 -- the scheduler is busy replacing a worker; look again next poll
-        return
+        processing = None
     if processing:
         alive[0] = now
-    elif now - alive[0] > NO_WORKER_S:
+    elif now - alive[0] > NO_WORKER_S:  # no worker, or no answer from the scheduler, for that long
         raise RuntimeError(f"the Dask cluster has had no worker for {NO_WORKER_S:.0f} s "
                            f"({os.environ.get(SCHEDULER_ENV) or 'the local cluster'}): its workers died and none "
                            "came back; the unit's stacks are in the workers' stderr")
-    running = {str(k) for keys in processing.values() for k in keys}
+    if processing is None:
+        return
+    running = {str(k) for keys in processing.values() for k in keys if str(k).startswith(prefix)}
     for key in [k for k in started if k not in running]:
         ran[key] = now - started.pop(key)[1]
     for worker, keys in processing.items():
         for key in keys:
-            if not str(key).startswith("citylod-"):
+            if not str(key).startswith(prefix):  # another run's, on a shared cluster
                 continue
             seen = started.get(key)
             if seen is None or seen[0] != worker:

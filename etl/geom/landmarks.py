@@ -152,7 +152,7 @@ def shape_distinctiveness(descriptors: np.ndarray, indptr: np.ndarray | None = N
     does not turn a small difference into a huge score; a descriptor constant over the whole set counts 0.
     NaN descriptors count as 0 (typical). 0 = typical, ~1 = one standard deviation off on average.
     Instead of the CSR lists, ``sums`` = neighbour_sums(xy, radius, [x, x²]) of ``fill_descriptors(descriptors)``
-    (k columns of x, then k of x²) gives the same.
+    (k columns of x, then k of x²) gives the same (``descriptors`` stay the raw ones, NaN included).
     """
     x = np.asarray(descriptors, dtype=np.float64)
     if x.ndim == 1:

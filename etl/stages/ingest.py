@@ -135,15 +135,16 @@ def read_buildings(
                 continue
             try:
                 line = wkb.create_linestring(obj)
-            except osmium.InvalidLocationError:
-                # the nodes are only walked in Python for the rare way that needs the list
+            except (osmium.InvalidLocationError, RuntimeError) as e:
+                # the nodes are only walked in Python for the rare way that needs it; with every node missing
+                # libosmium says "need at least two points", as it does for a ring of one repeated point
                 missing = [n.ref for n in nodes if not n.location.valid()]
-                shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
-                yield _reject("W", obj.id, parsed, tags, "missing_nodes",
-                              f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
-                continue
-            except RuntimeError as e:  # e.g. every node at one spot: no linestring, let alone a ring
-                yield _reject("W", obj.id, parsed, tags, "degenerate_ring", str(e))
+                if missing:
+                    shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
+                    yield _reject("W", obj.id, parsed, tags, "missing_nodes",
+                                  f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
+                else:  # e.g. every node at one spot: no linestring, let alone a ring
+                    yield _reject("W", obj.id, parsed, tags, "degenerate_ring", str(e))
                 continue
             yield _row("W", obj.id, parsed, tags, "L", line)
         elif obj.is_node():

@@ -93,11 +93,12 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
 
     # one pass over the neighbour pairs, summed block by block (never all pairs at once): sum of heights for the
     # relative height, sums of descriptors and of their squares for the shape
-    desc = lm.fill_descriptors(lm.shape_descriptors(area, perimeter, mrr, nverts))
+    raw = lm.shape_descriptors(area, perimeter, mrr, nverts)
+    desc = lm.fill_descriptors(raw)
     count, sums = lm.neighbour_sums(xy, settings.lm_neighbour_radius_m,
                                     np.column_stack([height, desc, desc**2]) if n else np.zeros((0, 9)))
     relative = lm.relative_height(height, sums=(count, sums[:, 0]))
-    shape = lm.shape_distinctiveness(desc, sums=(count, sums[:, 1:]))
+    shape = lm.shape_distinctiveness(raw, sums=(count, sums[:, 1:]))  # its global spread from the raw values
     semantic = flags.astype(float) @ np.array(list(SEMANTIC.values()))
     # volume, area and relative height are heavy-tailed: logs, so one hangar does not squash the city to ~0
     measures = {"height": height, "volume": np.log1p(volume), "area": np.log1p(area),

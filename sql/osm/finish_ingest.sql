@@ -74,10 +74,10 @@ BEGIN
     -- (migrations/ own them): a bulk GiST build is several times faster than one insertion per row.
     SELECT array_agg(pg_get_indexdef(i.indexrelid)) INTO v_indexes
     FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid JOIN pg_am a ON a.oid = c.relam
-    WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist';
+    WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion;
     FOR v_index IN SELECT c.oid::regclass::text FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid
                    JOIN pg_am a ON a.oid = c.relam
-                   WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' LOOP
+                   WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion LOOP
         EXECUTE 'DROP INDEX ' || v_index;  -- a regclass name from the catalog, already quoted
     END LOOP;
 
@@ -169,6 +169,7 @@ BEGIN
     ) s
     WHERE o.id = s.id;
 
+    ANALYZE osm.building;  -- the links and part counts just written, for the stages that read them next
     TRUNCATE osm.building_import;
 END
 $$;

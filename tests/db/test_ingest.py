@@ -188,6 +188,20 @@ def test_replica_ingests_as_copies_of_the_city(new_db, conn_of, tmp_path) -> Non
     assert len(rejects) == 7 and {r[3] for r in rejects} == {3}
 
 
+def test_a_way_whose_nodes_are_all_missing_is_missing_nodes(new_db, conn_of, tmp_path) -> None:
+    src = tmp_path / "gone.osm"
+    src.write_text('<?xml version="1.0"?><osm version="0.6" generator="hand">'
+                   '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
+                   '<node id="3" lat="47.0002" lon="9.0"/>'
+                   '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/><tag k="building" v="yes"/></way>'
+                   '<way id="8"><nd ref="91"/><nd ref="92"/><nd ref="93"/><nd ref="91"/><tag k="building" v="yes"/>'
+                   '</way></osm>')
+    url = new_db("ingest_all_missing")
+    run_etl(url, "ingest", "--osm", str(src))
+    rows = conn_of(url).execute("SELECT osm_id, reason, detail FROM osm.reject").fetchall()
+    assert [(r[0], r[1]) for r in rows] == [(8, "missing_nodes")] and "4 of 4 nodes" in rows[0][2]
+
+
 def test_missing_file_is_a_clear_error(new_db, tmp_path) -> None:
     proc = run_etl(new_db("ingest_missing"), "ingest", "--osm", str(tmp_path / "nope.osm.pbf"), check=False)
     assert proc.returncode != 0 and "not found" in proc.stderr

@@ -38,6 +38,13 @@ def test_section_has_every_stage_the_totals_and_the_osm2pgsql_ratio() -> None:
     assert sb.section(None) == [] and sb.section({"runs": []}) == []
 
 
+def test_exponents_use_the_stages_own_seconds_when_recorded() -> None:
+    a, b = run(1, 1000, 1.0), run(6, 6000, 6.0)
+    for r, own in ((a, 1.0), (b, 36.0)):  # wall time linear, the stage's own seconds quadratic
+        r["stages"]["ingest"]["stage_s"] = own
+    assert sb.exponents([a, b])[0]["ingest"] == pytest.approx(2.0)
+
+
 def test_server_memory_counts_only_that_databases_backends() -> None:
     with sb.ServerMemory("a-database-that-does-not-exist-here") as mem:
         pass
