@@ -48,6 +48,7 @@ from benchmarks.common import (
     SHARED_OSM,
     drop_db,
     extract_name,
+    last_run,
     log,
     machine,
     machine_section,
@@ -108,18 +109,6 @@ class Sample:
 
 
 # --- databases ----------------------------------------------------------------------------------------------
-
-
-def last_run(url: str, stage: str) -> tuple[dict[str, Any], float | None]:
-    with psycopg.connect(url) as conn:
-        row = conn.execute(
-            "SELECT status, counts, duration_s FROM meta.pipeline_run"
-            " WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
-            (stage,),
-        ).fetchone()
-    if row is None or row[0] != "ok":
-        raise RuntimeError(f"{stage}: no successful meta.pipeline_run row (got {row!r})")
-    return dict(row[1] or {}), (float(row[2]) if row[2] is not None else None)
 
 
 def measure_server(url: str, logfile: Path) -> dict[str, Any]:

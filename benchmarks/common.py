@@ -13,6 +13,7 @@ import sys
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import psycopg
 from psycopg import sql
@@ -66,6 +67,18 @@ def osm2pgsql_cmd(url: str, path: Path) -> tuple[list[str], dict[str, str]]:
     if info.get("password"):
         env["PGPASSWORD"] = str(info["password"])
     return cmd, env
+
+
+def last_run(url: str, stage: str) -> tuple[dict[str, Any], float | None]:
+    with psycopg.connect(url) as conn:
+        row = conn.execute(
+            "SELECT status, counts, duration_s FROM meta.pipeline_run"
+            " WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
+            (stage,),
+        ).fetchone()
+    if row is None or row[0] != "ok":
+        raise RuntimeError(f"{stage}: no successful meta.pipeline_run row (got {row!r})")
+    return dict(row[1] or {}), (float(row[2]) if row[2] is not None else None)
 
 
 def recreate_db(admin_url: str, name: str) -> None:

@@ -19,10 +19,8 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +32,12 @@ from benchmarks.common import (
     OUT_ROOT,
     drop_db,
     extract_name,
+    last_run,
     log,
     markdown_table,
     osm2pgsql_cmd,
     recreate_db,
+    run_child,
 )
 from benchmarks.replicate import replicate
 
@@ -102,23 +102,6 @@ class ServerMemory:
         return self.peak_kib / 1024
 
 
-def _run_stage(cmd: list[str], env: dict[str, str], logfile: Path) -> tuple[float, float]:
-    """(wall s, peak RSS MiB of the stage and its workers): ru_maxrss of wait4 is the largest of the process and
-    the children it waited for, so a worker pool's biggest worker counts."""
-    logfile.parent.mkdir(parents=True, exist_ok=True)
-    with logfile.open("wb") as fh:
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT,
-                                cwd=Path(__file__).resolve().parent.parent)
-        _, status, usage = os.wait4(proc.pid, 0)
-        seconds = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        tail = logfile.read_text(errors="replace").splitlines()[-20:]
-        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}; log {logfile}:\n" + "\n".join(tail))
-    return seconds, usage.ru_maxrss / 1024
-
-
 def _dir_bytes(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
@@ -143,25 +126,23 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False) -
     tiles = work / f"tiles-x{copies}"
     recreate_db(admin_url, dbname)
     try:
-        _run_stage([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
+        run_child([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
         stages: dict[str, dict[str, float]] = {}
         for stage in STAGES:
             args = {"ingest": ["--osm", str(osm)], "export": ["--out", str(tiles)]}.get(stage, [])
             with ServerMemory(dbname) as mem:
-                seconds, rss = _run_stage([sys.executable, "-m", "etl", stage, *args], env, logs / f"{stage}.log")
+                seconds, rss = run_child([sys.executable, "-m", "etl", stage, *args], env, logs / f"{stage}.log")
+            _, stage_s = last_run(url, stage)  # its own seconds, without the interpreter's start and the imports
             stages[stage] = {"s": round(seconds, 2), "client_rss_mib": round(rss, 1),
                              "server_rss_mib": round(mem.peak_mib, 1)}
+            if stage_s is not None:
+                stages[stage]["stage_s"] = round(stage_s, 2)
             log(f"scale x{copies} {stage:<10} {seconds:8.1f} s  client {rss:6.0f} MiB  server {mem.peak_mib:6.0f} MiB")
         with psycopg.connect(url) as conn:
             row = conn.execute("SELECT (SELECT count(*) FROM osm.building), pg_database_size(current_database())"
                                ).fetchone()
             assert row is not None
             buildings, db_bytes = int(row[0]), int(row[1])
-            # the stages' own seconds (meta.pipeline_run), without the interpreter's start and the imports
-            for stage, dur in conn.execute("SELECT DISTINCT ON (stage) stage, duration_s FROM meta.pipeline_run "
-                                           "WHERE status = 'ok' ORDER BY stage, run_id DESC"):
-                if stage in stages and dur is not None:
-                    stages[stage]["stage_s"] = round(float(dur), 2)
     finally:
         if not keep:
             drop_db(admin_url, dbname)
@@ -190,7 +171,7 @@ def _osm2pgsql(osm: Path, admin_url: str, logfile: Path) -> float | None:
         with psycopg.connect(url, autocommit=True) as conn:
             conn.execute("CREATE EXTENSION IF NOT EXISTS postgis")
         cmd, env = osm2pgsql_cmd(url, osm)
-        seconds, _ = _run_stage(cmd, env, logfile)
+        seconds, _ = run_child(cmd, env, logfile)
     finally:
         drop_db(admin_url, O2P_DB)
     return round(seconds, 2)

@@ -54,16 +54,14 @@ class Lost:
     """An item whose worker died on it: ``reason`` "hung" (past the timeout) or "crashed"."""
 
     reason: str
-    exitcode: int | None
     seconds: float
 
     @property
     def detail(self) -> str:
         if self.reason == "hung":
             return f"its worker ran {self.seconds:.0f} s, past the time limit; its stacks went to stderr"
-        code = f" (exit code {self.exitcode})" if self.exitcode is not None else ""
-        return (f"its worker died{code} after {self.seconds:.1f} s, on every attempt; its stacks went to the "
-                "worker's stderr")
+        return (f"its worker died after {self.seconds:.1f} s, on every attempt; its stacks went to the worker's "
+                "stderr")
 
 
 class WorkerError(RuntimeError):
@@ -162,7 +160,7 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
     from distributed import KilledWorker, wait
 
     token = _token(fn, initializer, initargs)
-    run = uuid.uuid4().hex[:8]
+    prefix = f"citylod-{fn.__name__}-{uuid.uuid4().hex[:8]}-"  # this run's task keys
     with dask_client(workers) as client:
         flight: collections.deque[tuple[str, Any]] = collections.deque()  # (key, future), in item order
         submitted = 0
@@ -175,7 +173,7 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
             threads = max(1, sum(client.nthreads().values()))
             limit = threads if window is None else min(window, threads)
             while pending is not _END and len(flight) < limit:
-                key = f"citylod-{fn.__name__}-{run}-{submitted}"
+                key = f"{prefix}{submitted}"
                 flight.append((key, client.submit(_run_item, fn, initializer, initargs, token, timeout, pending,
                                                   key=key, pure=False)))
                 submitted += 1
@@ -192,13 +190,13 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
                 while not fut.done():
                     with contextlib.suppress(TimeoutError):
                         wait(fut, timeout=POLL_S)
-                    _watch(client, started, ran, timeout, alive, f"citylod-{fn.__name__}-{run}-")
+                    _watch(client, started, ran, timeout, alive, prefix)
                 try:
                     out = fut.result()
                 except KilledWorker:
                     seconds = time.monotonic() - started[key][1] if key in started else ran.get(key, 0.0)
                     # seen running up to a poll late: a watchdog exit at the limit must not read as a crash
-                    out = Lost("hung" if seconds + 2 * POLL_S >= timeout else "crashed", None, seconds)
+                    out = Lost("hung" if seconds + 2 * POLL_S >= timeout else "crashed", seconds)
                 except Exception as e:  # noqa: BLE001 -- the caller's code raised in the worker
                     tb = "".join(traceback.format_exception(type(e), e, e.__traceback__))
                     raise WorkerError(f"item {i} raised in its worker:\n{tb}") from None

@@ -85,11 +85,11 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     cols = {k: np.concatenate(v) if v else np.zeros(0, dtype=_DTYPE.get(k, np.float64)) for k, v in chunks.items()}
     ids = cols["building_id"]
     n = len(ids)
-    xy = np.column_stack([np.array(cols["x"], float), np.array(cols["y"], float)]) if n else np.zeros((0, 2))
+    xy = np.column_stack([cols["x"], cols["y"]]) if n else np.zeros((0, 2))
     area, perimeter, mrr, nverts, height, volume = (
-        np.array(cols[k], dtype=float) for k in ("area", "perimeter", "envelope_area", "n_points", "height", "volume"))
+        cols[k] for k in ("area", "perimeter", "envelope_area", "n_points", "height", "volume"))
     flags = np.column_stack([cols[k] for k in _BOOL]) if n else np.zeros((0, len(SEMANTIC)), bool)
-    radius = np.array(cols["radius"], dtype=float)
+    radius = cols["radius"]
 
     # one pass over the neighbour pairs, summed block by block (never all pairs at once): sum of heights for the
     # relative height, sums of descriptors and of their squares for the shape

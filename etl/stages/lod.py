@@ -171,6 +171,12 @@ def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, b
             note)
 
 
+def _hidden(out: Batch, r: dict[str, Any]) -> None:
+    out.hidden += 1
+    out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_hidden_by_parts",
+                            "the parts leave only slivers (< 1 m²) of the outline uncovered"))
+
+
 def build_batch(rows: list[dict[str, Any]], settings: Settings, srid: int) -> Batch:
     """Mesh rows, rejects and diagnostics for a batch of rows of lod.building_input (dicts by column name).
     Pure apart from its inputs."""
@@ -178,9 +184,7 @@ def build_batch(rows: list[dict[str, Any]], settings: Settings, srid: int) -> Ba
     drawn = []
     for r in rows:
         if r["footprint"] is None:  # an outline whose parts leave only slivers: drawn by its parts
-            out.hidden += 1
-            out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_hidden_by_parts",
-                                    "the parts leave only slivers (< 1 m²) of the outline uncovered"))
+            _hidden(out, r)
             continue
         if r["has_parts"]:
             out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_reduced_by_parts",
@@ -397,9 +401,7 @@ def _lost_batch(rows: list[dict[str, Any]], lost: Lost) -> Batch:
     out = Batch()
     for r in rows:
         if r["footprint"] is None:
-            out.hidden += 1
-            out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_hidden_by_parts",
-                                    "the parts leave only slivers (< 1 m²) of the outline uncovered"))
+            _hidden(out, r)
         else:
             out.rejects.append((r["osm_type"], r["osm_id"], f"lod_{lost.reason}",
                                 f"its batch of {len(rows)} buildings: {lost.detail}"))

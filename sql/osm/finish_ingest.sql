@@ -20,8 +20,9 @@ AS $$
 DECLARE
     v_srid integer;
     v_centre geometry;
-    v_indexes text[];
+    v_indexes text[] := '{}';
     v_index text;
+    v_gist record;
 BEGIN
     CREATE TEMP TABLE _cand ON COMMIT DROP AS
     SELECT i.*,
@@ -72,13 +73,11 @@ BEGIN
 
     -- Into the emptied table without its spatial indexes, rebuilt after the load from their own definitions
     -- (migrations/ own them): a bulk GiST build is several times faster than one insertion per row.
-    SELECT array_agg(pg_get_indexdef(i.indexrelid)) INTO v_indexes
-    FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid JOIN pg_am a ON a.oid = c.relam
-    WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion;
-    FOR v_index IN SELECT c.oid::regclass::text FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid
-                   JOIN pg_am a ON a.oid = c.relam
-                   WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion LOOP
-        EXECUTE 'DROP INDEX ' || v_index;  -- a regclass name from the catalog, already quoted
+    FOR v_gist IN SELECT i.indexrelid::regclass::text AS name, pg_get_indexdef(i.indexrelid) AS def
+                  FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid JOIN pg_am a ON a.oid = c.relam
+                  WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion LOOP
+        v_indexes := v_indexes || v_gist.def;
+        EXECUTE 'DROP INDEX ' || v_gist.name;  -- a regclass name from the catalog, already quoted
     END LOOP;
 
     INSERT INTO osm.building (
@@ -95,7 +94,7 @@ BEGIN
     WHERE f.fixed_local IS NOT NULL AND NOT ST_IsEmpty(f.fixed_local)
       AND ST_Area(f.fixed_local) >= min_area_m2;
 
-    FOREACH v_index IN ARRAY coalesce(v_indexes, '{}') LOOP
+    FOREACH v_index IN ARRAY v_indexes LOOP
         EXECUTE v_index;  -- CREATE INDEX statements as pg_get_indexdef wrote them
     END LOOP;
     -- Fresh statistics for the statements below and for every later stage: a table filled in this transaction
