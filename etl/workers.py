@@ -18,14 +18,15 @@ What a stage needs beyond a pool, kept from the process pool this replaced:
   (``distributed.scheduler.allowed-failures`` = ``ALLOWED_FAILURES`` on the local cluster), so a worker killed
   from outside loses nothing; a task whose workers die ``ALLOWED_FAILURES + 1`` times comes back as a ``Lost``,
   "hung" when its last attempt ran past the time limit, "crashed" otherwise, and the caller records its units;
-* results come back in item order; an exception raised by ``fn`` is the caller's bug and is raised here as a
-  ``WorkerError`` with the worker's traceback;
+* results come back in item order, but a worker that finishes is given the next item at once (finished items
+  wait in a bounded buffer), so one long item does not idle the others;
+* an exception raised by ``fn`` is the caller's bug and is raised here as a ``WorkerError`` with the worker's
+  traceback;
 * the local cluster is closed at the end, its worker processes killed if they will not exit.
 """
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import faulthandler
 import hashlib
@@ -46,6 +47,7 @@ GRACE_S = 30.0  # after the watchdog's own exit should have happened
 EXIT_WAIT_S = 10.0
 POLL_S = 0.2
 NO_WORKER_S = 120.0
+BUFFER_PER_THREAD = 16  # finished items held for in-order yield, per cluster thread, when no window is given
 _END = object()
 
 
@@ -107,7 +109,16 @@ def dask_client(workers: int) -> Iterator[Any]:
     with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
                           "distributed.worker.multiprocessing-method": "spawn",
                           "distributed.worker.daemon": True,
-                          "distributed.scheduler.worker-saturation": 1.0}):
+                          "distributed.scheduler.worker-saturation": 1.0,
+                          # Dask's default adds MALLOC_TRIM_THRESHOLD_, which turns off glibc's dynamic mmap
+                          # threshold: every large numpy temporary is then a fresh mmap, page-faulted and
+                          # unmapped again (the textures stage ran 1.5x slower per unit, measured)
+                          "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
+                                                                  "OPENBLAS_NUM_THREADS": 1},
+                          # a worker's own sampling competes with its task for the GIL and the cores
+                          "distributed.worker.profile.enabled": False,
+                          "distributed.worker.memory.monitor-interval": "1s",
+                          "distributed.admin.system-monitor.interval": "2s"}):
         before = {p.pid for p in multiprocessing.active_children()}
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                silence_logs=logging.CRITICAL, scheduler_port=0)
@@ -149,20 +160,22 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
     """``fn(item)`` for every item as Dask tasks, yielded in item order; an item whose worker hung (past
     ``timeout`` seconds) or died on every attempt yields a ``Lost`` instead. ``fn`` and ``initializer``
     must be importable module-level functions. An exception raised by ``fn`` is re-raised as WorkerError.
-    ``items`` is read lazily, at most ``window`` of them in flight (None: all at once), so a stream of batches
-    is never held whole."""
+    ``items`` is read lazily: at most ``window`` items (None: ``BUFFER_PER_THREAD`` per cluster thread) are
+    running or finished and not yet yielded, so a stream of batches is never held whole, while a worker that
+    finishes is given the next item at once instead of waiting for an earlier, longer item to be yielded."""
     if workers < 1 or timeout <= 0 or (window is not None and window < 1):
         raise ValueError("workers must be >= 1, timeout > 0 and window >= 1")
     source = iter(items)
     first = next(source, _END)
     if first is _END:
         return
-    from distributed import KilledWorker, wait
+    from distributed import wait
 
     token = _token(fn, initializer, initargs)
     prefix = f"citylod-{fn.__name__}-{uuid.uuid4().hex[:8]}-"  # this run's task keys
     with dask_client(workers) as client:
-        flight: collections.deque[tuple[str, Any]] = collections.deque()  # (key, future), in item order
+        flight: dict[int, tuple[str, Any]] = {}  # item index -> (key, future)
+        done: dict[int, Any] = {}  # item index -> result or Lost, finished out of order, not yet yielded
         submitted = 0
         pending: Any = first
 
@@ -171,11 +184,11 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
             # die with that worker (and count a failure) and be timed from when it was queued
             nonlocal submitted, pending
             threads = max(1, sum(client.nthreads().values()))
-            limit = threads if window is None else min(window, threads)
-            while pending is not _END and len(flight) < limit:
+            held = window if window is not None else BUFFER_PER_THREAD * threads
+            while pending is not _END and len(flight) < threads and len(flight) + len(done) < held:
                 key = f"{prefix}{submitted}"
-                flight.append((key, client.submit(_run_item, fn, initializer, initargs, token, timeout, pending,
-                                                  key=key, pure=False)))
+                flight[submitted] = (key, client.submit(_run_item, fn, initializer, initargs, token, timeout,
+                                                        pending, key=key, pure=False))
                 submitted += 1
                 pending = next(source, _END)
 
@@ -185,30 +198,43 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
         i = 0
         try:
             submit()
-            while flight:
-                key, fut = flight[0]
-                while not fut.done():
-                    with contextlib.suppress(TimeoutError):
-                        wait(fut, timeout=POLL_S)
-                    _watch(client, started, ran, timeout, alive, prefix)
-                try:
-                    out = fut.result()
-                except KilledWorker:
-                    seconds = time.monotonic() - started[key][1] if key in started else ran.get(key, 0.0)
-                    # seen running up to a poll late: a watchdog exit at the limit must not read as a crash
-                    out = Lost("hung" if seconds + 2 * POLL_S >= timeout else "crashed", seconds)
-                except Exception as e:  # noqa: BLE001 -- the caller's code raised in the worker
-                    tb = "".join(traceback.format_exception(type(e), e, e.__traceback__))
-                    raise WorkerError(f"item {i} raised in its worker:\n{tb}") from None
-                flight.popleft()
-                fut.release()  # its result leaves the cluster once yielded
-                started.pop(key, None)
-                ran.pop(key, None)
+            while flight or done:
+                if i in done:
+                    out = done.pop(i)
+                    i += 1
+                    submit()
+                    yield out
+                    continue
+                with contextlib.suppress(TimeoutError):
+                    wait([f for _, f in flight.values()], timeout=POLL_S, return_when="FIRST_COMPLETED")
+                _watch(client, started, ran, timeout, alive, prefix)
+                for j, (key, fut) in list(flight.items()):
+                    if fut.done():
+                        done[j] = _settle(key, fut, j, started, ran, timeout)
+                        del flight[j]
+                        fut.release()  # its result leaves the cluster once taken
                 submit()
-                i += 1
-                yield out
         finally:
-            client.cancel([f for _, f in flight])
+            client.cancel([f for _, f in flight.values()])
+
+
+def _settle(key: str, fut: Any, index: int, started: dict[str, tuple[str, float]], ran: dict[str, float],
+            timeout: float) -> Any:
+    """A finished task's result, or a Lost when its workers died on every attempt."""
+    from distributed import KilledWorker
+
+    try:
+        return fut.result()
+    except KilledWorker:
+        seconds = time.monotonic() - started[key][1] if key in started else ran.get(key, 0.0)
+        # seen running up to a poll late: a watchdog exit at the limit must not read as a crash
+        return Lost("hung" if seconds + 2 * POLL_S >= timeout else "crashed", seconds)
+    except Exception as e:  # noqa: BLE001 -- the caller's code raised in the worker
+        tb = "".join(traceback.format_exception(type(e), e, e.__traceback__))
+        raise WorkerError(f"item {index} raised in its worker:\n{tb}") from None
+    finally:
+        started.pop(key, None)
+        ran.pop(key, None)
 
 
 def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float,

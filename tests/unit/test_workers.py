@@ -28,6 +28,20 @@ def behave(item: tuple[str, int]) -> int:
     return value * 2
 
 
+def wait_for(item: tuple[str, str]) -> str:
+    """("wait", path): until ``path`` exists (up to 20 s); ("touch", path): create it."""
+    kind, path = item
+    if kind == "touch":
+        open(path, "w").close()
+        return "touched"
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline:
+        if os.path.exists(path):
+            return "released"
+        time.sleep(0.05)
+    return "never released"
+
+
 def hang_at_exit() -> None:
     atexit.register(time.sleep, 3600)
 
@@ -90,3 +104,12 @@ def test_items_are_read_as_the_window_moves() -> None:
     assert all(n <= k + 4 for k, (_, n) in enumerate(seen)), seen
     with pytest.raises(ValueError):
         list(W.imap_isolated(behave, stream(), workers=1, timeout=30.0, window=0))
+
+
+def test_a_free_worker_takes_the_next_items_while_an_earlier_one_runs(tmp_path) -> None:
+    # item 0 runs until the last item has run: only a worker that is refilled as soon as it finishes, not when
+    # the first item in order is yielded, reaches the last item while item 0 still runs
+    flag = str(tmp_path / "flag")
+    items = [("wait", flag)] + [("wait", "/")] * 4 + [("touch", flag)]
+    out = list(W.imap_isolated(wait_for, items, workers=2, timeout=60.0))
+    assert out == ["released"] * 5 + ["touched"]
