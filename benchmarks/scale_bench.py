@@ -106,8 +106,10 @@ def _dir_bytes(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
-def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False) -> dict[str, Any]:
-    """The pipeline on ``copies`` replicas of ``extract``: one result row of the Scale section."""
+def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, dask: bool = False
+               ) -> dict[str, Any]:
+    """The pipeline on ``copies`` replicas of ``extract``: one result row of the Scale section (with ``dask``,
+    then the Dask stages again on 1 and 2 workers: dask_speedup)."""
     from core import cluster
 
     name = extract_name(extract)
@@ -143,6 +145,7 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False) -
                                ).fetchone()
             assert row is not None
             buildings, db_bytes = int(row[0]), int(row[1])
+        speedup = dask_speedup(url, env, logs) if dask else None
     finally:
         if not keep:
             drop_db(admin_url, dbname)
@@ -152,8 +155,32 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False) -
         "copies": copies, "osm": str(osm), "osm_bytes": osm.stat().st_size, "buildings": buildings,
         "replicate_s": rep["seconds"] if rep else 0.0, "stages": stages, "total_s": round(total, 1),
         "buildings_per_s": round(buildings / total, 1), "db_bytes": db_bytes, "tileset_bytes": _dir_bytes(tiles),
-        "osm2pgsql_s": o2p,
+        "osm2pgsql_s": o2p, "dask": speedup,
     }
+
+
+#: The stages whose units run as Dask tasks, and the setting that gives their worker count.
+DASK_STAGES = {"lod": "CITYLOD_LOD_WORKERS", "generalize": "CITYLOD_GEN_WORKERS", "textures": "CITYLOD_TEX_WORKERS"}
+
+
+def dask_speedup(url: str, env: dict[str, str], logs: Path) -> dict[str, dict[str, float]]:
+    """Each Dask stage run again with 1 worker (its units in the stage's own process) and on a LocalCluster of 2
+    workers, in pipeline order on the built database (tiles again after lod, which empties them): the stage's
+    own seconds and the speedup 1 -> 2."""
+    out: dict[str, dict[str, float]] = {}
+    for stage, var in DASK_STAGES.items():
+        row: dict[str, float] = {}
+        for n in (1, 2):
+            run_child([sys.executable, "-m", "etl", stage], {**env, var: str(n)}, logs / f"{stage}-w{n}.log")
+            _, stage_s = last_run(url, stage)
+            row[f"w{n}_s"] = round(float(stage_s or 0.0), 2)
+        row["speedup"] = round(row["w1_s"] / row["w2_s"], 2) if row["w2_s"] else 0.0
+        out[stage] = row
+        log(f"scale dask {stage:<10} 1 worker {row['w1_s']:7.1f} s  2 workers {row['w2_s']:7.1f} s  "
+            f"x{row['speedup']:.2f}")
+        if stage == "lod":
+            run_child([sys.executable, "-m", "etl", "tiles"], env, logs / "tiles-again.log")
+    return out
 
 
 def _osm2pgsql(osm: Path, admin_url: str, logfile: Path) -> float | None:
@@ -194,8 +221,11 @@ def exponents(runs: list[dict[str, Any]]) -> list[dict[str, float]]:
     return out
 
 
-def measure(extract: Path, copies: list[int], admin_url: str, keep: bool = False) -> dict[str, Any]:
-    runs = [run_copies(extract, n, admin_url, keep) for n in sorted(set(copies))]
+def measure(extract: Path, copies: list[int], admin_url: str, keep: bool = False, dask: bool = True
+            ) -> dict[str, Any]:
+    """Every copy count; the Dask speedup on the smallest (the extract) unless ``dask`` is False."""
+    sizes = sorted(set(copies))
+    runs = [run_copies(extract, n, admin_url, keep, dask and n == sizes[0]) for n in sizes]
     return {"extract": extract_name(extract), "runs": runs, "exponents": exponents(runs)}
 
 
@@ -244,6 +274,15 @@ def section(data: dict[str, Any] | None) -> list[str]:
         [[f"×{r['copies']}", f"{r['osm_bytes'] / 1e6:,.1f}", f"{r['buildings']:,}", f"{r['total_s']:,.1f}",
           f"{r['buildings_per_s']:,.0f}", f"{r['db_bytes'] / 1e6:,.0f}", f"{r['tileset_bytes'] / 1e6:,.1f}",
           *o2p(r)] for r in runs], "lrrrrrrrr")
+    dask = next((r for r in runs if r.get("dask")), None)
+    if dask:
+        out += ["", f"Dask ({dask['copies']}×, {dask['buildings']:,} buildings): each stage whose units are Dask "
+                "tasks run again on the built database with 1 worker (its units in the stage's own process) and "
+                "on a LocalCluster of 2 workers; the stage's own seconds (meta.pipeline_run). The machine has "
+                f"{os.cpu_count()} cores, which the database shares.", ""]
+        out += markdown_table(["stage", "1 worker s", "2 Dask workers s", "speedup"],
+                              [[st, f"{v['w1_s']:,.1f}", f"{v['w2_s']:,.1f}", f"{v['speedup']:.2f}×"]
+                               for st, v in dask["dask"].items()], "lrrr")
     worst = max((e[st], st) for e in data["exponents"] for st in STAGES) if data["exponents"] else None
     if worst:
         out += ["", f"* Largest stage exponent: {worst[1]} {worst[0]:.2f} (target ≤ {EXPONENT_TARGET}); end to end "
@@ -262,11 +301,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--copies", type=int, nargs="+", default=[1, 6])
     p.add_argument("--json", type=Path, help="write the measurements here (bench.py --scale-stages-json reads it)")
     p.add_argument("--keep", action="store_true", help="keep the citylod_scale_xN databases")
+    p.add_argument("--no-dask", action="store_true", help="skip the Dask speedup (1 and 2 workers) on the extract")
     args = p.parse_args(argv)
     if not args.extract.exists():
         p.error(f"missing extract {args.extract}")
     cluster.ensure()
-    data = measure(args.extract.resolve(), args.copies, cluster.database_url("postgres"), args.keep)
+    data = measure(args.extract.resolve(), args.copies, cluster.database_url("postgres"), args.keep,
+                   not args.no_dask)
     text = json.dumps(data, indent=1)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

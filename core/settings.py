@@ -82,6 +82,12 @@ class Settings:
     gen_decimate_min_triangles: int = 64
     #: ... by this fraction of their triangles (fast-simplification), kept only within gen.tolerance(3).
     gen_decimate_reduction: float = 0.5
+    #: Worker processes for the footprint and decimation batches, one batch per Dask task (0: one per CPU core,
+    #: at most 4; 1 runs them in the stage's own process). The rows are the same whatever the count.
+    gen_workers: int = 0
+    #: A batch still running after this many seconds is hung, not slow (Liechtenstein's 2,000-building batches
+    #: take ~2 s): its buildings are kept as mapped (their LOD2 meshes), saying so in gen.footprint.status.
+    gen_batch_timeout_s: float = 600.0
 
     # --- landmarks (saliency weights: 0 leaves a measure out; etl/stages/landmarks.py) --------------------------
     #: Weight of the height (the thesis' proof of concept used height alone).
@@ -153,6 +159,12 @@ class Settings:
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on
     #: CesiumJS's plain WGS84 globe.
     base_height_m: float = 0.0
+    #: Worker processes writing the tiles' glbs, one tile per Dask task (0: one per CPU core, at most 4; 1 writes
+    #: them in the export's own process). The bytes are the same whatever the count.
+    export_workers: int = 0
+    #: A tile still being written after this many seconds is hung, not slow: the export stops with that tile
+    #: named and the tileset already in place is kept.
+    export_tile_timeout_s: float = 600.0
 
     @classmethod
     def from_env(cls, env: dict[str, str] | None = None) -> Settings:

@@ -54,7 +54,8 @@ MODULES = {s: f"etl.stages.{s}" for s in GRAPH if s != "export"} | {"export": "e
 _PACKAGES = ("core", "etl", "exporter")
 #: Settings that say where the database is, or how the work is spread (the output is the same whatever their
 #: values), not how a stage's output is made.
-_NOT_INPUTS = frozenset({"pg_port", "pg_database", "lod_workers", "lod_batch_size"})
+_NOT_INPUTS = frozenset({"pg_port", "pg_database", "lod_workers", "lod_batch_size", "gen_workers",
+                         "export_workers"})
 #: Defines every setting: the values a stage uses are compared instead, so editing a comment there reruns nothing.
 _SETTINGS_MODULE = "core.settings"
 _QUALIFIED = re.compile(r"\b([a-z_][a-z0-9_]*)\.([a-z_][a-z0-9_]*)\b")

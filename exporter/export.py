@@ -1,6 +1,6 @@
 """Stage export: tiles in PostGIS -> a 3D Tiles 1.1 tileset directory.
 
-Streams tile by tile (a few worker threads, each with its own connection): for each tile,
+Streams tile by tile (Dask tasks, each worker with its own connection; etl/workers.py): for each tile,
 api.buildings_for_tile(level, x, y) gives the features of its band (blocks at the root down to LOD3 at the
 leaves; REPLACE refinement), or with ``lod`` every building of each leaf at that one LOD (ADD), lifted by the
 base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid);
@@ -13,13 +13,13 @@ swapped in at the end, so a failed export never leaves a half-written tileset be
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import shutil
 import sys
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -346,38 +346,59 @@ def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod:
     return glb, len(rows), tri
 
 
-def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, workers: int,
+_WORKER: dict[str, object] = {}
+
+
+def _init_worker(url: str, base_height: float, lod: int | None, stream: StreamOptions,
+                 root_region: tuple[float, ...]) -> None:
+    _WORKER.update(conn=connect(url, autocommit=True), args=(base_height, lod, stream, root_region))
+    atexit.register(_WORKER["conn"].close)  # type: ignore[attr-defined]
+
+
+def _tile_task(rec: TileRecord) -> tuple[bytes, int, int]:
+    """One tile's glb as a Dask task, read through the worker's own connection (a module-level function, as
+    etl/workers.py needs); the bytes come back, so a worker on another machine writes nothing here."""
+    return tile_glb(_WORKER["conn"], rec, *_WORKER["args"])  # type: ignore[arg-type]
+
+
+def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, settings: Settings,
                   progress: Progress, lod: int | None, stream: StreamOptions,
                   root_region: tuple[float, ...]) -> tuple[int, int, int, int]:
-    """Write every tile's glb; tiles are independent, so ``workers`` threads each with their own connection
-    share them (the SQL runs in separate server backends and numpy releases the GIL while it sorts).
-    Returns (features, triangles, bytes, compact tiles meshoptimizer refused, written plain)."""
-    local = threading.local()
-    lock = threading.Lock()
-    conns: list = []
+    """Write every tile's glb. Tiles are independent: with more than one worker each is a Dask task
+    (etl/workers.py) reading through its worker's own connection, and this process writes the bytes as they
+    come back. A tile whose worker hung or died on every attempt stops the export with the tile named; the
+    tileset in place is kept (the tiles are written into the partial directory). Returns (features,
+    triangles, bytes, compact tiles meshoptimizer refused, written plain)."""
+    from etl.workers import SCHEDULER_ENV, Lost, imap_isolated
 
-    def one(rec: TileRecord) -> tuple[int, int, int, int]:
-        if not hasattr(local, "conn"):
-            local.conn = connect(url)
-            with lock:
-                conns.append(local.conn)
-        glb, n, tri = tile_glb(local.conn, rec, base_height, lod, stream, root_region)
-        assert rec.content_uri is not None
-        path = out / rec.content_uri
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(glb)
-        return n, tri, len(glb), int(stream.compact and not is_compact(glb))
-
+    workers = settings.export_workers or min(4, os.cpu_count() or 1)
+    if os.environ.get(SCHEDULER_ENV) and not settings.export_workers:
+        workers = 2  # an existing cluster was asked for: use it (its workers, not this count, do the work)
+    args = (base_height, lod, stream, root_region)
+    if workers <= 1:
+        conn = connect(url)
+        results: Iterator[tuple[bytes, int, int] | Lost] = (tile_glb(conn, rec, *args) for rec in tiles)
+    else:
+        conn = None
+        results = imap_isolated(_tile_task, tiles, min(workers, len(tiles)), settings.export_tile_timeout_s,
+                                _init_worker, (url, *args), window=4 * workers)
     n_features = n_triangles = n_bytes = n_fallback = 0
     try:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for f, t, b, fb in pool.map(one, tiles):
-                n_features, n_triangles, n_bytes = n_features + f, n_triangles + t, n_bytes + b
-                n_fallback += fb
-                progress.update(f)
+        for rec, res in zip(tiles, results, strict=True):
+            if isinstance(res, Lost):
+                raise RuntimeError(f"tile {rec.level}/{rec.x}/{rec.y} was not written: {res.detail}; the tileset "
+                                   "in place is kept")
+            glb, f, t = res
+            assert rec.content_uri is not None
+            path = out / rec.content_uri
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(glb)
+            n_features, n_triangles, n_bytes = n_features + f, n_triangles + t, n_bytes + len(glb)
+            n_fallback += int(stream.compact and not is_compact(glb))
+            progress.update(f)
     finally:
-        for c in conns:
-            c.close()
+        if conn is not None:
+            conn.close()
     return n_features, n_triangles, n_bytes, n_fallback
 
 
@@ -449,7 +470,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "features", total=expected)
     n_features, n_triangles, n_bytes, n_fallback = _export_tiles(
-        url, tiles, partial, settings.base_height_m, min(4, os.cpu_count() or 1), progress, lod, stream, root_region)
+        url, tiles, partial, settings.base_height_m, settings, progress, lod, stream, root_region)
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
     for uri, data in files.items():  # tileset.json and the subtrees

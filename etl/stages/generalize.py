@@ -26,6 +26,12 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 4. the hierarchy: tiles.finish_hierarchy counts each tile's content and derives its geometric error from the
    measured errors; region_box gives the ECEF boxes api.lod_for_view measures distances to.
 
+The footprint and decimation batches are pure work on arrays (footprint_batch, decimation_batch): they run as
+Dask tasks (etl/workers.py; settings.gen_workers) while this process reads the next batch and COPYs the last.
+A batch whose worker hung or died on every attempt loses no building: a footprint batch's buildings are kept as
+mapped (outline unchanged, their LOD2 meshes as the level-2 mesh, error 0; kept_as_mapped), a decimation batch
+keeps its LOD2 meshes, each saying why in its status ("kept_original: generalize hung ...").
+
 Every generalized object stores error_m, the Hausdorff distance to what it replaces, and total_error_m, a
 bound on its distance to the full-detail LOD3 model: its own error plus that of its sources, plus the
 LOD2-to-LOD3 step (the openings stand FacadeParams.depth out of the walls, by construction). Simplified
@@ -38,7 +44,12 @@ block's error is that of the omission, sqrt(radius² + height²).
 
 from __future__ import annotations
 
+import collections
+import os
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import psycopg
@@ -56,6 +67,7 @@ from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
 from ..geom.hausdorff import hausdorff, outline_hausdorff
 from ..geom.simplify import PIN_DISTANCE, simplify_footprints
+from ..workers import SCHEDULER_ENV, Lost, imap_isolated
 
 BATCH = 2000
 OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of the walls
@@ -95,99 +107,220 @@ def _solids(footprints: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> tupl
     return ex, bad
 
 
+@dataclass
+class _Out:
+    """A batch's rows for gen.footprint (text COPY) and gen.building_mesh (binary COPY), and its figures."""
+
+    footprints: list[tuple] = field(default_factory=list)
+    meshes: list[tuple] = field(default_factory=list)
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+def footprint_batch(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float,
+                    max_area_change: float, srid: int) -> _Out:
+    """Level 2 of a batch of buildings (gen.footprint_input rows, their LOD2 meshes from
+    gen.group_lod2_meshes): simplified outlines, flat solids, and each one's Hausdorff distance to the LOD2
+    meshes it replaces. Pure: no database, so it runs in a Dask worker as well as here."""
+    ids = np.array([r["group_id"] for r in rows], np.int64)
+    geoms = shapely.from_wkb([r["footprint"] for r in rows])
+    top = np.array([r["top"] for r in rows], float)
+    bottom = np.array([r["bottom"] for r in rows], float)
+    openings = np.array([bool(r["openings"]) for r in rows])
+    fixed = np.array([shapely.from_wkb(r["pinned"]) if r["pinned"] is not None else None for r in rows],
+                     dtype=object)
+    s = simplify_footprints(geoms, tol, max_area_change=max_area_change, fixed=fixed)
+    ex, rect = _solids(s.geoms, bottom, top)
+    n = len(rows)
+    index = {int(g): k for k, g in enumerate(ids)}
+    b_tri, b_own = _triangles([mesh for _, mesh in meshes], [index[int(g)] for g, _ in meshes])
+    a_own = np.repeat(np.arange(n), ex.counts)
+    err = hausdorff(ex.triangles, a_own, b_tri, b_own, n, spacing=tol / 4)
+    err = np.nan_to_num(err, nan=0.0)
+    total = err + np.where(openings, OPENING_DEPTH, 0.0)
+    status = np.where(rect, "footprint not triangulable: minimum rotated rectangle", s.status)
+    wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
+    sem = ex.semantics.tobytes()
+    offs = ex.offsets.tolist()
+    out = _Out()
+    out.footprints = list(zip(ids.tolist(), [w.hex() for w in _ewkb(s.geoms, srid)], [tol] * n,
+                              s.n_vertices_in.tolist(), s.n_vertices_out.tolist(), s.area_in.tolist(),
+                              s.area_out.tolist(), s.hausdorff.tolist(), s.status.tolist(), strict=True))
+    out.meshes = [(int(ids[j]), 2, wkbs[j], sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
+                   int(rows[j]["n_triangles_in"] or 0), float(bottom[j]), float(top[j]), float(err[j]),
+                   float(total[j]), str(status[j])) for j in range(n)]
+    out.stats = {"buildings": n, "vertices_in": int(s.n_vertices_in.sum()),
+                 "vertices_out": int(s.n_vertices_out.sum()),
+                 "kept_original": int(sum(str(x).startswith("kept_original") for x in s.status)),
+                 "max_error_m": float(err.max(initial=0.0)),
+                 "triangles_in": int(sum(r["n_triangles_in"] or 0 for r in rows)),
+                 "triangles_out": int(ex.counts.sum())}
+    return out
+
+
+def kept_as_mapped(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float, srid: int,
+                   status: str) -> _Out:
+    """Level 2 of a footprint batch that its worker hung or died on: each building as mapped, its outline
+    unchanged and its LOD2 meshes together as its level-2 mesh (error 0: it is what the band replaces; roof
+    where a triangle faces up), ``status`` saying why. Nothing but decoding and encoding, so every building of
+    the batch stays in the coarse bands."""
+    ids = [int(r["group_id"]) for r in rows]
+    index = {g: k for k, g in enumerate(ids)}
+    order = sorted(range(len(meshes)), key=lambda i: index[int(meshes[i][0])])  # grouped by building, stable
+    tri, own = _triangles([meshes[i][1] for i in order], [index[int(meshes[i][0])] for i in order])
+    counts = np.bincount(own, minlength=len(rows))
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    wkbs = encode_triangles_batch(tri, offsets, srid)
+    nz = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(nz, axis=1)
+    sem = np.where(nz[:, 2] > 0.3 * norm, 2, np.where(nz[:, 2] < -0.9 * norm, 0, 1)).astype(np.uint8).tobytes()
+    geoms = shapely.from_wkb([r["footprint"] for r in rows])
+    n_vertices = shapely.get_num_coordinates(geoms).tolist()
+    area = shapely.area(geoms).tolist()
+    fps = _ewkb(geoms, srid)
+    out = _Out()
+    for j, r in enumerate(rows):
+        opening = OPENING_DEPTH if r["openings"] else 0.0
+        out.footprints.append((ids[j], fps[j].hex(), tol, n_vertices[j], n_vertices[j], area[j], area[j], 0.0,
+                               status))
+        out.meshes.append((ids[j], 2, wkbs[j], sem[offsets[j]:offsets[j + 1]], int(counts[j]),
+                           int(r["n_triangles_in"] or 0), float(r["bottom"]), float(r["top"]), 0.0, opening, status))
+    out.stats = {"buildings": len(rows), "vertices_in": sum(n_vertices), "vertices_out": sum(n_vertices),
+                 "kept_original": len(rows), "triangles_in": int(sum(r["n_triangles_in"] or 0 for r in rows)),
+                 "triangles_out": int(counts.sum())}
+    return out
+
+
+def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, min_triangles: int,
+                     srid: int) -> _Out:
+    """Level 3 of a batch of features (gen.decimation_input rows): every LOD2 mesh of at least min_triangles
+    decimated in one call, kept where closed and within ``tol``; a row per feature. Pure, as footprint_batch."""
+    stats = {"features": len(rows), "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0}
+    step = np.array([OPENING_DEPTH if r["openings"] else 0.0 for r in rows])
+    big = [k for k, r in enumerate(rows) if r["mesh"] is not None]
+    done: dict[int, tuple[bytes, bytes, int, float, str]] = {}
+    if big:
+        tri, own = _triangles([rows[k]["mesh"] for k in big], list(range(len(big))))
+        d = decimate(tri, own, len(big), reduction, min_triangles=min_triangles, max_error=tol, spacing=tol / 4)
+        counts = np.bincount(d.owner, minlength=len(big))
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        wkbs = encode_triangles_batch(d.triangles, offsets, srid)
+        for j, k in enumerate(big):
+            if not d.decimated[j]:
+                done[k] = (None, None, 0, 0.0, str(d.status[j]))  # type: ignore[assignment]
+                continue
+            # a decimated surface has no per-triangle semantics of its own: roof where it faces up
+            t = d.triangles[offsets[j]:offsets[j + 1]]
+            nz = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+            up = nz[:, 2] > 0.3 * np.linalg.norm(nz, axis=1)
+            down = nz[:, 2] < -0.9 * np.linalg.norm(nz, axis=1)
+            sem = np.where(up, 2, np.where(down, 0, 1)).astype(np.uint8).tobytes()
+            done[k] = (wkbs[j], sem, int(counts[j]), float(d.error[j]), "decimated")
+            stats["decimated"] += 1
+            stats["max_error_m"] = max(stats["max_error_m"], float(d.error[j]))
+    out = _Out(stats=stats)
+    for k, r in enumerate(rows):
+        geom, sem, n_out, err, status = done.get(k, (None, None, 0, 0.0, "too small to decimate"))
+        n_in = int(r["n_triangles"])
+        n_out = n_out if geom is not None else n_in
+        out.meshes.append((int(r["building_id"]), 3, geom, sem, n_out, n_in, float(r["min_height"]),
+                           float(r["height"]), err, err + float(step[k]), status))
+        stats["triangles_in"] += n_in
+        stats["triangles_out"] += n_out
+    return out
+
+
+def _task(item: tuple[str, tuple]) -> _Out:
+    """One batch as a Dask task (a module-level function, as etl/workers.py needs)."""
+    kind, args = item
+    return footprint_batch(*args) if kind == "footprints" else decimation_batch(*args)
+
+
+def _workers(settings: Settings) -> int:
+    if settings.gen_workers:
+        return settings.gen_workers
+    if os.environ.get(SCHEDULER_ENV):
+        return 2  # an existing cluster was asked for: use it (its workers, not this count, do the work)
+    return min(4, os.cpu_count() or 1)
+
+
+def _mapped(items: Iterator[tuple[Any, tuple[str, tuple]]], settings: Settings) -> Iterator[tuple[Any, _Out | Lost]]:
+    """(the caller's context, its batch's _Out or Lost) for every (context, task), in order: here with one
+    worker, else as Dask tasks (etl/workers.py) a few batches in flight, a batch whose worker hung or died coming
+    back as a Lost."""
+    workers = _workers(settings)
+    if workers <= 1:
+        for context, task in items:
+            yield context, _task(task)
+        return
+    flight: collections.deque[Any] = collections.deque()
+
+    def tasks() -> Iterator[tuple[str, tuple]]:
+        for context, task in items:
+            flight.append(context)
+            yield task
+
+    for out in imap_isolated(_task, tasks(), workers, settings.gen_batch_timeout_s, window=2 * workers):
+        yield flight.popleft(), out
+
+
 def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
                 tol: float, progress: Progress) -> dict[str, float]:
     stats = {"buildings": 0, "vertices_in": 0, "vertices_out": 0, "kept_original": 0, "max_error_m": 0.0,
-             "triangles_in": 0, "triangles_out": 0}
+             "triangles_in": 0, "triangles_out": 0, "lost": 0}
     with reader.cursor(name="gen_groups", row_factory=dict_row) as src, conn.cursor() as cur:
         src.itersize = BATCH
         src.execute("SELECT * FROM gen.footprint_input(%s)", (PIN_DISTANCE,))
-        while rows := src.fetchmany(BATCH):
-            ids = np.array([r["group_id"] for r in rows], np.int64)
-            geoms = shapely.from_wkb([r["footprint"] for r in rows])
-            top = np.array([r["top"] for r in rows], float)
-            bottom = np.array([r["bottom"] for r in rows], float)
-            openings = np.array([bool(r["openings"]) for r in rows])
-            fixed = np.array([shapely.from_wkb(r["pinned"]) if r["pinned"] is not None else None for r in rows],
-                             dtype=object)
-            s = simplify_footprints(geoms, tol, max_area_change=settings.gen_max_area_change, fixed=fixed)
-            ex, rect = _solids(s.geoms, bottom, top)
-            n = len(rows)
-            # measured against what the band replaces: the LOD2 meshes of the building and its parts
-            meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)", (ids.tolist(),)).fetchall()
-            index = {int(g): k for k, g in enumerate(ids)}
-            b_tri, b_own = _triangles([mesh for _, mesh in meshes], [index[int(g)] for g, _ in meshes])
-            a_own = np.repeat(np.arange(n), ex.counts)
-            err = hausdorff(ex.triangles, a_own, b_tri, b_own, n, spacing=tol / 4)
-            err = np.nan_to_num(err, nan=0.0)
-            total = err + np.where(openings, OPENING_DEPTH, 0.0)
-            status = np.where(rect, "footprint not triangulable: minimum rotated rectangle", s.status)
-            wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
-            sem = ex.semantics.tobytes()
-            offs = ex.offsets.tolist()
-            with cur.copy(f"COPY gen.footprint ({', '.join(_FOOTPRINT_COLUMNS)}) FROM STDIN") as copy:
-                for row in zip(ids.tolist(), [w.hex() for w in _ewkb(s.geoms, srid)], [tol] * n,
-                               s.n_vertices_in.tolist(), s.n_vertices_out.tolist(), s.area_in.tolist(),
-                               s.area_out.tolist(), s.hausdorff.tolist(), s.status.tolist(), strict=True):
-                    copy.write_row(row)
-            with cur.copy(f"COPY gen.building_mesh ({', '.join(_MESH_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
-                copy.set_types(list(_MESH_TYPES))
-                for j in range(n):
-                    copy.write_row((int(ids[j]), 2, wkbs[j], sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
-                                    int(rows[j]["n_triangles_in"] or 0), float(bottom[j]), float(top[j]), float(err[j]),
-                                    float(total[j]), str(status[j])))
-            stats["buildings"] += n
-            stats["vertices_in"] += int(s.n_vertices_in.sum())
-            stats["vertices_out"] += int(s.n_vertices_out.sum())
-            stats["kept_original"] += int(sum(str(x).startswith("kept_original") for x in s.status))
-            stats["max_error_m"] = max(stats["max_error_m"], float(err.max(initial=0.0)))
-            stats["triangles_in"] += int(sum(r["n_triangles_in"] or 0 for r in rows))
-            stats["triangles_out"] += int(ex.counts.sum())
-            progress.update(n)
+
+        def items() -> Iterator[tuple[tuple[list[dict[str, Any]], list[tuple[int, bytes]]], tuple[str, tuple]]]:
+            while rows := src.fetchmany(BATCH):
+                # measured against what the band replaces: the LOD2 meshes of the building and its parts
+                ids = [r["group_id"] for r in rows]
+                meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)", (ids,)).fetchall()
+                yield (rows, meshes), ("footprints", (rows, meshes, tol, settings.gen_max_area_change, srid))
+
+        for (rows, meshes), out in _mapped(items(), settings):
+            if isinstance(out, Lost):
+                out = kept_as_mapped(rows, meshes, tol, srid, f"kept_original: generalize {out.reason} "
+                                                              f"(its batch of {len(rows)} buildings: {out.detail})")
+                stats["lost"] += len(rows)
+            _copy(cur, out)
+            for k, v in out.stats.items():
+                stats[k] = max(stats[k], v) if k == "max_error_m" else stats[k] + v
+            progress.update(len(rows))
     return stats
+
+
+def _copy(cur: psycopg.Cursor, out: _Out) -> None:
+    if out.footprints:
+        with cur.copy(f"COPY gen.footprint ({', '.join(_FOOTPRINT_COLUMNS)}) FROM STDIN") as copy:
+            for row in out.footprints:
+                copy.write_row(row)
+    if out.meshes:
+        with cur.copy(f"COPY gen.building_mesh ({', '.join(_MESH_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.set_types(list(_MESH_TYPES))
+            for row in out.meshes:
+                copy.write_row(row)
 
 
 def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
                 tol: float) -> dict[str, float]:
-    stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0}
+    stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0, "lost": 0}
     with reader.cursor(name="gen_features", row_factory=dict_row) as src, conn.cursor() as cur:
         src.itersize = BATCH
         src.execute("SELECT * FROM gen.decimation_input(%s)", (settings.gen_decimate_min_triangles,))
-        while rows := src.fetchmany(BATCH):
-            step = np.array([OPENING_DEPTH if r["openings"] else 0.0 for r in rows])
-            big = [k for k, r in enumerate(rows) if r["mesh"] is not None]
-            out: dict[int, tuple[bytes, bytes, int, float, str]] = {}
-            if big:
-                tri, own = _triangles([rows[k]["mesh"] for k in big], list(range(len(big))))
-                d = decimate(tri, own, len(big), settings.gen_decimate_reduction,
-                             min_triangles=settings.gen_decimate_min_triangles, max_error=tol, spacing=tol / 4)
-                counts = np.bincount(d.owner, minlength=len(big))
-                offsets = np.concatenate([[0], np.cumsum(counts)])
-                wkbs = encode_triangles_batch(d.triangles, offsets, srid)
-                for j, k in enumerate(big):
-                    if not d.decimated[j]:
-                        out[k] = (None, None, 0, 0.0, str(d.status[j]))  # type: ignore[assignment]
-                        continue
-                    # a decimated surface has no per-triangle semantics of its own: roof where it faces up
-                    t = d.triangles[offsets[j]:offsets[j + 1]]
-                    nz = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-                    up = nz[:, 2] > 0.3 * np.linalg.norm(nz, axis=1)
-                    down = nz[:, 2] < -0.9 * np.linalg.norm(nz, axis=1)
-                    sem = np.where(up, 2, np.where(down, 0, 1)).astype(np.uint8).tobytes()
-                    out[k] = (wkbs[j], sem, int(counts[j]), float(d.error[j]), "decimated")
-                    stats["decimated"] += 1
-                    stats["max_error_m"] = max(stats["max_error_m"], float(d.error[j]))
-            with cur.copy(f"COPY gen.building_mesh ({', '.join(_MESH_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
-                copy.set_types(list(_MESH_TYPES))
-                for k, r in enumerate(rows):
-                    geom, sem, n_out, err, status = out.get(k, (None, None, 0, 0.0, "too small to decimate"))
-                    n_in = int(r["n_triangles"])
-                    n_out = n_out if geom is not None else n_in
-                    copy.write_row((int(r["building_id"]), 3, geom, sem, n_out, n_in, float(r["min_height"]),
-                                    float(r["height"]), err, err + float(step[k]), status))
-                    stats["triangles_in"] += n_in
-                    stats["triangles_out"] += n_out
-            stats["features"] += len(rows)
+        args = (tol, settings.gen_decimate_reduction, settings.gen_decimate_min_triangles, srid)
+        items = ((rows, ("decimation", (rows, *args))) for rows in iter(lambda: src.fetchmany(BATCH), []))
+        for rows, out in _mapped(items, settings):
+            if isinstance(out, Lost):
+                # the batch keeps its LOD2 meshes as they are (a row with no mesh of its own), saying why
+                detail = f"kept: decimation {out.reason} ({out.detail})"
+                lost = [{**r, "mesh": None} for r in rows]
+                out = decimation_batch(lost, *args)
+                out.meshes = [(*m[:-1], detail) for m in out.meshes]
+                stats["lost"] += len(rows)
+            _copy(cur, out)
+            for k, v in out.stats.items():
+                stats[k] = max(stats[k], v) if k == "max_error_m" else stats[k] + v
     return stats
 
 

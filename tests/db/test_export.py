@@ -3,6 +3,7 @@ parses in 3d-tiles-tools, per-feature metadata, and buildings at their real plac
 
 import json
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import psycopg
@@ -341,3 +342,23 @@ def test_placement_against_the_osm_file_itself(lod2, conn_of) -> None:
     tol = LEAF_POSITION_ERROR_M + 1e-3
     assert np.all(np.minimum(np.abs(h), np.abs(h - 12.0)) < tol)
     assert math.isclose(h.max(), 12.0, abs_tol=tol) and math.isclose(h.min(), 0.0, abs_tol=tol)
+
+
+def _tree_bytes(root) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_the_same_files_from_one_process_or_dask_workers_and_a_hung_tile_keeps_the_old_tileset(city,
+                                                                                               tmp_path) -> None:
+    """Tiles written in the export's own process or as Dask tasks on 2 workers are the same bytes (Helsinki:
+    textured, compact); a tile past its time limit stops the export with that tile named and leaves the
+    tileset in place untouched."""
+    c = city("helsinki")
+    one, two = tmp_path / "one", tmp_path / "two"
+    export_tileset(c.url, one, replace(Settings.from_env(), export_workers=1))
+    export_tileset(c.url, two, replace(Settings.from_env(), export_workers=2))
+    files = _tree_bytes(one)
+    assert len([f for f in files if f.endswith(".glb")]) > 5 and files == _tree_bytes(two)
+    with pytest.raises(RuntimeError, match=r"tile \d+/\d+/\d+ was not written: its worker ran .* time limit"):
+        export_tileset(c.url, two, replace(Settings.from_env(), export_workers=2, export_tile_timeout_s=0.001))
+    assert _tree_bytes(two) == files

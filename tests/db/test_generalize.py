@@ -414,3 +414,54 @@ def test_a_tile_missing_buildings_is_refused(deep, conn_of) -> None:
             conn.transaction():
         conn.execute("DELETE FROM gen.block WHERE block_id = (SELECT min(block_id) FROM gen.block)")
         conn.execute("CALL tiles.finish_hierarchy(0)")
+
+
+def _gen_digest(conn: psycopg.Connection) -> tuple[str, str, str]:
+    return conn.execute(
+        """SELECT (SELECT md5(string_agg(concat_ws(':', building_id, md5(ST_AsEWKB(geom)::text), n_vertices_out,
+                                                   error_m, status), ',' ORDER BY building_id)) FROM gen.footprint),
+                  (SELECT md5(string_agg(concat_ws(':', building_id, gen_level,
+                                                   md5(coalesce(ST_AsEWKB(geom), '')::text),
+                                                   md5(coalesce(semantics, '')::text), n_triangles, error_m,
+                                                   total_error_m, status), ',' ORDER BY building_id, gen_level))
+                   FROM gen.building_mesh),
+                  (SELECT md5(string_agg(concat_ws(':', level, x, y, members::text, md5(ST_AsEWKB(geom)::text),
+                                                   error_m), ',' ORDER BY level, x, y, members::text))
+                   FROM gen.block)""").fetchone()
+
+
+def test_the_same_rows_on_one_or_two_dask_workers_and_a_hung_batch_is_kept_as_mapped(new_db, conn_of) -> None:
+    """The footprint and decimation batches as Dask tasks on 2 workers give the rows one process gives; with a
+    time limit every batch exceeds, every building is kept as mapped and every LOD2 mesh undecimated, each
+    saying why, and the hierarchy still stands for every building."""
+    from tests.conftest import helsinki
+
+    url = new_db("gen_workers")
+    run_etl(url, "ingest", "--osm", str(helsinki()))
+    run_etl(url, "lod")
+    run_etl(url, "tiles", env=BUDGET)
+    conn = conn_of(url)
+    run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "1"})
+    one = _gen_digest(conn)
+    assert all(one)
+    run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "2"})
+    assert _gen_digest(conn) == one
+    proc = run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "2", "CITYLOD_GEN_BATCH_TIMEOUT_S": "0.001"})
+    assert "Timeout (" in proc.stderr
+    c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
+                     "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    # nothing lost: every building kept as mapped, its LOD2 meshes its level-2 mesh, the status saying why
+    assert c["in"] == c["out"] == c["out_by_kind"]["left as mapped"] == c["footprints"]["lost"] > 100
+    fp = conn.execute("""SELECT count(*), count(*) FILTER (WHERE f.status LIKE 'kept_original: generalize hung%%'
+                                                                AND f.status LIKE '%%time limit%%'
+                                                                AND m.error_m = 0 AND m.n_triangles = (
+                             SELECT sum(l.n_triangles) FROM tiles.building_tile bt JOIN lod.building_mesh l
+                             ON l.building_id = bt.building_id AND l.lod = 2 WHERE bt.group_id = f.building_id))
+                         FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id
+                                                                      AND m.gen_level = 2""").fetchone()
+    assert fp[0] == fp[1] == c["in"]
+    kept = conn.execute("SELECT count(*), count(*) FILTER (WHERE geom IS NULL AND status LIKE 'kept: decimation hung%')"
+                        " FROM gen.building_mesh WHERE gen_level = 3").fetchone()
+    assert kept[0] == c["decimation"]["features"] == c["decimation"]["lost"] == kept[1] > 100
+    run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "1"})
+    assert _gen_digest(conn) == one
