@@ -145,7 +145,7 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, d
                                ).fetchone()
             assert row is not None
             buildings, db_bytes = int(row[0]), int(row[1])
-        speedup = dask_speedup(url, env, logs) if dask else None
+        speedup = dask_speedup(url, env, logs, tiles) if dask else None
     finally:
         if not keep:
             drop_db(admin_url, dbname)
@@ -160,10 +160,11 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, d
 
 
 #: The stages whose units run as Dask tasks, and the setting that gives their worker count.
-DASK_STAGES = {"lod": "CITYLOD_LOD_WORKERS", "generalize": "CITYLOD_GEN_WORKERS", "textures": "CITYLOD_TEX_WORKERS"}
+DASK_STAGES = {"lod": "CITYLOD_LOD_WORKERS", "generalize": "CITYLOD_GEN_WORKERS", "textures": "CITYLOD_TEX_WORKERS",
+               "export": "CITYLOD_EXPORT_WORKERS"}
 
 
-def dask_speedup(url: str, env: dict[str, str], logs: Path) -> dict[str, dict[str, float]]:
+def dask_speedup(url: str, env: dict[str, str], logs: Path, tiles: Path) -> dict[str, dict[str, float]]:
     """Each Dask stage run again with 1 worker (its units in the stage's own process) and on a LocalCluster of 2
     workers, in pipeline order on the built database (tiles again after lod, which empties them): the stage's
     own seconds and the speedup 1 -> 2."""
@@ -171,7 +172,8 @@ def dask_speedup(url: str, env: dict[str, str], logs: Path) -> dict[str, dict[st
     for stage, var in DASK_STAGES.items():
         row: dict[str, float] = {}
         for n in (1, 2):
-            run_child([sys.executable, "-m", "etl", stage], {**env, var: str(n)}, logs / f"{stage}-w{n}.log")
+            args = ["--out", str(tiles)] if stage == "export" else []
+            run_child([sys.executable, "-m", "etl", stage, *args], {**env, var: str(n)}, logs / f"{stage}-w{n}.log")
             _, stage_s = last_run(url, stage)
             row[f"w{n}_s"] = round(float(stage_s or 0.0), 2)
         row["speedup"] = round(row["w1_s"] / row["w2_s"], 2) if row["w2_s"] else 0.0
