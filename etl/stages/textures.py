@@ -257,15 +257,15 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
         rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
         util = tt.layout.utilization
         refused: dict[int, str] = {}
+        t1 = time.perf_counter()
+        ktx2 = K.encode_many(list(tt.pages), settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
+                             settings.tex_ktx2_timeout_s)
+        res.ktx2_seconds += time.perf_counter() - t1
         for p, img in enumerate(tt.pages):
             data, mime = A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD)
-            t1 = time.perf_counter()
-            try:
-                k2: bytes | None = K.encode(img, settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
-                                            settings.tex_ktx2_timeout_s)
-            except K.EncodeError as e:  # this page stays WebP only; its features get vertex colours in KTX2
-                k2, refused[p] = None, str(e)
-            res.ktx2_seconds += time.perf_counter() - t1
+            k2 = ktx2[p]
+            if isinstance(k2, K.EncodeError):  # this page stays WebP only; its features get vertex colours in KTX2
+                k2, refused[p] = None, str(k2)
             h, w = img.shape[:2]
             res.pages.append((*key, p, FORMAT, mime, w, h, len(data), data, float(util[p]), rho, distance,
                               len(rects[p]), int(tt.layout.scaled[tt.layout.page == p].sum()), pad,

@@ -101,6 +101,27 @@ def test_an_encoder_that_fails_writes_nothing_or_hangs_is_an_encode_error(tmp_pa
     assert e.value.reason == "ktx2_encode_failed"
 
 
+def test_many_pages_by_one_process_are_encodes_bytes() -> None:
+    pages = [page(64, 64), page(16, 128), page(512, 256)]
+    assert K.encode_many(pages) == [K.encode(p) for p in pages]
+    assert K.encode_many([]) == []
+
+
+def test_a_page_the_encoder_refuses_is_the_only_one_lost(tmp_path: Path, monkeypatch) -> None:
+    # the real encoder behind a wrapper that refuses any run with a page above 5 kB (64 x 64 and larger): the
+    # one process for all pages fails, each page is encoded again on its own, and only the big one is refused
+    real = K.binary()
+    wrapper = ('for a; do case "$a" in *.tga)\n'
+               '  [ "$(wc -c < "$a")" -gt 5000 ] && { echo "ERROR: too big" >&2; exit 4; };; esac; done\n'
+               f'exec {real} "$@"')
+    monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
+    small, big = page(16, 16), page(64, 64)
+    out = K.encode_many([small, big, small])
+    assert isinstance(out[1], K.EncodeError) and "basisu exit 4" in str(out[1]) and "too big" in str(out[1])
+    monkeypatch.delenv(K.ENV_BINARY)
+    assert out[0] == out[2] == K.encode(small)
+
+
 def test_no_encoder_says_run_make_setup(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.delenv(K.ENV_BINARY, raising=False)
     monkeypatch.setattr(K, "_NPM_BIN", Path("no") / "such" / "dir")
