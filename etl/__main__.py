@@ -315,8 +315,12 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("CITYLOD_DEBUG") == "1":
             raise
         print(f"{args.command}: error: {e}", file=sys.stderr)
-        if args.command in ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export"):
+        from . import runs
+
+        if runs.recorded_failures:
             print("  (recorded as failed in meta.pipeline_run; CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)
+        else:
+            print("  (CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
 
 

@@ -8,6 +8,7 @@ import hashlib
 import json
 import socket
 import subprocess
+import threading
 import time
 import traceback
 from collections.abc import Iterator
@@ -65,6 +66,22 @@ class Run:
     started: float = field(default_factory=time.perf_counter)
 
 
+#: advisory lock namespace of the runs ("clod"): a running stage holds (RUN_LOCK, run_id) while it lives
+RUN_LOCK = int.from_bytes(b"clod", "big")
+HEARTBEAT_S = 5.0
+#: run_ids this process recorded as failed (the CLI says "recorded as failed" only for those)
+recorded_failures: list[int] = []
+
+
+def _heartbeat(conn: psycopg.Connection, run_id: int, stop: threading.Event) -> None:
+    """heartbeat_at = now() every HEARTBEAT_S until ``stop``: the time a killed run is recorded as dying."""
+    while not stop.wait(HEARTBEAT_S):
+        try:
+            conn.execute("UPDATE meta.pipeline_run SET heartbeat_at = now() WHERE run_id = %s", (run_id,))
+        except psycopg.Error:  # the server went away: the run cannot be recorded now; the next start will
+            return
+
+
 @contextmanager
 def pipeline_run(
     url: str, stage: str, params: dict[str, object], input_file: Path | None = None,
@@ -73,10 +90,12 @@ def pipeline_run(
     """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row.
     ``inputs`` (etl.dag.inputs) is what a later --if-stale compares."""
     with psycopg.connect(url, autocommit=True) as conn:
+        # runs whose process died without recording its end (kill -9, a server restart) are failed first
+        conn.execute("SELECT * FROM meta.reap_dead_runs(%s)", (RUN_LOCK,))
         row = conn.execute(
             """INSERT INTO meta.pipeline_run (stage, status, params, input_file, input_sha256, git_commit, host,
-                                              inputs)
-               VALUES (%s, 'running', %s, %s, %s, %s, %s, %s) RETURNING run_id""",
+                                              inputs, heartbeat_at)
+               VALUES (%s, 'running', %s, %s, %s, %s, %s, %s, now()) RETURNING run_id""",
             (
                 stage,
                 Jsonb(json.loads(json.dumps(params, default=str))),
@@ -89,8 +108,18 @@ def pipeline_run(
         ).fetchone()
         assert row is not None
         run = Run(run_id=row[0], stage=stage)
+        # held by this connection until it ends, however it ends: while it is held, the run is alive
+        conn.execute("SELECT pg_advisory_lock(%s, %s)", (RUN_LOCK, run.run_id))
+        stop = threading.Event()
+        beat = threading.Thread(target=_heartbeat, args=(conn, run.run_id, stop), name="run-heartbeat",
+                                daemon=True)
+        beat.start()
         try:
-            yield run
+            try:
+                yield run
+            finally:
+                stop.set()
+                beat.join()
             check_balance(stage, run.counts)
         except BaseException as exc:
             conn.execute(
@@ -99,6 +128,7 @@ def pipeline_run(
                 (time.perf_counter() - run.started, Jsonb(run.counts),
                  "".join(traceback.format_exception_only(type(exc), exc)).strip(), run.run_id),
             )
+            recorded_failures.append(run.run_id)
             raise
         conn.execute(
             """UPDATE meta.pipeline_run SET status = 'ok', finished_at = now(), duration_s = %s, counts = %s,

@@ -22,7 +22,9 @@ What a stage needs beyond a pool, kept from the process pool this replaced:
   wait in a bounded buffer), so one long item does not idle the others;
 * an exception raised by ``fn`` is the caller's bug and is raised here as a ``WorkerError`` with the worker's
   traceback;
-* the local cluster is closed at the end, its worker processes killed if they will not exit.
+* the local cluster is closed at the end, its worker processes killed if they will not exit; a local worker
+  whose stage process died (kill -9: no cleanup runs) ends with it, as Dask's worker processes watch their
+  parent (tests/db/test_crash.py).
 """
 
 from __future__ import annotations
