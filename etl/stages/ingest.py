@@ -12,7 +12,12 @@ The whole stage is one transaction: re-running it on the same file gives the sam
 
 from __future__ import annotations
 
+import bz2
+import gzip
+import html
 import json
+import re
+import struct
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -88,6 +93,75 @@ def read_building_relations(path: Path) -> Iterator[tuple[int, dict[str, str], l
         yield rel.id, {t.k: t.v for t in rel.tags}, members
 
 
+_MAX_STRING = 1024  # libosmium's osmium::max_osm_string_length: longer keys, values, roles, user names are refused
+_XML_TOKEN = re.compile(rb'<(node|way|relation)\b[^>]*?\bid="(-?\d+)"|\b(k|v|role|user)="([^"]*)"')
+
+
+def locate_long_string(path: Path) -> str:
+    """Where the first string longer than libosmium's limit sits in an OSM XML file (plain, .gz or .bz2): "line
+    3, way 7: tag 'note' has a 10,000-byte value"; '' for other formats or when none is found. libosmium refuses
+    the whole file on such a string without saying where, so the user could not find it to fix or filter it."""
+    name = path.name.lower()
+    opener = {".gz": gzip.open, ".bz2": bz2.open}.get(path.suffix.lower(), open)
+    if not re.search(r"\.(osm|xml|osc)(\.gz|\.bz2)?$", name):
+        return ""
+    obj, key = "the file header", ""
+    with opener(path, "rb") as f:
+        for lineno, line in enumerate(f, 1):
+            for m in _XML_TOKEN.finditer(line):
+                if m[1]:
+                    obj, key = f"{m[1].decode()} {m[2].decode()}", ""
+                    continue
+                attr, raw = m[3].decode(), html.unescape(m[4].decode("utf-8", "replace")).encode()
+                if attr == "k" and len(raw) <= _MAX_STRING:
+                    key = raw.decode()
+                elif len(raw) > _MAX_STRING:
+                    what = {"k": "a tag key", "v": f"the value of tag {key!r}", "role": "a member role",
+                            "user": "the user name"}[attr]
+                    return f"line {lineno}, {obj}: {what} has {len(raw):,} bytes"
+    return ""
+
+
+def read_error(path: Path, e: Exception) -> RuntimeError:
+    """libosmium's refusal of the whole file, with where and what when it can be found."""
+    msg = f"cannot read {path}: {e}"
+    if "too long" in str(e):
+        where = locate_long_string(path)
+        msg += (f" ({where}; libosmium reads at most {_MAX_STRING:,} bytes)" if where else
+                f" (libosmium reads at most {_MAX_STRING:,} bytes in a key, value, role or user name)")
+        msg += ": shorten or drop that tag first (README: bad input)"
+    return RuntimeError(msg)
+
+
+def negative_node_locations(path: Path) -> dict[int, tuple[float, float]]:
+    """(lon, lat) of every node with a negative id (JOSM writes unsaved objects so); one pass over the nodes."""
+    out: dict[int, tuple[float, float]] = {}
+    for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
+        if n.id < 0 and n.location.valid():
+            out[n.id] = (n.location.lon, n.location.lat)
+    return out
+
+
+def _line_from(nodes: object, negative: dict[int, tuple[float, float]]) -> str | None:
+    """The way's linestring as libosmium's WKB hex (little-endian, no SRID), its positive nodes from the
+    location index and its negative ones from ``negative``; None when a node is still missing. Consecutive
+    repeated nodes are dropped, as libosmium does."""
+    coords: list[tuple[float, float]] = []
+    for n in nodes:  # type: ignore[attr-defined]
+        if n.location.valid():
+            xy = (n.location.lon, n.location.lat)
+        elif n.ref in negative:
+            xy = negative[n.ref]
+        else:
+            return None
+        if not coords or coords[-1] != xy:
+            coords.append(xy)
+    if len(coords) < 2:
+        return None
+    return (b"\x01" + struct.pack("<II", 2, len(coords)) + struct.pack(f"<{2 * len(coords)}d",
+                                                                      *(c for xy in coords for c in xy))).hex()
+
+
 def read_buildings(
     path: Path, settings: Settings, counts: IngestCounts
 ) -> Iterator[tuple[object, ...]]:
@@ -102,6 +176,7 @@ def read_buildings(
     )
     mp_candidates: dict[int, tuple[BuildingTags, dict[str, str]]] = {}
     assembled: set[int] = set()
+    negative: dict[int, tuple[float, float]] | None = None
     for obj in fp:
         if obj.is_area():
             if obj.from_way():
@@ -139,6 +214,16 @@ def read_buildings(
                 # the nodes are only walked in Python for the rare way that needs it; with every node missing
                 # libosmium says "need at least two points", as it does for a ring of one repeated point
                 missing = [n.ref for n in nodes if not n.location.valid()]
+                if missing and min(missing) < 0:
+                    # libosmium's location index keeps positive ids only: negative ones (unsaved JOSM data) are
+                    # looked up in their own table, read from the file the first time a way needs it
+                    if negative is None:
+                        negative = negative_node_locations(path)
+                    line = _line_from(nodes, negative)
+                    if line is not None:
+                        yield _row("W", obj.id, parsed, tags, "L", line)
+                        continue
+                    missing = [n.ref for n in nodes if not n.location.valid() and n.ref not in negative]
                 if missing:
                     shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
                     yield _reject("W", obj.id, parsed, tags, "missing_nodes",
@@ -206,8 +291,10 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
 
         try:
             rels = list(read_building_relations(path))  # few; needed before parts are linked
-        except RuntimeError as e:
-            raise RuntimeError(f"cannot read {path}: {e}") from e
+        except (RuntimeError, ValueError) as e:  # libosmium: unreadable, or a string over its limit
+            if isinstance(e, ValueError) and "too long" not in str(e):
+                raise
+            raise read_error(path, e) from e
         counts.building_relations = len(rels)
         if rels:
             with cur.copy("COPY osm.building_relation (relation_id, name, tags) FROM STDIN") as copy:
@@ -223,8 +310,10 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         progress = Progress("ingest", "buildings")
         try:
             _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
-        except RuntimeError as e:  # libosmium: truncated or corrupt PBF, malformed XML, unknown format
-            raise RuntimeError(f"cannot read {path}: {e}") from e
+        except (RuntimeError, ValueError) as e:  # libosmium: truncated or corrupt PBF, malformed XML, unknown
+            if isinstance(e, ValueError) and "too long" not in str(e):  # format, a string over its limit
+                raise
+            raise read_error(path, e) from e
         print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
               file=sys.stderr, flush=True)
         staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()

@@ -1,6 +1,7 @@
 -- osm.finish_ingest(min_area_m2, source_file, source_sha256)
 -- Second half of the ingest stage, set-based over the COPY staging table osm.building_import:
---   1. closed ways become polygons (ST_MakePolygon); rings with fewer than 4 points are rejected;
+--   1. closed ways become polygons (ST_MakePolygon); rings with fewer than 4 points are rejected, and so are
+--      footprints crossing the 180th meridian (crosses_antimeridian: they would span the world);
 --   2. the working CRS is chosen from the centre of the data (meta.utm_srid) and recorded in meta.dataset;
 --   3. invalid polygons are repaired with ST_MakeValid (polygonal part kept, flagged repaired with the GEOS
 --      reason); polygons that cannot be repaired, or are smaller than min_area_m2, go to osm.reject;
@@ -26,8 +27,11 @@ DECLARE
 BEGIN
     CREATE TEMP TABLE _cand ON COMMIT DROP AS
     SELECT i.*,
+           -- OSM splits what meets the 180th meridian; a footprint wider than half the world crossed it
+           coalesce(ST_XMax(i.geom) - ST_XMin(i.geom) > 180, false) AS crosses,
            CASE
                WHEN i.reject_reason IS NOT NULL OR i.geom IS NULL THEN NULL
+               WHEN ST_XMax(i.geom) - ST_XMin(i.geom) > 180 THEN NULL
                WHEN i.geom_kind = 'L' THEN
                    CASE WHEN ST_NPoints(i.geom) >= 4 AND ST_IsClosed(i.geom)
                         THEN ST_MakePolygon(i.geom) END
@@ -48,7 +52,9 @@ BEGIN
            coalesce((SELECT split_part(split_part(srtext, '"', 2), '"', 1) FROM spatial_ref_sys WHERE srid = v_srid),
                     'EPSG:' || v_srid),
            source_file, source_sha256,
-           (SELECT ST_SetSRID(ST_Extent(poly)::geometry, 4326) FROM _cand WHERE poly IS NOT NULL);
+           -- always a polygon: the extent of a single zero-area building is a line or a point as a geometry
+           (SELECT ST_MakeEnvelope(ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), 4326)
+            FROM (SELECT ST_Extent(poly) AS e FROM _cand WHERE poly IS NOT NULL) x WHERE e IS NOT NULL);
 
     CREATE TEMP TABLE _fixed ON COMMIT DROP AS
     SELECT c.*, s.valid, s.invalid_reason, s.fixed,
@@ -109,7 +115,13 @@ BEGIN
     SELECT c.osm_type, c.osm_id, 'ingest', 'degenerate_ring',
            format('closed way with %s distinct points; a polygon needs at least 3', ST_NPoints(c.geom) - 1),
            c.tags, c.geom
-    FROM _cand c WHERE c.reject_reason IS NULL AND c.poly IS NULL
+    FROM _cand c WHERE c.reject_reason IS NULL AND c.poly IS NULL AND NOT c.crosses
+    UNION ALL
+    SELECT c.osm_type, c.osm_id, 'ingest', 'crosses_antimeridian',
+           format('its longitudes span %s° to %s°: it crosses the 180th meridian, which OSM data never does '
+                  '(split it there)', round(ST_XMin(c.geom)::numeric, 6), round(ST_XMax(c.geom)::numeric, 6)),
+           c.tags, c.geom
+    FROM _cand c WHERE c.reject_reason IS NULL AND c.crosses
     UNION ALL
     SELECT f.osm_type, f.osm_id, 'ingest', 'invalid_geometry',
            format('%s; ST_MakeValid left no polygon', f.invalid_reason), f.tags, f.poly

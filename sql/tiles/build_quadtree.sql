@@ -51,6 +51,14 @@ BEGIN
     ANALYZE _grp;  -- temporary tables get no statistics from autovacuum: without them every join below is a guess
 
     IF NOT EXISTS (SELECT 1 FROM _grp) THEN
+        -- nothing to tile: say whether the lod stage is missing or drew nothing (every building rejected)
+        IF EXISTS (SELECT 1 FROM meta.pipeline_run r WHERE r.stage = 'lod' AND r.status = 'ok'
+                   AND r.run_id > coalesce((SELECT max(i.run_id) FROM meta.pipeline_run i
+                                            WHERE i.stage = 'ingest' AND i.status = 'ok'), 0)) THEN
+            RAISE EXCEPTION 'no LOD% meshes to tile: the lod stage drew no building (% buildings in osm.building, '
+                            '% rejected in osm.reject: see their reasons there)', lod,
+                            (SELECT count(*) FROM osm.building), (SELECT count(*) FROM osm.reject);
+        END IF;
         RAISE EXCEPTION 'no LOD% meshes: run the lod stage first', lod;
     END IF;
 

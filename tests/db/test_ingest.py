@@ -244,3 +244,84 @@ def test_unreadable_files_fail_with_one_clear_line(new_db, conn_of, tmp_path) ->
     runs = conn_of(url).execute(
         "SELECT status, error FROM meta.pipeline_run WHERE stage = 'ingest' ORDER BY run_id").fetchall()
     assert [r[0] for r in runs] == ["failed", "failed"] and "PBF error" in runs[0][1]
+
+
+def _osm(path, body: str, generator: str = "hand"):
+    path.write_text(f'<?xml version="1.0"?><osm version="0.6" generator="{generator}">{body}</osm>')
+    return path
+
+
+def test_a_file_whose_only_building_has_no_area_is_a_reject_and_lod_and_tiles_say_so(new_db, conn_of,
+                                                                                      tmp_path) -> None:
+    src = _osm(tmp_path / "line.osm",
+               '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
+               '<node id="3" lat="47.0" lon="9.0004"/>'
+               '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/><tag k="building" v="yes"/></way>')
+    url = new_db("ingest_collinear")
+    run_etl(url, "ingest", "--osm", str(src))
+    conn = conn_of(url)
+    assert conn.execute("SELECT osm_id, reason FROM osm.reject").fetchall() == [(7, "invalid_geometry")]
+    assert conn.execute("SELECT GeometryType(bbox) FROM meta.dataset").fetchone()[0] == "POLYGON"
+    run_etl(url, "lod")  # nothing to draw is not an error
+    proc = run_etl(url, "tiles", check=False)
+    assert proc.returncode != 0 and "run the lod stage first" not in proc.stderr
+    assert "the lod stage drew no building (0 buildings in osm.building, 1 rejected in osm.reject" in proc.stderr
+
+
+def test_ways_of_nodes_with_negative_ids_are_built(new_db, conn_of, tmp_path) -> None:
+    # as JOSM saves unsaved data: negative ids, which libosmium's location index does not keep
+    src = _osm(tmp_path / "josm.osm",
+               '<node id="-1" lat="47.0" lon="9.0"/><node id="-2" lat="47.0" lon="9.0002"/>'
+               '<node id="-3" lat="47.0002" lon="9.0002"/><node id="4" lat="47.0002" lon="9.0"/>'
+               '<way id="-5"><nd ref="-1"/><nd ref="-2"/><nd ref="-3"/><nd ref="4"/><nd ref="-1"/>'
+               '<tag k="building" v="yes"/></way>'
+               '<way id="-6"><nd ref="-1"/><nd ref="-2"/><nd ref="-99"/><nd ref="-1"/>'
+               '<tag k="building" v="yes"/></way>',
+               generator="JOSM")
+    url = new_db("ingest_negative")
+    run_etl(url, "ingest", "--osm", str(src))
+    conn = conn_of(url)
+    area, n = conn.execute("SELECT area_m2, ST_NPoints(geom) FROM osm.building WHERE osm_id = -5").fetchone()
+    assert 330 < area < 345 and n == 5  # 15.2 m x 22.2 m at 47° N, its four corners closed
+    rejects = conn.execute("SELECT osm_id, reason, detail FROM osm.reject").fetchall()
+    assert [(r[0], r[1]) for r in rejects] == [(-6, "missing_nodes")] and "-99" in rejects[0][2]
+
+
+def test_a_string_over_libosmiums_limit_is_refused_with_its_place(new_db, conn_of, tmp_path) -> None:
+    url = new_db("ingest_long_tag")
+    nodes = '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>' \
+            '<node id="3" lat="47.0002" lon="9.0002"/>'
+    ok = _osm(tmp_path / "ok.osm", nodes + '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>'
+              f'<tag k="building" v="yes"/><tag k="note" v="{"x" * 1024}"/></way>')
+    run_etl(url, "ingest", "--osm", str(ok))  # 1,024 bytes: libosmium's limit, still read
+    long = _osm(tmp_path / "long.osm", nodes + '\n<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>'
+                f'\n<tag k="building" v="yes"/><tag k="note" v="{"&amp;" * 1025}"/></way>')
+    proc = run_etl(url, "ingest", "--osm", str(long), check=False)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert (f"cannot read {long}: OSM tag value is too long (line 3, way 7: the value of tag 'note' has 1,025 "
+            "bytes; libosmium reads at most 1,024 bytes)") in proc.stderr
+    ctrl = _osm(tmp_path / "ctrl.osm", '\n<node id="1" lat="47.0" lon="9.0"><tag k="name" v="a\x01b"/></node>')
+    proc = run_etl(url, "ingest", "--osm", str(ctrl), check=False)
+    assert proc.returncode == 1 and "XML parsing error at line 2, column" in proc.stderr
+    # refused whole: the database keeps the last good load
+    assert conn_of(url).execute("SELECT count(*) FROM osm.building").fetchone()[0] == 1
+
+
+def test_a_building_across_the_antimeridian_is_rejected_not_a_world_wide_tile(new_db, conn_of, tmp_path) -> None:
+    src = _osm(tmp_path / "fiji.osm",
+               '<node id="1" lat="-16.8" lon="179.9999"/><node id="2" lat="-16.8" lon="-179.9999"/>'
+               '<node id="3" lat="-16.7999" lon="-179.9999"/><node id="4" lat="-16.7999" lon="179.9999"/>'
+               '<node id="11" lat="-16.8" lon="179.99"/><node id="12" lat="-16.8" lon="179.9902"/>'
+               '<node id="13" lat="-16.7998" lon="179.9902"/><node id="14" lat="-16.7998" lon="179.99"/>'
+               '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="4"/><nd ref="1"/>'
+               '<tag k="building" v="yes"/></way>'
+               '<way id="8"><nd ref="11"/><nd ref="12"/><nd ref="13"/><nd ref="14"/><nd ref="11"/>'
+               '<tag k="building" v="yes"/></way>')
+    url = new_db("ingest_antimeridian")
+    run_etl(url, "ingest", "--osm", str(src))
+    run_etl(url, "lod")
+    run_etl(url, "tiles")
+    conn = conn_of(url)
+    assert conn.execute("SELECT osm_id, reason FROM osm.reject").fetchall() == [(7, "crosses_antimeridian")]
+    west, east = conn.execute("SELECT min(region[1]), max(region[3]) FROM tiles.tile").fetchone()
+    assert 0 < east - west < 1e-4  # radians: the one building's few metres, not the world

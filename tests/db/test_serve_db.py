@@ -460,6 +460,8 @@ def test_server_connection_cannot_write(db_server: tuple[DbTileSource, str], fix
                 "DELETE FROM tiles.tile",
                 "TRUNCATE lod.building_mesh",
                 "CREATE TABLE api.x (a int)",
+                "SELECT lo_from_bytea(0, '\\x00'::bytea)",  # large objects too (0026)
+                "SELECT lo_create(0)",
             ):
                 with pytest.raises(psycopg.errors.InsufficientPrivilege), conn.transaction():
                     conn.execute("SET TRANSACTION READ WRITE")
