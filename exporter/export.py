@@ -8,12 +8,17 @@ content.py turns them into glTF arrays in the tile's local frame and gltf.py wri
 EXT_structural_metadata. Where the textures stage made atlas pages for a tile (tex.page, tex.feature_uv; the
 hierarchy only, not ``lod`` tilesets), its features are drawn with one material per page (TEXCOORD_0, WebP);
 a tile without texture rows is written exactly as before. The tileset is written into ``<out>.partial`` and
-swapped in at the end, so a failed export never leaves a half-written tileset behind.
+swapped in at the end in one step (swap_in), so a failed export never leaves a half-written tileset behind and a
+reader of ``<out>`` never meets a tileset.json naming files not there; exports into one directory take turns.
 """
 
 from __future__ import annotations
 
 import atexit
+import contextlib
+import ctypes
+import errno
+import fcntl
 import json
 import os
 import shutil
@@ -444,12 +449,62 @@ def replaceable(path: Path) -> bool:
     return isinstance(asset, dict) and str(asset.get("generator", "")).startswith("citylod")
 
 
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+
+
+def exchange(a: Path, b: Path) -> bool:
+    """Swap two existing paths in one step (Linux renameat2 RENAME_EXCHANGE): a reader sees either, never
+    neither. False where the system or the file system cannot (the caller then replaces in two steps)."""
+    fn = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    if fn is None:
+        return False
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EPERM, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), f"{a} <-> {b}")
+
+
+def swap_in(partial: Path, out: Path) -> None:
+    """``partial`` becomes ``out`` in one step, so a server or client reading ``out`` always finds one whole
+    tileset; the old one is then deleted under the partial name (marked ours first, should that be cut short)."""
+    if out.exists() and exchange(partial, out):
+        (partial / PARTIAL_MARKER).touch()
+        shutil.rmtree(partial)
+        return
+    if out.exists():
+        shutil.rmtree(out)
+    partial.rename(out)
+
+
+@contextlib.contextmanager
+def _directory_lock(out: Path) -> Iterator[None]:
+    """One export at a time into ``out``: a second one waits for the first instead of failing or mixing."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.with_name(f".{out.name}.lock"), "w") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            print(f"  export: waiting for the export already writing {out}", file=sys.stderr, flush=True)
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        yield  # the lock goes with the file's closing
+
+
 def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
                    stream: StreamOptions = COMPACT) -> dict[str, object]:
     """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
-    every building at that one level of detail (1 block, 2 roofs, 3 facades)."""
+    every building at that one level of detail (1 block, 2 roofs, 3 facades). Exports into one directory are
+    serialized, and each swaps its tileset in whole (swap_in)."""
     if lod not in (None, 1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
+    with _directory_lock(out):
+        return _export_tileset(url, out, settings, lod, stream)
+
+
+def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, stream: StreamOptions
+                    ) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     for p in (out, partial):
@@ -478,9 +533,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
         (partial / uri).write_bytes(data)
     n_bytes += sum(len(d) for d in files.values())
     (partial / PARTIAL_MARKER).unlink()
-    if out.exists():
-        shutil.rmtree(out)
-    partial.rename(out)
+    swap_in(partial, out)
     seconds = time.perf_counter() - t0
     buildings = sum(r.n_features for r in records if r.is_leaf)
     summary(

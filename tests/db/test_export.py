@@ -362,3 +362,44 @@ def test_the_same_files_from_one_process_or_dask_workers_and_a_hung_tile_keeps_t
     with pytest.raises(RuntimeError, match=r"tile \d+/\d+/\d+ was not written: its worker ran .* time limit"):
         export_tileset(c.url, two, replace(Settings.from_env(), export_workers=2, export_tile_timeout_s=0.001))
     assert _tree_bytes(two) == files
+
+
+def test_an_export_swaps_its_tileset_in_whole_and_exports_into_one_directory_take_turns(city, tmp_path,
+                                                                                     monkeypatch) -> None:
+    import fcntl
+    import os
+    import shutil
+    import sys
+    import time
+
+    from exporter import export as E
+
+    c = city("fixtures")
+    out = tmp_path / "ts"
+    export_tileset(c.url, out, Settings.from_env())
+    first = (out / "tileset.json").read_bytes()
+    # while the old tileset is deleted, the new one is already whole at the directory's name
+    seen = []
+    real = shutil.rmtree
+
+    def rmtree(path, *a, **k):
+        seen.append((path, (out / "tileset.json").exists(), (out / E.PARTIAL_MARKER).exists()))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(E.shutil, "rmtree", rmtree)
+    export_tileset(c.url, out, Settings.from_env(), lod=2)
+    monkeypatch.setattr(E.shutil, "rmtree", real)
+    assert seen and all(p != out and present and not partial for p, present, partial in seen), seen
+    assert (out / "tileset.json").read_bytes() != first and not out.with_name("ts.partial").exists()
+    assert check_tileset(out / "tileset.json") == []
+    # another export holds the directory: this one waits for it, then writes
+    with open(out.with_name(".ts.lock"), "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        proc = subprocess.Popen([sys.executable, "-m", "etl", "export", "--out", str(out)], cwd=REPO, text=True,
+                                env={**os.environ, "DATABASE_URL": c.url}, stderr=subprocess.PIPE,
+                                stdout=subprocess.PIPE)
+        time.sleep(8)
+        assert proc.poll() is None and (out / "tileset.json").read_bytes() != first
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0 and "waiting for the export already writing" in err
+    assert (out / "tileset.json").read_bytes() == first
