@@ -36,6 +36,7 @@ import logging
 import multiprocessing
 import os
 import pickle
+import sys
 import time
 import traceback
 import uuid
@@ -49,6 +50,7 @@ GRACE_S = 30.0  # after the watchdog's own exit should have happened
 EXIT_WAIT_S = 10.0
 POLL_S = 0.2
 NO_WORKER_S = 120.0
+SLOW_S = 120.0  # a unit running this long is named on stderr (once): the stream waits for it
 BUFFER_PER_THREAD = 16  # finished items held for in-order yield, per cluster thread, when no window is given
 _END = object()
 
@@ -197,6 +199,7 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
         started: dict[str, tuple[str, float]] = {}  # key -> (worker, when this attempt was first seen running)
         ran: dict[str, float] = {}  # key -> how long its last finished attempt was seen running
         alive = [time.monotonic()]  # when the cluster last had a worker
+        slow: set[str] = set()  # keys said to be slow
         i = 0
         try:
             submit()
@@ -209,7 +212,7 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
                     continue
                 with contextlib.suppress(TimeoutError):
                     wait([f for _, f in flight.values()], timeout=POLL_S, return_when="FIRST_COMPLETED")
-                _watch(client, started, ran, timeout, alive, prefix)
+                _watch(client, started, ran, timeout, alive, prefix, slow)
                 for j, (key, fut) in list(flight.items()):
                     if fut.done():
                         done[j] = _settle(key, fut, j, started, ran, timeout)
@@ -240,7 +243,7 @@ def _settle(key: str, fut: Any, index: int, started: dict[str, tuple[str, float]
 
 
 def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float,
-           alive: list[float], prefix: str) -> None:
+           alive: list[float], prefix: str, slow: set[str]) -> None:
     """Note when each running task started and how long its last attempt ran (a retry runs on another worker),
     and restart the worker of a task past ``timeout`` + GRACE_S, whose watchdog should have ended it. A cluster
     left without any worker for NO_WORKER_S (a nanny that could not start its replacement on a machine under
@@ -266,11 +269,21 @@ def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, fl
             if not str(key).startswith(prefix):  # another run's, on a shared cluster
                 continue
             seen = started.get(key)
+            item = str(key)[len(prefix):]
             if seen is None or seen[0] != worker:
                 if seen is not None:
                     ran[key] = now - seen[1]
+                    _say(f"item {item} moved to {worker} after {now - seen[1]:.0f} s on {seen[0]} (retried)")
                 started[key] = (worker, now)
             elif now - seen[1] > timeout + GRACE_S:
+                _say(f"item {item} has run {now - seen[1]:.0f} s on {worker}, past the limit: restarting it")
                 with contextlib.suppress(Exception):
                     client.restart_workers([worker], timeout=EXIT_WAIT_S)
                 started[key] = (worker, now - timeout)  # its next attempt, if any, is judged from here
+            elif now - seen[1] > SLOW_S and key not in slow:
+                slow.add(key)  # said once: a stall of the in-order stream is then explained in the log
+                _say(f"item {item} has run {now - seen[1]:.0f} s on {worker} (still running)")
+
+
+def _say(line: str) -> None:
+    print(f"  workers: {line}", file=sys.stderr, flush=True)

@@ -62,11 +62,17 @@ def test_hung_and_crashed_items_are_lost_alone_in_order(capfd: pytest.CaptureFix
     assert not multiprocessing.active_children()
 
 
-def test_the_parent_kills_a_hung_worker_its_watchdog_did_not_end(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_parent_kills_a_hung_worker_its_watchdog_did_not_end(monkeypatch: pytest.MonkeyPatch,
+                                                                   capfd: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setattr(W, "GRACE_S", 1.0)
+    monkeypatch.setattr(W, "SLOW_S", 0.5)
     out = list(W.imap_isolated(behave, [("stubborn", 0), ("ok", 1)], workers=1, timeout=1.0))
     assert isinstance(out[0], W.Lost) and out[0].reason == "hung" and out[0].seconds >= 1.0 and out[1] == 2
     assert not multiprocessing.active_children()
+    # what held the stream up is in the log: the slow item once, then its restart
+    err = capfd.readouterr().err
+    assert err.count("workers: item 0 has run") >= 2 and "(still running)" in err
+    assert "past the limit: restarting it" in err
 
 
 def test_an_exception_in_the_items_code_is_raised_with_its_traceback() -> None:
