@@ -159,8 +159,9 @@ class Settings:
     #: Ellipsoidal height (m) at which ground level is placed: no terrain is used, so 0 puts buildings on
     #: CesiumJS's plain WGS84 globe.
     base_height_m: float = 0.0
-    #: Worker processes writing the tiles' glbs, one tile per Dask task (0: one per CPU core, at most 4; 1 writes
-    #: them in the export's own process). The bytes are the same whatever the count.
+    #: Dask worker processes writing the tiles' glbs, one tile per task (0: threads of the export's process, one
+    #: per core, at most 4, faster on 2 cores, or the cluster CITYLOD_DASK_SCHEDULER names; 1: the export's own
+    #: process, one tile at a time). The bytes are the same whatever the count.
     export_workers: int = 0
     #: A tile still being written after this many seconds is hung, not slow: the export stops with that tile
     #: named and the tileset already in place is kept.
