@@ -92,24 +92,27 @@ def pipeline_run(
     with psycopg.connect(url, autocommit=True) as conn:
         # runs whose process died without recording its end (kill -9, a server restart) are failed first
         conn.execute("SELECT * FROM meta.reap_dead_runs(%s)", (RUN_LOCK,))
-        row = conn.execute(
-            """INSERT INTO meta.pipeline_run (stage, status, params, input_file, input_sha256, git_commit, host,
-                                              inputs, heartbeat_at)
-               VALUES (%s, 'running', %s, %s, %s, %s, %s, %s, now()) RETURNING run_id""",
-            (
-                stage,
-                Jsonb(json.loads(json.dumps(params, default=str))),
-                str(input_file) if input_file else None,
-                input_sha256 or (sha256_file(input_file) if input_file else None),
-                git_commit(),
-                socket.gethostname(),
-                Jsonb(inputs) if inputs is not None else None,
-            ),
-        ).fetchone()
-        assert row is not None
-        run = Run(run_id=row[0], stage=stage)
-        # held by this connection until it ends, however it ends: while it is held, the run is alive
-        conn.execute("SELECT pg_advisory_lock(%s, %s)", (RUN_LOCK, run.run_id))
+        # the row is seen by others only once its lock is held: a reaper starting meanwhile must not fail it
+        with conn.transaction():
+            row = conn.execute(
+                """INSERT INTO meta.pipeline_run (stage, status, params, input_file, input_sha256, git_commit,
+                                                  host, inputs, heartbeat_at)
+                   VALUES (%s, 'running', %s, %s, %s, %s, %s, %s, now()) RETURNING run_id""",
+                (
+                    stage,
+                    Jsonb(json.loads(json.dumps(params, default=str))),
+                    str(input_file) if input_file else None,
+                    input_sha256 or (sha256_file(input_file) if input_file else None),
+                    git_commit(),
+                    socket.gethostname(),
+                    Jsonb(inputs) if inputs is not None else None,
+                ),
+            ).fetchone()
+            assert row is not None
+            run = Run(run_id=row[0], stage=stage)
+            # held by this connection until it ends, however it ends (a session lock outlives the transaction):
+            # while it is held, the run is alive
+            conn.execute("SELECT pg_advisory_lock(%s, %s)", (RUN_LOCK, run.run_id))
         stop = threading.Event()
         beat = threading.Thread(target=_heartbeat, args=(conn, run.run_id, stop), name="run-heartbeat",
                                 daemon=True)
