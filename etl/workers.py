@@ -153,6 +153,14 @@ def _close_cluster(cluster: Any, before: set[int | None]) -> None:
         time.sleep(POLL_S)
 
 
+def worker_count(setting: int, default: int) -> int:
+    """How many workers a stage asks for: its setting when given; else 2 when CITYLOD_DASK_SCHEDULER names a
+    cluster (any count above one uses it: its workers, not this count, do the work); else ``default``."""
+    if setting:
+        return setting
+    return 2 if os.environ.get(SCHEDULER_ENV) else default
+
+
 def _token(fn: Callable[..., Any], initializer: Callable[..., None] | None, initargs: tuple) -> str:
     blob = pickle.dumps((fn.__module__, fn.__qualname__, initializer and initializer.__qualname__, initargs))
     return hashlib.sha1(blob).hexdigest()[:12]

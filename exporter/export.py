@@ -377,7 +377,7 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
     come back. A tile whose worker hung or died on every attempt stops the export with the tile named; the
     tileset in place is kept (the tiles are written into the partial directory). Returns (features,
     triangles, bytes, compact tiles meshoptimizer refused, written plain)."""
-    from etl.workers import SCHEDULER_ENV, Lost, imap_isolated
+    from etl.workers import SCHEDULER_ENV, Lost, imap_isolated, worker_count
 
     args = (base_height, lod, stream, root_region)
     conns: list[psycopg.Connection] = []
@@ -398,7 +398,7 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
         results: Iterator[tuple[bytes, int, int] | Lost] = pool.map(one, tiles)
     else:
         pool = None
-        workers = settings.export_workers or 2  # 0 with a cluster named: use it (its workers do the work)
+        workers = worker_count(settings.export_workers, 2)
         if workers <= 1:
             conns.append(connect(url))
             results = (tile_glb(conns[0], rec, *args) for rec in tiles)

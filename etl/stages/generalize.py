@@ -67,7 +67,7 @@ from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
 from ..geom.hausdorff import hausdorff, outline_hausdorff
 from ..geom.simplify import PIN_DISTANCE, simplify_footprints
-from ..workers import SCHEDULER_ENV, Lost, imap_isolated
+from ..workers import Lost, imap_isolated, worker_count
 
 BATCH = 2000
 OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of the walls
@@ -157,6 +157,20 @@ def footprint_batch(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]],
     return out
 
 
+def _facing(tri: np.ndarray) -> bytes:
+    """Per-triangle semantics of a mesh that has none of its own: roof (2) where a triangle faces up, floor (0)
+    where it faces down, wall (1) otherwise."""
+    nz = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(nz, axis=1)
+    return np.where(nz[:, 2] > 0.3 * norm, 2, np.where(nz[:, 2] < -0.9 * norm, 0, 1)).astype(np.uint8).tobytes()
+
+
+def _add(stats: dict[str, float], more: dict[str, float]) -> None:
+    """A batch's figures into the stage's: sums, and the largest error."""
+    for k, v in more.items():
+        stats[k] = max(stats[k], v) if k == "max_error_m" else stats[k] + v
+
+
 def kept_as_mapped(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float, srid: int,
                    status: str) -> _Out:
     """Level 2 of a footprint batch that its worker hung or died on: each building as mapped, its outline
@@ -170,9 +184,7 @@ def kept_as_mapped(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], 
     counts = np.bincount(own, minlength=len(rows))
     offsets = np.concatenate([[0], np.cumsum(counts)])
     wkbs = encode_triangles_batch(tri, offsets, srid)
-    nz = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(nz, axis=1)
-    sem = np.where(nz[:, 2] > 0.3 * norm, 2, np.where(nz[:, 2] < -0.9 * norm, 0, 1)).astype(np.uint8).tobytes()
+    sem = _facing(tri)
     geoms = shapely.from_wkb([r["footprint"] for r in rows])
     n_vertices = shapely.get_num_coordinates(geoms).tolist()
     area = shapely.area(geoms).tolist()
@@ -208,12 +220,8 @@ def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, m
             if not d.decimated[j]:
                 done[k] = (None, None, 0, 0.0, str(d.status[j]))  # type: ignore[assignment]
                 continue
-            # a decimated surface has no per-triangle semantics of its own: roof where it faces up
-            t = d.triangles[offsets[j]:offsets[j + 1]]
-            nz = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-            up = nz[:, 2] > 0.3 * np.linalg.norm(nz, axis=1)
-            down = nz[:, 2] < -0.9 * np.linalg.norm(nz, axis=1)
-            sem = np.where(up, 2, np.where(down, 0, 1)).astype(np.uint8).tobytes()
+            # a decimated surface has no per-triangle semantics of its own
+            sem = _facing(d.triangles[offsets[j]:offsets[j + 1]])
             done[k] = (wkbs[j], sem, int(counts[j]), float(d.error[j]), "decimated")
             stats["decimated"] += 1
             stats["max_error_m"] = max(stats["max_error_m"], float(d.error[j]))
@@ -235,19 +243,11 @@ def _task(item: tuple[str, tuple]) -> _Out:
     return footprint_batch(*args) if kind == "footprints" else decimation_batch(*args)
 
 
-def _workers(settings: Settings) -> int:
-    if settings.gen_workers:
-        return settings.gen_workers
-    if os.environ.get(SCHEDULER_ENV):
-        return 2  # an existing cluster was asked for: use it (its workers, not this count, do the work)
-    return min(4, os.cpu_count() or 1)
-
-
 def _mapped(items: Iterator[tuple[Any, tuple[str, tuple]]], settings: Settings) -> Iterator[tuple[Any, _Out | Lost]]:
     """(the caller's context, its batch's _Out or Lost) for every (context, task), in order: here with one
     worker, else as Dask tasks (etl/workers.py) a few batches in flight, a batch whose worker hung or died coming
     back as a Lost."""
-    workers = _workers(settings)
+    workers = worker_count(settings.gen_workers, min(4, os.cpu_count() or 1))
     if workers <= 1:
         for context, task in items:
             yield context, _task(task)
@@ -284,8 +284,7 @@ def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
                                                               f"(its batch of {len(rows)} buildings: {out.detail})")
                 stats["lost"] += len(rows)
             _copy(cur, out)
-            for k, v in out.stats.items():
-                stats[k] = max(stats[k], v) if k == "max_error_m" else stats[k] + v
+            _add(stats, out.stats)
             progress.update(len(rows))
     return stats
 
@@ -319,8 +318,7 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
                 out.meshes = [(*m[:-1], detail) for m in out.meshes]
                 stats["lost"] += len(rows)
             _copy(cur, out)
-            for k, v in out.stats.items():
-                stats[k] = max(stats[k], v) if k == "max_error_m" else stats[k] + v
+            _add(stats, out.stats)
     return stats
 
 

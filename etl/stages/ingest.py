@@ -13,6 +13,7 @@ The whole stage is one transaction: re-running it on the same file gives the sam
 from __future__ import annotations
 
 import bz2
+import contextlib
 import gzip
 import html
 import json
@@ -99,7 +100,7 @@ _XML_TOKEN = re.compile(rb'<(node|way|relation)\b[^>]*?\bid="(-?\d+)"|\b(k|v|rol
 
 def locate_long_string(path: Path) -> str:
     """Where the first string longer than libosmium's limit sits in an OSM XML file (plain, .gz or .bz2): "line
-    3, way 7: tag 'note' has a 10,000-byte value"; '' for other formats or when none is found. libosmium refuses
+    3, way 7: the value of tag 'note' has 10,000 bytes"; '' for other formats or when none is found. libosmium refuses
     the whole file on such a string without saying where, so the user could not find it to fix or filter it."""
     name = path.name.lower()
     opener = {".gz": gzip.open, ".bz2": bz2.open}.get(path.suffix.lower(), open)
@@ -122,15 +123,23 @@ def locate_long_string(path: Path) -> str:
     return ""
 
 
-def read_error(path: Path, e: Exception) -> RuntimeError:
-    """libosmium's refusal of the whole file, with where and what when it can be found."""
-    msg = f"cannot read {path}: {e}"
-    if "too long" in str(e):
-        where = locate_long_string(path)
-        msg += (f" ({where}; libosmium reads at most {_MAX_STRING:,} bytes)" if where else
-                f" (libosmium reads at most {_MAX_STRING:,} bytes in a key, value, role or user name)")
-        msg += ": shorten or drop that tag first (README: bad input)"
-    return RuntimeError(msg)
+@contextlib.contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """libosmium's refusals of the whole file (truncated or corrupt PBF, malformed XML, unknown format: a
+    RuntimeError; a string over its limit: a ValueError) as one RuntimeError naming the file, and for a long
+    string where and what it is when that can be found."""
+    try:
+        yield
+    except (RuntimeError, ValueError) as e:
+        if isinstance(e, ValueError) and "too long" not in str(e):
+            raise  # not libosmium's
+        msg = f"cannot read {path}: {e}"
+        if "too long" in str(e):
+            where = locate_long_string(path)
+            msg += (f" ({where}; libosmium reads at most {_MAX_STRING:,} bytes)" if where else
+                    f" (libosmium reads at most {_MAX_STRING:,} bytes in a key, value, role or user name)")
+            msg += ": shorten or drop that tag first (README: bad input)"
+        raise RuntimeError(msg) from e
 
 
 def negative_node_locations(path: Path) -> dict[int, tuple[float, float]]:
@@ -289,12 +298,8 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         )
         cur.execute("TRUNCATE osm.reject, meta.diagnostic RESTART IDENTITY")
 
-        try:
+        with _reading(path):
             rels = list(read_building_relations(path))  # few; needed before parts are linked
-        except (RuntimeError, ValueError) as e:  # libosmium: unreadable, or a string over its limit
-            if isinstance(e, ValueError) and "too long" not in str(e):
-                raise
-            raise read_error(path, e) from e
         counts.building_relations = len(rels)
         if rels:
             with cur.copy("COPY osm.building_relation (relation_id, name, tags) FROM STDIN") as copy:
@@ -308,12 +313,8 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
                         copy.write_row((rid, seq, mtype, ref, role))
 
         progress = Progress("ingest", "buildings")
-        try:
+        with _reading(path):
             _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
-        except (RuntimeError, ValueError) as e:  # libosmium: truncated or corrupt PBF, malformed XML, unknown
-            if isinstance(e, ValueError) and "too long" not in str(e):  # format, a string over its limit
-                raise
-            raise read_error(path, e) from e
         print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
               file=sys.stderr, flush=True)
         staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()

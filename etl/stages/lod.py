@@ -46,7 +46,7 @@ from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams, facades
-from ..workers import SCHEDULER_ENV, Lost, imap_isolated
+from ..workers import Lost, imap_isolated, worker_count
 
 ROOF_SLAB_M = 0.3  # thickness of a roof drawn without walls (building:part=roof)
 LODS = (1, 2, 3)
@@ -415,9 +415,7 @@ def _built(src: psycopg.Cursor, settings: Settings, srid: int,
     batches = iter(lambda: [] if failure else src.fetchmany(settings.lod_batch_size), [])
     # the database COPYs the meshes while they are built: it keeps a core (on 2 cores the stage's own process
     # and the COPY thread were faster than 2 Dask workers: 15 s against 21 s on Liechtenstein x6, measured)
-    workers = settings.lod_workers or min(4, max(1, (os.cpu_count() or 1) - 1))
-    if os.environ.get(SCHEDULER_ENV) and not settings.lod_workers:
-        workers = 2  # an existing cluster was asked for: use it (its workers, not this count, do the work)
+    workers = worker_count(settings.lod_workers, min(4, max(1, (os.cpu_count() or 1) - 1)))
     if workers <= 1:
         for rows in batches:
             yield rows, build_batch(rows, settings, srid)

@@ -26,18 +26,17 @@ DECLARE
     v_gist record;
 BEGIN
     CREATE TEMP TABLE _cand ON COMMIT DROP AS
-    SELECT i.*,
-           -- OSM splits what meets the 180th meridian; a footprint wider than half the world crossed it
-           coalesce(ST_XMax(i.geom) - ST_XMin(i.geom) > 180, false) AS crosses,
+    SELECT i.*, x.crosses,
            CASE
-               WHEN i.reject_reason IS NOT NULL OR i.geom IS NULL THEN NULL
-               WHEN ST_XMax(i.geom) - ST_XMin(i.geom) > 180 THEN NULL
+               WHEN i.reject_reason IS NOT NULL OR i.geom IS NULL OR x.crosses THEN NULL
                WHEN i.geom_kind = 'L' THEN
                    CASE WHEN ST_NPoints(i.geom) >= 4 AND ST_IsClosed(i.geom)
                         THEN ST_MakePolygon(i.geom) END
                ELSE i.geom
            END AS poly
-    FROM osm.building_import i;
+    FROM osm.building_import i
+    -- OSM splits what meets the 180th meridian; a footprint wider than half the world crossed it
+    CROSS JOIN LATERAL (SELECT coalesce(ST_XMax(i.geom) - ST_XMin(i.geom) > 180, false) AS crosses) x;
 
     SELECT ST_Centroid(ST_Extent(poly)::geometry) INTO v_centre FROM _cand WHERE poly IS NOT NULL;
     IF v_centre IS NULL THEN
