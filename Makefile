@@ -17,12 +17,12 @@ SETUP_PY   := $(VENV)/.installed
 SETUP_REPORTS := $(VENV)/.installed-reports
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export serve demo test \
+.PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export update serve demo test \
         test-unit test-extracts bench bench-scale report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-21s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
-	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database) (DATABASE_URL to use another PostGIS)"
+	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database, LIVE=1 built on request) (DATABASE_URL to use another PostGIS)"
 	@echo "  stream: GEOMETRY=compact|plain TEXTURES=ktx2|webp TILING=implicit|explicit (export, status, serve DB=1; default the first)"
 	@echo "  a stage runs the stages it reads first, and only when its inputs changed; FORCE=1 reruns the stages named"
 
@@ -106,10 +106,14 @@ textures: generalize ## procedural facade/roof textures in per-tile atlas pages 
 export: $(EXPORT_READS) ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
 	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD)) $(STREAM) $(call STALE,export)
 
+OSC ?=
+update: migrate ## OSC="a.osc[.gz] ...": apply OSM change files, derive again what they changed, export to OUT and publish
+	$(PY) -m etl update --osc $(OSC) --out $(OUT) $(STREAM)
+
 # serving only reads what is there (OUT, or the database with DB=1): it never reruns a stage, which with the default
 # OSM would replace a dataset ingested from another file
-serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: straight from the database [LOD=1|2|3]) and the viewer on http://HOST:PORT/
-	$(PY) -m etl serve $(if $(DB),--db $(if $(LOD),--lod $(LOD)) $(STREAM),--dir $(OUT)) --host $(HOST) --port $(PORT)
+serve: $(SETUP_PY) $(SETUP_NODE) $(if $(DB),migrate) ## serve OUT (DB=1: OUT's tileset as published in the database; LIVE=1: built from the tables [LOD=1|2|3]) and the viewer on http://HOST:PORT/
+	$(PY) -m etl serve $(if $(DB),--db $(if $(LIVE),--live $(if $(LOD),--lod $(LOD)) $(STREAM),--tileset $(notdir $(OUT))),--dir $(OUT)) --host $(HOST) --port $(PORT)
 
 demo: ## everything on Helsinki: install, database, every stage not yet current (ingest ... textures, export), serve
 	$(MAKE) setup
@@ -131,7 +135,7 @@ test-unit: $(SETUP_REPORTS) $(SETUP_NODE) ## only the pure tests (no database, n
 lint: $(SETUP_PY) ## ruff
 	$(PY) -m ruff check core etl exporter tests benchmarks
 
-bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql; writes BENCHMARKS.md [SCALE_STAGES=json of bench-scale]
+bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql, the server, the soak; writes BENCHMARKS.md [SCALE_STAGES=json of bench-scale]
 	scripts/install-system.sh bench
 	$(PY) -m benchmarks.bench --write BENCHMARKS.md $(if $(SCALE_STAGES),--scale-stages-json $(SCALE_STAGES))
 

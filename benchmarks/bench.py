@@ -39,7 +39,7 @@ from typing import Any
 
 import psycopg
 
-from benchmarks import fidelity_bench, report_textures, scale_bench, stream_bench, view_bench
+from benchmarks import fidelity_bench, report_textures, scale_bench, soak_bench, stream_bench, view_bench
 from benchmarks.common import (
     HEADLINE,
     LOG_DIR,
@@ -647,6 +647,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scale-stages-json", type=Path,
                    help="take the Scale section (every stage on the extract and its replicas) from this output of "
                         "`python -m benchmarks.scale_bench --json` (make bench-scale: with the ~1M replica)")
+    p.add_argument("--soak-json", type=Path,
+                   help="take the Soak section from this output of `python -m benchmarks.soak_bench --json` "
+                        "(serve --db under 200 requests/s while the benchmark extract is rebuilt, ~6 min)")
+    p.add_argument("--no-soak", action="store_true", help="skip the Soak section")
     p.add_argument("--no-scale-stages", action="store_true",
                    help="skip the Scale section (the pipeline on the benchmark extract and its 6x replica, ~10 min)")
     p.add_argument("--no-scale", action="store_true",
@@ -667,17 +671,20 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --repeat {args.repeat}"
     if args.files:
         command += " --files " + " ".join(str(f) for f in args.files)
-    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale", "no_scale_stages"):
+    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale", "no_scale_stages", "no_soak"):
         if getattr(args, flag):
             command += " --" + flag.replace("_", "-")
     if args.scale_stages_json:
         command += f" --scale-stages-json {args.scale_stages_json}"
     if args.scale_json:
         command += f" --scale-json {args.scale_json}  # from: python -m benchmarks.view_bench scale > {args.scale_json}"
+    if args.soak_json:
+        command += f" --soak-json {args.soak_json}"
 
     results: list[ExtractResult] = []
     scale: dict[str, Any] | None = None
     scale_stages: dict[str, Any] | None = None
+    soak: dict[str, Any] | None = None
     t0 = time.perf_counter()
     try:
         for f in files:
@@ -689,6 +696,10 @@ def main(argv: list[str] | None = None) -> int:
             scale_stages = json.loads(args.scale_stages_json.read_text())
         elif head is not None and not args.no_scale_stages:
             scale_stages = scale_bench.measure(head, [1, 6], admin_url)
+        if args.soak_json:
+            soak = json.loads(args.soak_json.read_text())
+        elif head is not None and not args.no_soak:
+            soak = soak_bench.measure(head, admin_url)
         if args.scale_json:
             scale = json.loads(args.scale_json.read_text())
         elif head is not None and not args.no_scale:
@@ -700,6 +711,9 @@ def main(argv: list[str] | None = None) -> int:
             log(f"dropped {BENCH_DB}, {O2P_DB} (use --keep to keep them)")
 
     report = render(results, mach, args.repeat, command, scale, scale_stages)
+    if soak is not None:
+        before, sep, after = report.partition("## How to read")
+        report = before + "\n".join(soak_bench.section(soak)) + "\n" + sep + after
     if args.write:
         Path(args.write).write_text(report)
         log(f"wrote {args.write}")

@@ -9,7 +9,7 @@ every request's latency is recorded. Two shapes:
 * ``spread=True``: every path is fetched exactly once, the clients taking paths from one queue; on a fresh
   DB-mode server that is the cold cache: each glb is built from the database on its first request.
 
-``measure_db(database_url)`` runs both on a fresh ``python -m etl serve --db`` in its own process (so the client
+``measure_db(database_url)`` runs both on a fresh ``python -m etl serve --db --live`` in its own process (so the client
 threads do not share the server's GIL) and returns ``{"cold": {...}, "warm": {...}}``. The clients send
 ``Accept-Encoding: gzip`` as browsers do. Figures are wall clock on loopback; the clients run in Python on the
 same machine, so on a small machine they are a lower bound of what the server can do. Tests never assert them.
@@ -147,12 +147,12 @@ def tile_paths(url_base: str, tileset: str = "/tiles/tileset.json") -> list[str]
 @contextmanager
 def served_db(database_url: str | None = None, extra_args: Sequence[str] = (),
               timeout: float = 120.0) -> Iterator[str]:
-    """A fresh ``python -m etl serve --db --port 0`` subprocess (DATABASE_URL = ``database_url`` when given);
+    """A fresh ``python -m etl serve --db --live --port 0`` subprocess (DATABASE_URL = ``database_url`` when given);
     yields its base URL; terminated after."""
     env = dict(os.environ)
     if database_url:
         env["DATABASE_URL"] = database_url
-    with spawned(["etl", "serve", "--db", "--port", "0", *extra_args], env, timeout) as (base, _, _err):
+    with spawned(["etl", "serve", "--db", "--live", "--port", "0", *extra_args], env, timeout) as (base, _, _err):
         yield base
 
 

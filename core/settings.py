@@ -166,6 +166,9 @@ class Settings:
     #: A tile still being written after this many seconds is hung, not slow: the export stops with that tile
     #: named and the tileset already in place is kept.
     export_tile_timeout_s: float = 600.0
+    #: Generations of each published tileset (pub.*) kept in the database: the live one and the ones before it,
+    #: whose bytes a later generation often shares. Older ones and the blobs only they named are deleted.
+    publish_keep: int = 2
 
     @classmethod
     def from_env(cls, env: dict[str, str] | None = None) -> Settings:

@@ -90,9 +90,12 @@ def _inputs_unless_current(url: str, stage: str, settings: Settings, args: argpa
 
 def _export_options(args: argparse.Namespace) -> tuple[Path, dict[str, object]]:
     """The output directory and what export records of its options and of the stages it reads."""
+    from exporter.publish import tileset_name
+
     out = Path(args.out).resolve()
+    publish = None if getattr(args, "no_publish", False) else getattr(args, "publish", None) or tileset_name(out)
     # a one-LOD tileset has no textures (exporter/export.py): it reads up to generalize
-    return out, {"options": {"out": str(out), "lod": args.lod, **_stream(args).as_dict()},
+    return out, {"options": {"out": str(out), "lod": args.lod, **_stream(args).as_dict(), "publish": publish},
                  "reads": ("generalize",) if args.lod else None}
 
 
@@ -128,7 +131,15 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
         return 2
     url = _url(settings)
     sha = sha256_file(path)
-    inputs = _inputs_unless_current(url, "ingest", settings, args, file={"path": str(path), "sha256": sha})
+    file: dict[str, object] = {"path": str(path), "sha256": sha}
+    with connect(url, autocommit=True) as conn:
+        if conn.execute("SELECT to_regclass('meta.osm_change')").fetchone()[0]:  # type: ignore[index]
+            # a database that follows this file plus change files (make update) is current with it
+            changes = [h for (h,) in conn.execute(
+                "SELECT sha256 FROM meta.osm_change WHERE base_sha256 = %s ORDER BY seq", (sha,))]
+            if changes:
+                file["changes"] = changes
+    inputs = _inputs_unless_current(url, "ingest", settings, args, file=file)
     if inputs is None:
         return 0
     from .stages import ingest
@@ -136,6 +147,78 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
     params = {**settings.as_dict(), "osm": str(path)}
     with pipeline_run(url, "ingest", params, path, input_sha256=sha, inputs=inputs) as run, connect(url) as conn:
         run.counts = ingest.run(conn, path, settings, sha)
+    return 0
+
+
+def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
+    """Apply OSM change files, then derive again what they changed: ingest in update mode, the stages below it
+    and (with --out) the export, each recorded as its own run."""
+    import psycopg
+    from psycopg.types.json import Jsonb
+
+    from core.db import connect
+
+    from . import dag
+    from .runs import pipeline_run
+    from .stages import ingest
+    from .stages import update as up
+
+    url = _url(settings)
+    files = [Path(f).resolve() for f in args.osc]
+    for f in files:
+        if not f.is_file():
+            print(f"update: change file not found: {f}", file=sys.stderr)
+            return 2
+    with connect(url, autocommit=True) as conn:
+        chain = up.read_chain(conn)
+    applied = {c.sha256: c.seq for c in chain.changes}
+    new: list[tuple[Path, str, dict[str, dict[str, int]]]] = []
+    for f in files:
+        sha = up.sha256_file(f)
+        if sha in applied:
+            print(f"update: {f} was applied already (change {applied[sha]}): skipped", file=sys.stderr)
+            continue
+        new.append((f, sha, up.count_change(f)))
+    if not new:
+        print("update: nothing new to apply")
+        return 0
+    previous = up.ensure_state(chain)
+    state_sha = chain.state_sha256
+    rows = []
+    for i, (f, sha, counts) in enumerate(new, start=len(chain.changes) + 1):
+        state_sha = up.next_state_sha256(state_sha, sha)
+        rows.append((i, str(f), sha, str(chain.base_file), chain.base_sha256, state_sha, counts))
+    state = up.state_path(state_sha)
+    up.apply_changes(previous, [f for f, _, _ in new], state)
+    shas = [c.sha256 for c in chain.changes] + [sha for _, sha, _ in new]
+    file = {"path": str(chain.base_file), "sha256": chain.base_sha256, "changes": shas}
+    with connect(url, autocommit=True) as conn:
+        inputs = dag.inputs(conn, "ingest", settings, file=file)
+    params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
+    file_sha = up.sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
+    with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
+            connect(url) as conn:
+        def record(cur: psycopg.Cursor) -> None:
+            for seq, path, sha, base, base_sha, st, counts in rows:
+                cur.execute("INSERT INTO meta.osm_change (seq, path, sha256, base_file, base_sha256, state_sha256, "
+                            "run_id, counts) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
+                            (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
+
+        run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
+    from .stages import textures
+
+    with connect(url, autocommit=True) as conn:
+        kept = textures.keep_aside(conn)  # before lod and tiles empty them
+    print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
+          file=sys.stderr)
+    for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
+        rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, keep=stage == "textures"), settings)
+        if rc:
+            return rc
+    if args.out:
+        return cmd_export(argparse.Namespace(out=args.out, lod=None, publish=args.publish, no_publish=False,
+                                             geometry=args.geometry, textures=args.textures, tiling=args.tiling,
+                                             if_stale=True), settings)
     return 0
 
 
@@ -155,8 +238,12 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
         return 0
     module = importlib.import_module(f"etl.stages.{stage}")  # after the check: a skip imports no numpy
 
-    with pipeline_run(url, stage, settings.as_dict(), inputs=inputs) as run, connect(url) as conn:
-        run.counts = module.run(conn, url, settings) if stage in _NEEDS_URL else module.run(conn, settings)
+    kw: dict[str, object] = {}
+    if stage == "textures":  # its fingerprints name its code; in an update it keeps what did not change
+        kw = {"keep": bool(getattr(args, "keep", False)), "code": json.dumps(inputs["code"], sort_keys=True)}
+    with pipeline_run(url, stage, {**settings.as_dict(), **({"keep": True} if kw.get("keep") else {})},
+                      inputs=inputs) as run, connect(url) as conn:
+        run.counts = module.run(conn, url, settings, **kw) if stage in _NEEDS_URL else module.run(conn, settings)
     return 0
 
 
@@ -172,8 +259,11 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
 
     stream = _stream(args)
     params = {**settings.as_dict(), "out": str(out), "lod": args.lod, **stream.as_dict()}
+    publish_as = kw["options"]["publish"]  # type: ignore[index]
+    params["publish"] = publish_as
     with pipeline_run(url, "export", params, inputs=inputs) as run:
-        run.counts = export_tileset(url, out, settings, lod=args.lod, stream=stream)
+        run.counts = export_tileset(url, out, settings, lod=args.lod, stream=stream, publish_as=publish_as,
+                                    run_id=run.run_id)
         run.output = tileset_output(out)
     return 0
 
@@ -224,13 +314,22 @@ def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
 def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
     if args.db:
         from exporter.server.reader import reader_url
-        from exporter.server.run import serve_db
+        from exporter.server.run import serve_db, serve_published
 
-        serve_db(reader_url(_url(settings)), args.host, args.port, lod=args.lod, stream=_stream(args),
-                 base_height=settings.base_height_m, cache_bytes=int(args.cache_mb * 2**20))
+        url, cache_bytes = reader_url(_url(settings)), int(args.cache_mb * 2**20)
+        if args.live:
+            serve_db(url, args.host, args.port, lod=args.lod, stream=_stream(args),
+                     base_height=settings.base_height_m, cache_bytes=cache_bytes)
+        else:
+            if args.lod is not None:
+                print("serve: --lod needs --live (a published tileset holds the LOD it was exported with)",
+                      file=sys.stderr)
+                return 2
+            serve_published(url, args.tileset, args.host, args.port, cache_bytes=cache_bytes)
         return 0
-    if args.lod is not None:
-        print("serve: --lod needs --db (a tileset directory holds the LOD it was exported with)", file=sys.stderr)
+    if args.lod is not None or args.live:
+        print("serve: --lod and --live need --db (a tileset directory holds the LOD it was exported with)",
+              file=sys.stderr)
         return 2
     from exporter.server.run import serve
 
@@ -277,7 +376,20 @@ def main(argv: list[str] | None = None) -> int:
     exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
                      help="one level of detail for every building (1 block, 2 roofs, 3 windows and doors) instead "
                           "of the generalized hierarchy (default: blocks far away down to LOD3 near)")
+    pub = exp.add_mutually_exclusive_group()
+    pub.add_argument("--publish", metavar="NAME", default=None,
+                     help="publish the files into the database (pub.*) as the next generation of tileset NAME, which "
+                          "serve --db streams (default: the output directory's name)")
+    pub.add_argument("--no-publish", action="store_true", help="write the directory only")
     _stream_arguments(exp)
+
+    upd = sub.add_parser("update", help="apply OSM change files (.osc, .osc.gz) and derive again what they changed")
+    upd.add_argument("--osc", nargs="+", required=True, help="change files, in the order they apply")
+    upd.add_argument("--out", default=None,
+                     help="export the changed tileset into this directory too (and publish it, as export does)")
+    upd.add_argument("--publish", metavar="NAME", default=None, help="with --out: as export --publish")
+    _stream_arguments(upd)
+    upd.set_defaults(fn=cmd_update)
 
     st = sub.add_parser("status", help="which stages are current, and why the others are not (what make export "
                                        "would run)")
@@ -292,12 +404,18 @@ def main(argv: list[str] | None = None) -> int:
     src = srv.add_mutually_exclusive_group()
     src.add_argument("--dir", default=str(REPO / "build" / "tiles" / "demo"), help="tileset directory")
     src.add_argument("--db", action="store_true",
-                     help="build tileset.json and each glb on request from the database (cached), as the read-only "
-                          "role citylod_reader: CITYLOD_READER_URL, else DATABASE_URL / the local cluster with that "
-                          "user")
+                     help="stream the tileset published into the database by export (the live generation of "
+                          "--tileset; a rebuild or a new export never interrupts it), as the read-only role "
+                          "citylod_reader: CITYLOD_READER_URL, else DATABASE_URL / the local cluster with that user")
+    srv.add_argument("--tileset", default="demo",
+                     help="with --db: the published tileset's name (export's --publish; default: %(default)s, the "
+                          "name of the default output directory)")
+    srv.add_argument("--live", action="store_true",
+                     help="with --db: build tileset.json and each glb on request from the stage tables instead "
+                          "(cached; no export needed, but answered 503 while a stage rebuilds them)")
     srv.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
-                     help="with --db: one level of detail for every building, as `export --lod` (default: the "
-                          "generalized hierarchy)")
+                     help="with --db --live: one level of detail for every building, as `export --lod` (default: "
+                          "the generalized hierarchy)")
     _stream_arguments(srv)
     srv.add_argument("--cache-mb", type=float, default=256.0, help="with --db: tile cache budget (MiB)")
     srv.add_argument("--host", default="127.0.0.1")

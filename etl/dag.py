@@ -196,7 +196,7 @@ def last_ok_runs(conn: psycopg.Connection, stages: list[str]) -> dict[str, int]:
 
 
 def inputs(conn: psycopg.Connection, stage: str, settings: Settings, reads: tuple[str, ...] | None = None,
-           file: dict[str, str] | None = None, options: dict[str, object] | None = None) -> dict[str, object]:
+           file: dict[str, object] | None = None, options: dict[str, object] | None = None) -> dict[str, object]:
     """What a run of ``stage`` would record in meta.pipeline_run.inputs now."""
     if conn.execute("SELECT to_regclass('meta.sql_object')").fetchone()[0] is None:  # type: ignore[index]
         raise RuntimeError("the database is older than this code: run `python -m etl migrate` (make migrate)")

@@ -44,6 +44,7 @@ from core.wkb import decode_triangles
 from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
 from .gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
 from .meshopt import CompressionError
+from .publish import check_name, publish
 from .stream import COMPACT, StreamOptions
 from .tileset import TileRecord, build, node_matrix, region_centre
 
@@ -513,18 +514,22 @@ def _directory_lock(out: Path) -> Iterator[None]:
 
 
 def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
-                   stream: StreamOptions = COMPACT) -> dict[str, object]:
+                   stream: StreamOptions = COMPACT, publish_as: str | None = None,
+                   run_id: int | None = None) -> dict[str, object]:
     """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
     every building at that one level of detail (1 block, 2 roofs, 3 facades). Exports into one directory are
-    serialized, and each swaps its tileset in whole (swap_in)."""
+    serialized, and each swaps its tileset in whole (swap_in). With ``publish_as`` the same files become the
+    next generation of that tileset in the database (exporter/publish.py), before the directory's swap."""
     if lod not in (None, 1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
+    if publish_as is not None:
+        check_name(publish_as)
     with _directory_lock(out):
-        return _export_tileset(url, out, settings, lod, stream)
+        return _export_tileset(url, out, settings, lod, stream, publish_as, run_id)
 
 
-def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, stream: StreamOptions
-                    ) -> dict[str, object]:
+def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, stream: StreamOptions,
+                    publish_as: str | None, run_id: int | None) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     for p in (out, partial):
@@ -553,6 +558,10 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
         (partial / uri).write_bytes(data)
     n_bytes += sum(len(d) for d in files.values())
     (partial / PARTIAL_MARKER).unlink()
+    published: dict[str, object] = {}
+    if publish_as is not None:
+        pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict()}, run_id, settings.publish_keep)
+        published = {"published_as": publish_as, **pub.as_dict()}
     swap_in(partial, out)
     seconds = time.perf_counter() - t0
     buildings = sum(r.n_features for r in records if r.is_leaf)
@@ -564,9 +573,13 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
         buildings,
     )
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
+    if published:
+        print(f"  published: {publish_as} generation {published['published_generation']} "
+              f"({published['published_new_files']:,} new files, "
+              f"{int(published['published_new_bytes']) / 1e6:.2f} MB new)", file=sys.stderr)  # type: ignore[call-overload]
     return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
             "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
             "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
             "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
-            "seconds": round(seconds, 3), "directory": str(out)}
+            "seconds": round(seconds, 3), "directory": str(out), **published}

@@ -416,7 +416,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
         # the inputs are read whole: plan for all rows, not the fast-start plans cursors get by default
         reader.execute("SET cursor_tuple_fraction = 1.0")
-        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint")
+        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint RESTART IDENTITY")  # ids as from scratch
         step = time.perf_counter()
         fp = _footprints(conn, reader, settings, srid, tol[2], Progress("generalize", "buildings", total=n_groups))
         seconds["footprints"] = time.perf_counter() - step

@@ -21,7 +21,7 @@ import re
 import struct
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -284,19 +284,29 @@ def _copy_rows(cur: psycopg.Cursor, statement: str, rows: Iterable[tuple[object,
             progress.update()
 
 
-def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | None) -> dict[str, object]:
-    """Ingest ``path`` in one transaction. Returns the counts recorded in meta.pipeline_run."""
+def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | None, update: bool = False,
+        also: Callable[[psycopg.Cursor], None] | None = None) -> dict[str, object]:
+    """Ingest ``path`` in one transaction. Returns the counts recorded in meta.pipeline_run. A full ingest starts
+    the database afresh; with ``update`` (``path`` is the OSM state after change files, etl/stages/update.py)
+    only the buildings that differ are replaced and listed in osm.building_change, and what is derived from the
+    others is kept. ``also`` runs in the same transaction at its end (the update's meta.osm_change rows)."""
     if not path.exists():
         raise FileNotFoundError(f"OSM file not found: {path}")
     t0 = time.perf_counter()
     counts = IngestCounts()
     with conn.transaction(), conn.cursor() as cur:
-        # Downstream tables hold derived data of the previous dataset; they are rebuilt by later stages.
-        cur.execute(
-            "TRUNCATE osm.building_import, osm.building, osm.building_relation, osm.building_relation_member,"
-            " lod.building_mesh, tiles.building_tile, tiles.tile, tiles.grid CASCADE"
-        )
-        cur.execute("TRUNCATE osm.reject, meta.diagnostic RESTART IDENTITY")
+        if update:
+            cur.execute("TRUNCATE osm.building_import, osm.building_relation, osm.building_relation_member")
+            cur.execute("DELETE FROM osm.reject WHERE stage = 'ingest'")
+            cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'ingest'")
+        else:
+            # Downstream tables hold derived data of the previous dataset; they are rebuilt by later stages.
+            cur.execute(
+                "TRUNCATE osm.building_import, osm.building, osm.building_relation, osm.building_relation_member,"
+                " lod.building_mesh, tiles.building_tile, tiles.tile, tiles.grid CASCADE"
+            )
+            cur.execute("TRUNCATE osm.reject, meta.diagnostic RESTART IDENTITY")
+            cur.execute("DELETE FROM meta.osm_change")  # a new base file: no change applied to it yet
 
         with _reading(path):
             rels = list(read_building_relations(path))  # few; needed before parts are linked
@@ -319,7 +329,7 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
               file=sys.stderr, flush=True)
         staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()
         assert staged is not None
-        cur.execute("CALL osm.finish_ingest(%s, %s, %s)", (settings.min_area_m2, str(path), sha256))
+        cur.execute("CALL osm.finish_ingest(%s, %s, %s, %s)", (settings.min_area_m2, str(path), sha256, update))
         loaded = cur.execute("SELECT count(*) FROM osm.building").fetchone()
         rejected = cur.execute(
             "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason"
@@ -327,6 +337,9 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         by_kind = dict(cur.execute("SELECT kind, count(*) FROM osm.building GROUP BY kind").fetchall())
         repaired = cur.execute("SELECT count(*) FROM osm.building WHERE repaired").fetchone()
         srid = cur.execute("SELECT srid, srid_name FROM meta.dataset").fetchone()
+        changed = dict(cur.execute("SELECT change, count(*) FROM osm.building_change GROUP BY change").fetchall())
+        if also is not None:
+            also(cur)
     assert loaded is not None and repaired is not None and srid is not None
     n_rejected = sum(n for _, n in rejected)
     n_in = int(staged[0])
@@ -348,6 +361,8 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         "srid": int(srid[0]),
         "seconds": round(seconds, 3),
     }
+    if update:
+        result["changed"] = {k: int(changed.get(k, 0)) for k in ("added", "modified", "deleted")}
     reasons = ", ".join(f"{r} {n}" for r, n in rejected) or "none"
     print(f"  working CRS: EPSG:{srid[0]} ({srid[1]}); rejects: {reasons}", file=sys.stderr)
     summary(

@@ -453,7 +453,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         # the tile tree and its generalized content were built from the old meshes; keeping them would let
         # export drop or miss buildings
         cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, tiles.building_tile, tiles.tile_content,"
-                    " tex.page, tex.feature_uv, tex.failure, tiles.tile, tiles.grid")
+                    " tex.page, tex.feature_uv, tex.failure, tiles.tile, tiles.grid RESTART IDENTITY")
         cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
         cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")
         total = cur.execute("SELECT count(*) FROM osm.building").fetchone()[0]  # type: ignore[index]

@@ -32,6 +32,8 @@ vertex colours in KTX2 exports. Features in = textured + textured in WebP only +
 from __future__ import annotations
 
 import atexit
+import hashlib
+import json
 import math
 import os
 import time
@@ -107,6 +109,8 @@ class Result:
     stats: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
     ktx2_seconds: float = 0.0
+    fingerprint: str | None = None  # of everything read for the tile (tex.tile_input)
+    kept: bool = False  # the unit's input had not changed: its rows are copied back from tex.kept_*
 
 
 def resolution(geometric_error: float, settings: Settings) -> tuple[float, float]:
@@ -220,8 +224,40 @@ def _features(conn: psycopg.Connection, tile: Tile, query: str) -> list[Feature]
         return cur.execute(query, (tile.level, tile.x, tile.y)).fetchall()  # type: ignore[arg-type]
 
 
+def _openings(conn: psycopg.Connection, rows: list[Feature]) -> list[tuple[int, bytes | None, bytes]]:
+    """The LOD3 openings _texture may read for the LOD2 buildings of ``rows`` (all of them: which it reads
+    depends on the unit's chart cache), by building id."""
+    ids = sorted({int(r["building_id"]) for r in rows if r["gen_level"] == 3 and r["feature_kind"] != "block"})
+    if not ids:
+        return []
+    got = conn.execute("SELECT building_id, semantics, mesh FROM tex.opening_meshes(%s)", (ids,)).fetchall()
+    return sorted(((int(b), None if s is None else bytes(s), bytes(m)) for b, s, m in got), key=lambda t: t[0])
+
+
+def fingerprint(seed: str, tile: Tile, rows: list[Feature], openings: list[tuple[int, bytes | None, bytes]]) -> str:
+    """sha256 of what texturing reads for ``tile``: ``seed`` (the stage's settings and code), the tile's band,
+    error and count, its feature rows (every column, in order) and its LOD2 buildings' openings."""
+    h = hashlib.sha256(seed.encode())
+    h.update(repr((tile.level, tile.x, tile.y, tile.gen_level, tile.geometric_error, tile.is_leaf,
+                   tile.features)).encode())
+
+    def put(v: object) -> None:
+        b = bytes(v) if isinstance(v, bytes | bytearray | memoryview) else repr(v).encode()
+        h.update(len(b).to_bytes(8, "little"))
+        h.update(b)
+
+    for r in rows:
+        for k in sorted(r):
+            put(k)
+            put(r[k])
+    for o in openings:
+        for v in o:
+            put(v)
+    return h.hexdigest()
+
+
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
-              store: bool) -> Result:
+              store: bool, rows: list[Feature] | None = None) -> Result:
     t0 = time.perf_counter()
     rho, distance = resolution(tile.geometric_error, settings)
     pad = padding_for(rho, settings)
@@ -229,7 +265,7 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     params = X.Params(page_size=settings.tex_page_size, padding=pad, packer=settings.tex_packer,
                       min_chart_texels=settings.tex_min_chart_texels,
                       xatlas_min_planes=settings.tex_xatlas_min_planes)
-    rows = _features(conn, tile, _FEATURES)
+    rows = _features(conn, tile, _FEATURES) if rows is None else rows
     res.features = len(rows)
     key = (tile.level, tile.x, tile.y)
 
@@ -309,15 +345,37 @@ def _init_worker(url: str, settings: Settings) -> None:
     atexit.register(_WORKER["conn"].close)
 
 
-def _do_unit(unit: list[Tile]) -> list[Result]:
-    """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache."""
+#: A unit of work: its tiles, the fingerprints of their last textures (kept aside by an update; else None) and
+#: the seed of this run's fingerprints.
+Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, str]
+
+
+def _do_unit(item: Unit) -> list[Result]:
+    """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. When every
+    tile's input has the fingerprint its kept textures were made from, nothing is textured: the results say
+    ``kept`` and the main process copies the kept rows back (the same bytes: texturing is a function of the
+    fingerprinted input)."""
+    unit, kept, seed = item
+    conn, settings = _WORKER["conn"], _WORKER["settings"]
+    rows = [_features(conn, t, _FEATURES) for t in unit]
+    prints = [fingerprint(seed, t, r, _openings(conn, r)) for t, r in zip(unit, rows, strict=True)]
+    if kept is not None and all(kept.get((t.level, t.x, t.y)) == f for t, f in zip(unit, prints, strict=True)):
+        out = []
+        for t, r, f in zip(unit, rows, prints, strict=True):
+            rho, distance = resolution(t.geometric_error, settings)
+            out.append(Result(t, rho, distance, padding_for(rho, settings), features=len(r), fingerprint=f,
+                              kept=True))
+        return out
     shared = any(t.gen_level == 3 for t in unit)
     cache = X.ChartCache() if shared else None
-    return [_one_tile(t, _WORKER["conn"], _WORKER["settings"], cache, store=shared and t.gen_level == 4)
-            for t in unit]
+    results = [_one_tile(t, conn, settings, cache, store=shared and t.gen_level == 4, rows=r)
+               for t, r in zip(unit, rows, strict=True)]
+    for res, f in zip(results, prints, strict=True):
+        res.fingerprint = f
+    return results
 
 
-def _map_units(work: list[list[Tile]], url: str, settings: Settings, workers: int) -> Iterator[list[Result] | Lost]:
+def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> Iterator[list[Result] | Lost]:
     """Results of every unit, in order; a unit whose worker hung or died comes back as a Lost. Worker
     processes, not threads: most of the time is numpy on arrays of a few thousand elements and Python between
     them, which threads serialise on the GIL (2 threads were no faster than 1, measured); each process reads
@@ -348,7 +406,60 @@ def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Sett
     return out
 
 
-def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
+def keep_aside(conn: psycopg.Connection) -> int:
+    """Copy the tiles' pages, UVs and failures to tex.kept_* (an update, before the stages above empty them),
+    only where they are what tex.tile_input says the last textures run wrote; returns the tiles kept."""
+    with conn.transaction():
+        conn.execute("TRUNCATE tex.kept_page, tex.kept_feature_uv, tex.kept_failure")
+        for table in ("page", "feature_uv", "failure"):
+            conn.execute(f"INSERT INTO tex.kept_{table} SELECT * FROM tex.{table}")  # noqa: S608 - fixed names
+        return int(conn.execute("SELECT count(*) " + _KEPT_WHOLE).fetchone()[0])  # type: ignore[index]
+
+
+#: tiles of tex.tile_input whose kept rows are all there (a tile the stages above emptied since is not)
+_KEPT_WHOLE = """FROM tex.tile_input i
+    WHERE i.fingerprint IS NOT NULL
+      AND i.n_pages = (SELECT count(*) FROM tex.kept_page k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))
+      AND i.n_uvs = (SELECT count(*) FROM tex.kept_feature_uv k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))
+      AND i.n_failures = (SELECT count(*) FROM tex.kept_failure k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))"""
+
+
+def _kept_prints(conn: psycopg.Connection) -> dict[tuple[int, int, int], str]:
+    rows = conn.execute("SELECT i.level, i.x, i.y, i.fingerprint " + _KEPT_WHOLE).fetchall()
+    return {(int(lv), int(x), int(y)): f for lv, x, y, f in rows}
+
+
+def _copy_kept(cur: psycopg.Cursor, res: Result) -> None:
+    key = (res.tile.level, res.tile.x, res.tile.y)
+    cur.execute("INSERT INTO tex.page SELECT * FROM tex.kept_page WHERE (level, x, y) = (%s, %s, %s)", key)
+    cur.execute("INSERT INTO tex.feature_uv SELECT * FROM tex.kept_feature_uv WHERE (level, x, y) = (%s, %s, %s)",
+                key)
+    cols = ", ".join(_FAIL_COLUMNS)
+    cur.execute(f"INSERT INTO tex.failure ({cols}) SELECT {cols} FROM tex.kept_failure "  # noqa: S608 - fixed names
+                "WHERE (level, x, y) = (%s, %s, %s) ORDER BY failure_id", key)
+    (n_uv,) = cur.execute("SELECT count(*) FROM tex.kept_feature_uv WHERE (level, x, y) = (%s, %s, %s)",
+                          key).fetchone()  # type: ignore[misc]
+    fails = cur.execute("SELECT reason FROM tex.kept_failure WHERE (level, x, y) = (%s, %s, %s)", key).fetchall()
+    pages = cur.execute("SELECT width * height, n_bytes, ktx2_n_bytes FROM tex.kept_page "
+                        "WHERE (level, x, y) = (%s, %s, %s)", key).fetchall()
+    # the counts the balance needs, as the run that made them wrote them
+    res.uvs = [()] * int(n_uv)
+    res.failures = [()] * len(fails)
+    res.ktx2_failed = sum(1 for (r,) in fails if r == K.EncodeError.reason)
+    res.pages = [(0,) * 6 + (int(t), 1, int(b)) + (0,) * 8 + ((b"",) if k else (None,)) + (int(k or 0), 0)
+                 for t, b, k in pages]
+
+
+def _seed(settings: Settings, code: str) -> str:
+    """What every fingerprint of this run starts from: the settings and ``code``, a digest of the stage's code
+    (the command line passes the one etl/dag.py records, so new code never keeps old textures)."""
+    return hashlib.sha256(json.dumps([settings.as_dict(), code], sort_keys=True, default=str).encode()).hexdigest()
+
+
+def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
+        code: str = "") -> dict[str, object]:
+    """Texture every tile; with ``keep`` (an update, after keep_aside), copy back the textures of the units
+    whose input did not change instead of texturing them again. ``code``: see _seed."""
     t0 = time.perf_counter()
     if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
         raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
@@ -361,7 +472,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     if any(t.geometric_error is None for t in tiles):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
     expected = sum(t.features for t in tiles)
-    work = units(tiles)
+    seed = _seed(settings, code)
+    kept = _kept_prints(conn) if keep else None
+    work: list[Unit] = [(u, None if kept is None else {(t.level, t.x, t.y): kept[(t.level, t.x, t.y)]
+                                                        for t in u if (t.level, t.x, t.y) in kept}, seed)
+                        for u in units(tiles)]
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
     progress = Progress("textures", "features", total=expected)
     by_band: dict[int, dict[str, float]] = {}
@@ -371,13 +486,21 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
                             "flat", "sheets", "scaled", "panels_mapped"), 0)
     ktx2_seconds = 0.0
     with conn.transaction(), conn.cursor() as cur:
-        cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure")
-        for unit, out in zip(work, _map_units(work, url, settings, workers), strict=True):
+        cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure, tex.tile_input RESTART IDENTITY")
+        n_kept = 0
+        for (unit, _, _), out in zip(work, _map_units(work, url, settings, workers), strict=True):
             if isinstance(out, Lost):
                 lost += 1
                 out = _lost(conn, unit, out, settings)
             for res in out:
-                _write(cur, res)
+                if res.kept:
+                    _copy_kept(cur, res)
+                    n_kept += 1
+                else:
+                    _write(cur, res)
+                cur.execute("INSERT INTO tex.tile_input VALUES (%s, %s, %s, %s, %s, %s, %s)",
+                            (res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages), len(res.uvs),
+                             len(res.failures)))
                 page_texels = sum(p[6] * p[7] for p in res.pages)
                 n_bytes = sum(p[8] for p in res.pages)
                 b = by_band.setdefault(res.tile.gen_level, dict.fromkeys(
@@ -409,6 +532,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         balance = Balance("features", int(expected), {
             "textured": int(totals["textured"] - totals["ktx2_failed"]),
             "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
+        cur.execute("TRUNCATE tex.kept_page, tex.kept_feature_uv, tex.kept_failure")  # used: free the space
         cur.execute("ANALYZE tex.page")
         cur.execute("ANALYZE tex.feature_uv")
     seconds = time.perf_counter() - t0
@@ -425,11 +549,13 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
         f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({ktx2_seconds:.1f} s encoding in the workers), "
         f"utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
-        f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)",
+        f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)"
+        + (f"; {n_kept:,} tiles kept as they were" if keep else ""),
         seconds,
         buildings,
     )
-    return {**totals, **balance.counts(), "tiles": len(tiles), "units": len(work), "units_lost": lost,
+    return {**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
+            "units_lost": lost,
             "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

@@ -1,7 +1,8 @@
 """The ASGI application: Starlette routes for the viewer and the tileset, behind a CORS layer.
 
 * file mode: ``/tiles/<path>`` are the files of the exported tileset directory (files.file_route);
-* DB mode: ``/tiles/tileset.json`` and ``/tiles/content/L/X/Y.glb`` come from a DbTileSource. The address is
+* DB mode: ``/tiles/tileset.json``, ``/tiles/subtrees/...`` and ``/tiles/content/L/X/Y.glb`` come from a
+  PublishedSource (the live generation an export published) or, ``--live``, a DbTileSource. The address is
   checked first (paths.tile_address: 400 malformed, 404 cannot exist), without touching the database. A cached
   tile is answered on the event loop. A miss or a revalidation blocks, so it runs on a worker thread, at most
   TILE_THREADS at a time and apart from the threads Starlette reads files on (and decompresses for a client
@@ -33,6 +34,7 @@ from .paths import BadPath, tile_address
 from .payload import Payload, accepts_gzip, etag_matches
 
 if TYPE_CHECKING:  # file mode does not import the exporter's database side
+    from .published import PublishedSource
     from .source import DbTileSource
 
 log = logging.getLogger("citylod.serve")
@@ -93,7 +95,7 @@ async def _send_payload(request: Request, p: Payload) -> Response:
     return Response(data, 200, headers, p.media_type)
 
 
-def db_tiles_route(source: DbTileSource) -> Route:
+def db_tiles_route(source: DbTileSource | PublishedSource) -> Route:
     from .reader import DbUnavailable
     from .source import NotReady
 
@@ -123,7 +125,7 @@ def db_tiles_route(source: DbTileSource) -> Route:
     return Route("/tiles/{rel:path}", tiles, methods=["GET"])
 
 
-def make_app(tiles_dir: Path | None = None, source: DbTileSource | None = None) -> ASGIApp:
+def make_app(tiles_dir: Path | None = None, source: DbTileSource | PublishedSource | None = None) -> ASGIApp:
     """The viewer plus the tileset: the files of ``tiles_dir`` (file mode) or ``source`` (DB mode)."""
     if source is not None and tiles_dir is None:
         tiles = db_tiles_route(source)

@@ -135,3 +135,34 @@ def serve_db(url: str, host: str = "127.0.0.1", port: int = 8765, **source_optio
     finally:
         sock.close()
         source.close()
+
+
+def serve_published(url: str, name: str, host: str = "127.0.0.1", port: int = 8765, **source_options: Any) -> None:
+    """Stream the live generation of the published tileset ``name`` from the database at ``url`` (give it
+    reader.reader_url(...)) and the viewer until SIGINT/SIGTERM. ``source_options`` go to PublishedSource
+    (cache_bytes, pool_size, revalidate_s). Refuses to start when the database cannot be read or has no such
+    tileset."""
+    from .published import PublishedSource
+    from .reader import READER_ROLE, READER_URL_ENV, DbUnavailable
+    from .source import NotReady
+
+    _check_cesium()
+    sock = _listen_or_exit(host, port)
+    source = PublishedSource(url, name, **source_options)
+    try:
+        try:
+            tileset = source.tileset()
+        except DbUnavailable as e:
+            sys.exit(f"citylod serve --db: cannot read the database as {READER_ROLE}: {e}\n"
+                     f"  run `make migrate` (migration 0011 creates the role), or set {READER_URL_ENV}")
+        except NotReady as e:
+            sys.exit(f"citylod serve --db: {e}")
+        listing = source.listing()
+        _run(make_app(source=source), sock, [
+            f"tiles: the published tileset {name!r}, generation {listing.generation} "
+            f"({len(listing.files):,} files, tileset.json {len(tileset.body):,} bytes); a new export is "
+            "picked up as it commits",
+            f"cache: {source.cache.budget / 2**20:,.0f} MiB; pool: {source.reader.size} connections"])
+    finally:
+        sock.close()
+        source.close()

@@ -13,6 +13,7 @@ threads.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import threading
 import time
@@ -33,6 +34,9 @@ from .reader import DbUnavailable, Reader
 
 GENERATION_SQL = """SELECT (SELECT max(run_id) FROM meta.pipeline_run WHERE status = 'ok'),
                            (SELECT source_sha256 FROM meta.dataset)"""
+
+
+log = logging.getLogger("citylod.serve")
 
 
 class NotReady(Exception):
@@ -152,7 +156,15 @@ class DbTileSource:
                 def read(conn: psycopg.Connection) -> bytes:
                     if _generation(conn) != snap.generation:
                         raise _Changed
-                    return tile_glb(conn, rec, self.base_height, self.lod, self.stream, snap.root_region)[0]
+                    try:
+                        return tile_glb(conn, rec, self.base_height, self.lod, self.stream, snap.root_region)[0]
+                    except psycopg.Error:
+                        raise
+                    except Exception as e:  # noqa: BLE001 - a TRUNCATE is not MVCC-safe: the tables emptied under us
+                        log.warning("tile %s could not be built", uri, exc_info=True)
+                        raise NotReady(f"the tables changed while tile {uri} was being built ({type(e).__name__}): "
+                                       "a stage is rebuilding them; serve --db without --live streams the last "
+                                       "published generation meanwhile") from e
 
                 glb = self.reader.read(read)
                 with self._count_lock:

@@ -5,16 +5,21 @@
 --   2. the working CRS is chosen from the centre of the data (meta.utm_srid) and recorded in meta.dataset;
 --   3. invalid polygons are repaired with ST_MakeValid (polygonal part kept, flagged repaired with the GEOS
 --      reason); polygons that cannot be repaired, or are smaller than min_area_m2, go to osm.reject;
---   4. osm.building is filled (EPSG:4326 and working-CRS footprints), rejects and tag diagnostics are written;
---   5. the spatial indexes are built once after the load, and the table is analyzed;
+--   4. the buildings (EPSG:4326 and working-CRS footprints) are assembled in a temporary table, rejects and tag
+--      diagnostics are written;
+--   5. the spatial indexes of osm.building are built once after a full load, and the table is analyzed;
 --   6. parts are linked to their outline: by type=building relation (roles outline/part) first, else by the
 --      smallest outline containing the part's point on surface; outlines get n_parts and part_coverage.
--- The caller truncates the target tables first and commits afterwards, so a run is all or nothing.
+--   7. a full ingest (the caller truncated osm.building) loads the new rows; an update (p_update) compares them
+--      with osm.building and replaces only the rows that differ (osm.building_change lists them: added,
+--      modified, deleted), so that the stages below re-derive those alone.
+-- The caller commits afterwards, so a run is all or nothing.
 -- Example: CALL osm.finish_ingest(1.0, 'helsinki.osm.pbf', '<sha256>');
 CREATE OR REPLACE PROCEDURE osm.finish_ingest(
     min_area_m2 double precision,
     source_file text,
-    source_sha256 text
+    source_sha256 text,
+    p_update boolean DEFAULT false
 )
 LANGUAGE plpgsql
 AS $$
@@ -76,16 +81,10 @@ BEGIN
                       valid = false
     WHERE fixed_local IS NOT NULL AND NOT ST_IsValid(fixed_local);
 
-    -- Into the emptied table without its spatial indexes, rebuilt after the load from their own definitions
-    -- (migrations/ own them): a bulk GiST build is several times faster than one insertion per row.
-    FOR v_gist IN SELECT i.indexrelid::regclass::text AS name, pg_get_indexdef(i.indexrelid) AS def
-                  FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid JOIN pg_am a ON a.oid = c.relam
-                  WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion LOOP
-        v_indexes := v_indexes || v_gist.def;
-        EXECUTE 'DROP INDEX ' || v_gist.name;  -- a regclass name from the catalog, already quoted
-    END LOOP;
-
-    INSERT INTO osm.building (
+    -- The new buildings are assembled in _building first (parts linked, part counts), then either loaded into
+    -- the emptied osm.building (a full ingest) or compared with it (an update: only what differs is replaced).
+    CREATE TEMP TABLE _building (LIKE osm.building INCLUDING DEFAULTS) ON COMMIT DROP;
+    INSERT INTO _building (
         id, osm_type, osm_id, kind, building, part, name, height, min_height, levels, min_level,
         roof_levels, roof_height, roof_angle, roof_shape, roof_direction, roof_orientation,
         building_colour, roof_colour, building_material, roof_material, tags,
@@ -98,14 +97,11 @@ BEGIN
     FROM _fixed f
     WHERE f.fixed_local IS NOT NULL AND NOT ST_IsEmpty(f.fixed_local)
       AND ST_Area(f.fixed_local) >= min_area_m2;
-
-    FOREACH v_index IN ARRAY v_indexes LOOP
-        EXECUTE v_index;  -- CREATE INDEX statements as pg_get_indexdef wrote them
-    END LOOP;
-    -- Fresh statistics for the statements below and for every later stage: a table filled in this transaction
-    -- has none (autovacuum only sees it after the commit), and the part-linking join then chose a nested loop
-    -- over every building pair (96 M pairs at 107k buildings).
-    ANALYZE osm.building;
+    CREATE INDEX ON _building USING gist (geom_local);
+    CREATE UNIQUE INDEX ON _building (id);
+    -- Statistics for the part-linking join below: without them the planner paired every building with every
+    -- part (96 M pairs at 107k buildings).
+    ANALYZE _building;
 
     INSERT INTO osm.reject (osm_type, osm_id, stage, reason, detail, tags, geom)
     SELECT c.osm_type, c.osm_id, 'ingest', c.reject_reason, c.reject_detail, c.tags, c.geom
@@ -140,14 +136,14 @@ BEGIN
     WHERE i.tag_issues IS NOT NULL
     UNION ALL
     SELECT 'ingest', b.osm_type, b.osm_id, 'geometry_repaired', b.repair_reason
-    FROM osm.building b WHERE b.repaired;
+    FROM _building b WHERE b.repaired;
 
     -- Parts named by a type=building relation belong to that relation's outline.
-    UPDATE osm.building p
+    UPDATE _building p
     SET parent_id = o.id, parent_source = 'relation'
     FROM osm.building_relation_member mp
     JOIN osm.building_relation_member mo ON mo.relation_id = mp.relation_id AND mo.role = 'outline'
-    JOIN osm.building o ON o.osm_type = mo.member_type AND o.osm_id = mo.member_id AND o.kind = 'building'
+    JOIN _building o ON o.osm_type = mo.member_type AND o.osm_id = mo.member_id AND o.kind = 'building'
     WHERE mp.role = 'part' AND p.kind = 'part' AND p.osm_type = mp.member_type AND p.osm_id = mp.member_id;
 
     -- Other parts belong to the smallest outline that contains them.
@@ -155,33 +151,72 @@ BEGIN
     -- the key and never pairs every building with every part).
     CREATE TEMP TABLE _link ON COMMIT DROP AS
     SELECT q.id, l.outline_id
-    FROM osm.building q
+    FROM _building q
     CROSS JOIN LATERAL (
-        SELECT o.id AS outline_id FROM osm.building o
+        SELECT o.id AS outline_id FROM _building o
         WHERE o.kind = 'building' AND ST_Covers(o.geom_local, ST_PointOnSurface(q.geom_local))
         ORDER BY o.area_m2, o.id LIMIT 1
     ) l
     WHERE q.kind = 'part' AND q.parent_id IS NULL;
 
-    UPDATE osm.building p
+    UPDATE _building p
     SET parent_id = s.outline_id, parent_source = 'contains'
     FROM _link s
     WHERE p.id = s.id;
 
-    UPDATE osm.building o
+    UPDATE _building o
     SET n_parts = s.n, part_coverage = s.coverage
     FROM (
         SELECT o2.id, count(*) AS n,
                least(1.0, ST_Area(ST_Intersection(o2.geom_local, ST_Union(p.geom_local)))
                           / nullif(o2.area_m2, 0)) AS coverage
-        FROM osm.building o2 JOIN osm.building p ON p.parent_id = o2.id
+        FROM _building o2 JOIN _building p ON p.parent_id = o2.id
         GROUP BY o2.id, o2.geom_local, o2.area_m2
     ) s
     WHERE o.id = s.id;
 
-    ANALYZE osm.building;  -- the links and part counts just written, for the stages that read them next
+    IF NOT p_update THEN
+        -- Into the emptied table without its spatial indexes, rebuilt after the load from their own definitions
+        -- (migrations/ own them): a bulk GiST build is several times faster than one insertion per row.
+        FOR v_gist IN SELECT i.indexrelid::regclass::text AS name, pg_get_indexdef(i.indexrelid) AS def
+                      FROM pg_index i JOIN pg_class c ON c.oid = i.indexrelid JOIN pg_am a ON a.oid = c.relam
+                      WHERE i.indrelid = 'osm.building'::regclass AND a.amname = 'gist' AND NOT i.indisexclusion LOOP
+            v_indexes := v_indexes || v_gist.def;
+            EXECUTE 'DROP INDEX ' || v_gist.name;  -- a regclass name from the catalog, already quoted
+        END LOOP;
+        INSERT INTO osm.building SELECT * FROM _building;
+        FOREACH v_index IN ARRAY v_indexes LOOP
+            EXECUTE v_index;  -- CREATE INDEX statements as pg_get_indexdef wrote them
+        END LOOP;
+        TRUNCATE osm.building_change;
+    ELSE
+        -- An update: the rows that differ in anything ingest derives (landmarks' protected flag aside) are
+        -- deleted, with everything derived from them downstream (ON DELETE CASCADE), and inserted anew; the
+        -- others are not touched. osm.building_change lists them for the stages below.
+        TRUNCATE osm.building_change;
+        INSERT INTO osm.building_change (id, change)
+        SELECT coalesce(n.id, o.id),
+               CASE WHEN o.id IS NULL THEN 'added' WHEN n.id IS NULL THEN 'deleted' ELSE 'modified' END
+        FROM _building n FULL JOIN osm.building o ON o.id = n.id
+        WHERE n.id IS NULL OR o.id IS NULL OR
+               (n.osm_type, n.osm_id, n.kind, n.building, n.part, n.name, n.height, n.min_height, n.levels,
+                n.min_level, n.roof_levels, n.roof_height, n.roof_angle, n.roof_shape, n.roof_direction,
+                n.roof_orientation, n.building_colour, n.roof_colour, n.building_material, n.roof_material, n.tags,
+                n.geom, n.geom_local, n.area_m2, n.repaired, n.repair_reason, n.parent_id, n.parent_source,
+                n.n_parts, n.part_coverage)
+               IS DISTINCT FROM
+               (o.osm_type, o.osm_id, o.kind, o.building, o.part, o.name, o.height, o.min_height, o.levels,
+                o.min_level, o.roof_levels, o.roof_height, o.roof_angle, o.roof_shape, o.roof_direction,
+                o.roof_orientation, o.building_colour, o.roof_colour, o.building_material, o.roof_material, o.tags,
+                o.geom, o.geom_local, o.area_m2, o.repaired, o.repair_reason, o.parent_id, o.parent_source,
+                o.n_parts, o.part_coverage);
+        DELETE FROM osm.building b USING osm.building_change c WHERE b.id = c.id;
+        INSERT INTO osm.building
+        SELECT n.* FROM _building n JOIN osm.building_change c ON c.id = n.id AND c.change <> 'deleted';
+    END IF;
+    ANALYZE osm.building;  -- for the stages that read it next (autovacuum sees it only after the commit)
     TRUNCATE osm.building_import;
 END
 $$;
-COMMENT ON PROCEDURE osm.finish_ingest(double precision, text, text) IS
+COMMENT ON PROCEDURE osm.finish_ingest(double precision, text, text, boolean) IS
     'Turns the ingest staging table into osm.building and osm.reject: polygons, working CRS, repair, part linking.';

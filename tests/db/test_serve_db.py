@@ -1,4 +1,4 @@
-"""`python -m etl serve --db`: tileset.json and every glb built on request from the database, byte for byte the
+"""`python -m etl serve --db --live`: tileset.json and every glb built on request from the database, byte for byte the
 file export, cached with strong ETags and gzip, CORS, bad addresses 400/404, a lost database 503 (never a 500),
 and the server's connection belongs to the read-only role of migration 0011.
 
@@ -462,6 +462,8 @@ def test_server_connection_cannot_write(db_server: tuple[DbTileSource, str], fix
                 "CREATE TABLE api.x (a int)",
                 "SELECT lo_from_bytea(0, '\\x00'::bytea)",  # large objects too (0026)
                 "SELECT lo_create(0)",
+                "DELETE FROM pub.generation",  # the published tilesets (0027)
+                "INSERT INTO pub.blob VALUES (sha256('x'), 'x')",
             ):
                 with pytest.raises(psycopg.errors.InsufficientPrivilege), conn.transaction():
                     conn.execute("SET TRANSACTION READ WRITE")
@@ -475,7 +477,7 @@ def test_server_connection_cannot_write(db_server: tuple[DbTileSource, str], fix
         unreadable = admin.execute(
             "SELECT schemaname || '.' || tablename FROM pg_tables WHERE schemaname = ANY(%s)"
             " AND NOT has_table_privilege(%s, quote_ident(schemaname) || '.' || quote_ident(tablename), 'SELECT')",
-            (["meta", "osm", "lod", "gen", "tiles", "api"], READER_ROLE)).fetchall()
+            (["meta", "osm", "lod", "gen", "tiles", "api", "pub"], READER_ROLE)).fetchall()
         assert unreadable == []
 
 
@@ -603,11 +605,11 @@ def test_stale_tiles_are_503_with_the_reason(new_db: Callable[[str], str]) -> No
 
 @pytest.mark.db
 def test_cli_serves_from_the_database(fixtures_city: City) -> None:
-    """`python -m etl serve --db` with DATABASE_URL (the stages' URL) connects as citylod_reader and serves the
-    same bytes; SIGTERM stops it cleanly."""
+    """`python -m etl serve --db --live` with DATABASE_URL (the stages' URL) connects as citylod_reader and serves
+    the same bytes; SIGTERM stops it cleanly. (`serve --db` without --live: tests/db/test_publish.py.)"""
     env = {**os.environ, "DATABASE_URL": fixtures_city.url}
     env.pop("CITYLOD_READER_URL", None)
-    with spawned(["etl", "serve", "--db", "--port", "0"], env, timeout=60) as (base, proc, stderr):
+    with spawned(["etl", "serve", "--db", "--live", "--port", "0"], env, timeout=60) as (base, proc, stderr):
         c = Client(base)
         try:
             status, _, body = c.get("/tiles/tileset.json")
@@ -619,6 +621,10 @@ def test_cli_serves_from_the_database(fixtures_city: City) -> None:
         stderr.seek(0)
         assert "straight from the database" in stderr.read()
 
-    r = subprocess.run([sys.executable, "-m", "etl", "serve", "--lod", "2", "--port", "0"], cwd=REPO,
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "--lod needs --db" in r.stderr
+    for args in (["--lod", "2"], ["--live"]):
+        r = subprocess.run([sys.executable, "-m", "etl", "serve", *args, "--port", "0"], cwd=REPO,
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "need --db" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "etl", "serve", "--db", "--lod", "2", "--port", "0"], cwd=REPO,
+                       capture_output=True, text=True, timeout=60, env=env)
+    assert r.returncode == 2 and "--lod needs --live" in r.stderr

@@ -1,0 +1,210 @@
+"""``python -m benchmarks.update_bench``: what an OSM change file touching 1 % of the buildings costs
+(``python -m etl update --osc ... --out ...``) against the full rebuild of the same extract.
+
+1. a fresh database with every stage on the benchmark extract and an export (the full rebuild: its stages'
+   wall seconds, each stage in its own process as make runs them);
+2. a change file written here for 1 % of the extract's building ways, the ones nearest the centre of the data
+   (a mapper's edits are local): every other one gets a new height (a tag edit), the others have one node
+   moved by half a metre (a geometry edit: every building drawn with that node moves);
+3. ``python -m etl update --osc that --out the export`` in one process, timed, with its stages' own seconds
+   (meta.pipeline_run) and what the export published anew.
+
+``--json PATH`` writes the figures; ``--write BENCHMARKS.md`` replaces its "## Updates" section.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+from xml.sax.saxutils import quoteattr
+
+import osmium
+import psycopg
+
+from benchmarks.common import (
+    LOG_DIR,
+    OUT_ROOT,
+    PIPELINE,
+    build_pipeline_db,
+    drop_db,
+    extract_name,
+    log,
+    markdown_table,
+    run_child,
+)
+from core import cluster
+
+UPDATE_DB = "citylod_bench_update"
+DEFAULT_OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
+SHARE = 0.01
+STAGES = (*PIPELINE, "export")
+
+
+class _Ways(osmium.SimpleHandler):
+    """Building ways (id, version, tags, node refs) and the locations of their nodes."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ways: list[tuple[int, int, dict[str, str], list[int], tuple[float, float]]] = []
+        self.nodes: dict[int, tuple[int, float, float]] = {}
+
+    def way(self, w: osmium.osm.Way) -> None:
+        if "building" not in w.tags or not w.is_closed():
+            return
+        try:
+            pts = [(n.location.lon, n.location.lat) for n in w.nodes]
+        except osmium.InvalidLocationError:
+            return
+        centre = (sum(p[0] for p in pts) / len(pts), sum(p[1] for p in pts) / len(pts))
+        self.ways.append((w.id, w.version, dict(w.tags), [n.ref for n in w.nodes], centre))
+
+
+class _Nodes(osmium.SimpleHandler):
+    def __init__(self, wanted: set[int]) -> None:
+        super().__init__()
+        self.wanted, self.found = wanted, {}
+
+    def node(self, n: osmium.osm.Node) -> None:
+        if n.id in self.wanted:
+            self.found[n.id] = (n.version, n.location.lon, n.location.lat, dict(n.tags))
+
+
+def _tags(tags: dict[str, str]) -> str:
+    return "".join(f"<tag k={quoteattr(k)} v={quoteattr(v)}/>" for k, v in sorted(tags.items()))
+
+
+def write_change(osm: Path, out: Path, share: float = SHARE) -> dict[str, int]:
+    """The change file for ``share`` of the building ways of ``osm`` nearest its centre (see the module doc)."""
+    h = _Ways()
+    h.apply_file(str(osm), locations=True)
+    cx = sum(c[0] for *_, c in h.ways) / len(h.ways)
+    cy = sum(c[1] for *_, c in h.ways) / len(h.ways)
+    scale = math.cos(math.radians(cy))
+    chosen = sorted(h.ways, key=lambda w: ((w[4][0] - cx) * scale) ** 2 + (w[4][1] - cy) ** 2)
+    chosen = chosen[:max(1, round(share * len(h.ways)))]
+    moved = {w[3][0] for i, w in enumerate(chosen) if i % 2}
+    nodes = _Nodes(moved)
+    nodes.apply_file(str(osm))
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<osmChange version="0.6" generator="citylod update_bench">',
+             "<modify>"]
+    for nid in sorted(moved):
+        v, lon, lat, tags = nodes.found[nid]
+        lines.append(f'<node id="{nid}" version="{v + 1}" lat="{lat + 0.5 / 111_320:.7f}" lon="{lon:.7f}">'
+                     f"{_tags(tags)}</node>")
+    n_tags = 0
+    for i, (wid, v, tags, refs, _) in enumerate(chosen):
+        if i % 2:
+            continue
+        n_tags += 1
+        try:
+            height = float(tags.get("height", "").split()[0]) + 2
+        except (ValueError, IndexError):
+            height = 12.0
+        tags = {**tags, "height": f"{height:g}"}
+        lines.append(f'<way id="{wid}" version="{v + 1}">' + "".join(f'<nd ref="{r}"/>' for r in refs)
+                     + _tags(tags) + "</way>")
+    lines += ["</modify>", "</osmChange>", ""]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines))
+    return {"building_ways": len(h.ways), "chosen": len(chosen), "tag_edits": n_tags, "nodes_moved": len(moved)}
+
+
+def stage_seconds(url: str, since: int) -> dict[str, float]:
+    with psycopg.connect(url) as conn:
+        return {s: round(float(d), 2) for s, d in conn.execute(
+            "SELECT stage, duration_s FROM meta.pipeline_run WHERE run_id > %s AND status = 'ok' ORDER BY run_id",
+            (since,))}
+
+
+def measure(osm: Path, admin_url: str, db: str = UPDATE_DB) -> dict[str, Any]:
+    name = extract_name(osm)
+    logs = LOG_DIR / name / "update"
+    t0 = time.perf_counter()
+    url = build_pipeline_db(osm, admin_url, db, "update")
+    env = {**os.environ, "DATABASE_URL": url}
+    out = OUT_ROOT / "update" / name
+    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
+    full = stage_seconds(url, 0)
+    full.pop("migrate", None)
+    full_wall = time.perf_counter() - t0
+    change = OUT_ROOT / "update" / f"{name}-1pct.osc"
+    made = write_change(osm, change)
+    with psycopg.connect(url) as conn:
+        (last,) = conn.execute("SELECT max(run_id) FROM meta.pipeline_run").fetchone()  # type: ignore[misc]
+    log(f"{name}: update with {made['chosen']:,} of {made['building_ways']:,} building ways changed")
+    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
+                        logs / "update.log")
+    with psycopg.connect(url) as conn:
+        changed = dict(conn.execute("SELECT change, count(*) FROM osm.building_change GROUP BY 1").fetchall())
+        (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
+        pub = conn.execute("SELECT n_files, n_new_files, n_new_bytes FROM pub.generation "
+                           "ORDER BY generation DESC LIMIT 1").fetchone()
+    return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
+            "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
+            "update_wall_s": round(wall, 1), "update_s": stage_seconds(url, last),
+            "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
+
+
+def section(s: dict[str, Any] | None) -> list[str]:
+    if not s:
+        return []
+    c, u, f = s["change"], s["update_s"], s["full_s"]
+    ratio = s["update_wall_s"] / s["full_total_s"]
+    out = ["## Updates: a change file against the full rebuild", "",
+           f"{s['extract']}: a change file for {c['chosen']:,} of its {c['building_ways']:,} building ways (1 %, "
+           f"the ones nearest the centre of the data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes "
+           f"moved by 0.5 m) applied with `python -m etl update --osc … --out …` to the database the full "
+           f"pipeline built. Command: `python -m benchmarks.update_bench --write BENCHMARKS.md`. Target: the "
+           f"update ≤ 5 % of the full rebuild. Measured: {s['update_wall_s']:.1f} s against "
+           f"{s['full_total_s']:.1f} s, {100 * ratio:.0f} %. osm.building_change: "
+           + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + ".", ""]
+    out += markdown_table(["stage", "full rebuild s", "update s"],
+                          [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
+    pub = s.get("published") or {}
+    out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
+            "of its one process, applying the change file included. The update: ingest reads the whole OSM state "
+            "and replaces only the rows that differ, then lod, landmarks, tiles, generalize and textures run over "
+            "the whole city again (incremental stages are not built yet), and the export writes every tile and "
+            f"publishes {pub.get('new_files', '?')} new files of {pub.get('files', '?')}.", ""]
+    return out
+
+
+def splice(path: Path, lines: list[str]) -> None:
+    from benchmarks.soak_bench import splice as _splice
+
+    _splice(path, lines, "## Updates")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.update_bench", description=__doc__.splitlines()[0])
+    p.add_argument("--osm", type=Path, default=DEFAULT_OSM)
+    p.add_argument("--json", type=Path, help="write the figures here")
+    p.add_argument("--write", type=Path, help="replace this report's Updates section (e.g. BENCHMARKS.md)")
+    p.add_argument("--keep", action="store_true", help=f"keep {UPDATE_DB}")
+    a = p.parse_args(argv)
+    cluster.ensure()
+    admin_url = cluster.database_url("postgres")
+    try:
+        s = measure(a.osm.resolve(), admin_url)
+    finally:
+        if not a.keep:
+            drop_db(admin_url, UPDATE_DB)
+    text = json.dumps(s, indent=1)
+    if a.json:
+        a.json.parent.mkdir(parents=True, exist_ok=True)
+        a.json.write_text(text)
+    if a.write:
+        splice(a.write, section(s))
+        log(f"wrote the Updates section of {a.write}")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,212 @@
+"""`python -m etl update`: OSM change files applied to a built database. The changes here are written by the test
+on top of the spine fixtures (a moved node, a tag edit, a deleted part, a new building, a building gaining a
+part, a multipolygon losing its inner ring); the database they give must equal, table by table and tile by tile,
+a full rebuild from the changed file, and only the buildings that changed are replaced in osm.building."""
+
+from __future__ import annotations
+
+import gzip
+import hashlib
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import psycopg
+import pytest
+
+from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
+from tests.conftest import City, run_etl
+
+#: node ids 170001-, way ids 17001- (the numbering of tests/fixtures: fixture 170 is this test's own)
+CHANGE_1 = """<?xml version="1.0" encoding="UTF-8"?>
+<osmChange version="0.6" generator="citylod tests">
+  <modify>
+    <!-- the square's north-east corner moves 3 m east: building 10001 moves with it -->
+    <node id="100003" version="2" lat="60.2001795" lon="24.9004157"/>
+    <!-- a tag edit: 4 -> 6 levels -->
+    <way id="11001" version="2">
+      <nd ref="110001"/><nd ref="110002"/><nd ref="110003"/><nd ref="110004"/><nd ref="110005"/>
+      <nd ref="110006"/><nd ref="110001"/>
+      <tag k="building" v="residential"/><tag k="building:levels" v="6"/><tag k="roof:shape" v="flat"/>
+      <tag k="name" v="L 110"/>
+    </way>
+  </modify>
+  <delete>
+    <way id="13003" version="2"/>
+  </delete>
+  <create>
+    <!-- a new building east of the others -->
+    <node id="170001" version="1" lat="60.2000000" lon="24.9060000"/>
+    <node id="170002" version="1" lat="60.2000000" lon="24.9062000"/>
+    <node id="170003" version="1" lat="60.2001000" lon="24.9062000"/>
+    <node id="170004" version="1" lat="60.2001000" lon="24.9060000"/>
+    <way id="17001" version="1">
+      <nd ref="170001"/><nd ref="170002"/><nd ref="170003"/><nd ref="170004"/><nd ref="170001"/>
+      <tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>
+    </way>
+    <!-- the L gains a building:part in its corner -->
+    <node id="170011" version="1" lat="60.2000200" lon="24.9027500"/>
+    <node id="170012" version="1" lat="60.2000200" lon="24.9028500"/>
+    <node id="170013" version="1" lat="60.2000700" lon="24.9028500"/>
+    <node id="170014" version="1" lat="60.2000700" lon="24.9027500"/>
+    <way id="17002" version="1">
+      <nd ref="170011"/><nd ref="170012"/><nd ref="170013"/><nd ref="170014"/><nd ref="170011"/>
+      <tag k="building:part" v="yes"/><tag k="height" v="30"/>
+    </way>
+  </create>
+</osmChange>
+"""
+
+#: the courtyard multipolygon loses its inner ring (and the ring's way goes)
+CHANGE_2 = """<?xml version="1.0" encoding="UTF-8"?>
+<osmChange version="0.6" generator="citylod tests">
+  <modify>
+    <relation id="1201" version="2">
+      <member type="way" ref="12001" role="outer"/>
+      <tag k="type" v="multipolygon"/><tag k="building" v="apartments"/><tag k="height" v="40 ft"/>
+      <tag k="name" v="Courtyard 120"/>
+    </relation>
+  </modify>
+  <delete>
+    <way id="12002" version="2"/>
+  </delete>
+</osmChange>
+"""
+
+EXPECTED_CHANGES = {
+    1: {10001: "modified", 11001: "modified", 13003: "deleted", 13001: "modified", 17001: "added",
+        17002: "added"},
+    2: {-1201: "modified"},
+}
+PIPELINE = ("lod", "landmarks", "tiles", "generalize", "textures")
+#: identity columns (numbered by insertion order, never exported) and the state file's own name and sha
+IGNORED = {"osm.reject": {"reject_id"}, "meta.diagnostic": {"diagnostic_id"}, "tex.failure": {"failure_id"},
+           "meta.dataset": {"source_file", "source_sha256"}}
+TABLES = ["osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member", "meta.dataset",
+          "meta.diagnostic", "lod.building_mesh", "lm.building", "tiles.tile", "tiles.building_tile", "tiles.grid",
+          "tiles.tile_content", "gen.footprint", "gen.building_mesh", "gen.block", "tex.page", "tex.feature_uv",
+          "tex.failure"]
+
+
+#: many small tiles from the few fixtures, so that a change leaves some tiles as they were
+SMALL = {"CITYLOD_TILE_MAX_FEATURES": "4"}
+
+
+def build(url: str, osm: Path, out: Path) -> None:
+    run_etl(url, "ingest", "--osm", str(osm), env=SMALL)
+    for stage in PIPELINE:
+        run_etl(url, stage, env=SMALL)
+    run_etl(url, "export", "--out", str(out), env=SMALL)
+
+
+def table_rows(conn: psycopg.Connection, table: str) -> list[str]:
+    schema, name = table.split(".")
+    cols = [c for (c,) in conn.execute(
+        "SELECT column_name FROM information_schema.columns WHERE table_schema = %s AND table_name = %s "
+        "AND data_type NOT LIKE 'timestamp%%' ORDER BY ordinal_position", (schema, name))  # when, not what
+        if c not in IGNORED.get(table, set())]
+    select = ", ".join(f'"{c}"' for c in cols)
+    return sorted(r for (r,) in conn.execute(f"SELECT ROW({select})::text FROM {table}"))  # noqa: S608 - catalog names
+
+
+def files(d: Path) -> dict[str, str]:
+    return {p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def fixtures_city(city: Callable[[str], City]) -> City:
+    return city("fixtures")
+
+
+def test_count_change_and_refusals(tmp_path: Path) -> None:
+    c1 = tmp_path / "c1.osc"
+    c1.write_text(CHANGE_1)
+    assert count_change(c1) == {"create": {"node": 8, "way": 2, "relation": 0},
+                                "modify": {"node": 1, "way": 1, "relation": 0},
+                                "delete": {"node": 0, "way": 1, "relation": 0}}
+    gz = tmp_path / "c2.osc.gz"
+    gz.write_bytes(gzip.compress(CHANGE_2.encode()))
+    assert count_change(gz)["modify"]["relation"] == 1
+    not_change = tmp_path / "x.osc"
+    not_change.write_text('<?xml version="1.0"?><osm version="0.6"></osm>')
+    with pytest.raises(ChangeFileError, match="not an OSM change file"):
+        count_change(not_change)
+    broken = tmp_path / "y.osc"
+    broken.write_text('<osmChange version="0.6"><modify><node id="1"')
+    with pytest.raises(ChangeFileError, match="cannot be read"):
+        count_change(broken)
+
+
+@pytest.mark.db
+def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str], str], tmp_path: Path) -> None:
+    base = tmp_path / "base.osm"
+    shutil.copyfile(fixtures_city.osm, base)
+    c1, c2 = tmp_path / "c1.osc", tmp_path / "c2.osc.gz"
+    c1.write_text(CHANGE_1)
+    c2.write_bytes(gzip.compress(CHANGE_2.encode()))
+
+    inc = new_db("update_inc")
+    build(inc, base, tmp_path / "inc")
+    for seq, change in ((1, c1), (2, c2)):
+        run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SMALL)
+        with psycopg.connect(inc) as conn:
+            changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
+            assert changed == EXPECTED_CHANGES[seq], f"change {seq}: only what it touched is replaced"
+            (tex,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' "
+                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
+            assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
+
+    merged = tmp_path / "merged.osm.pbf"
+    apply_changes(base, [c1, c2], merged)
+    full = new_db("update_full")
+    build(full, merged, tmp_path / "full")
+    with psycopg.connect(full) as conn:
+        assert conn.execute("SELECT count(*) FROM tiles.tile WHERE is_leaf").fetchone()[0] > 3
+
+    with psycopg.connect(inc) as a, psycopg.connect(full) as b:
+        for table in TABLES:
+            ra, rb = table_rows(a, table), table_rows(b, table)
+            assert ra == rb, (table, len(ra), len(rb), sorted(set(ra) ^ set(rb))[:3])
+        # what the changes did, read back
+        (moved,) = a.execute("SELECT ST_XMax(geom) FROM osm.building WHERE id = 10001").fetchone()
+        assert moved == pytest.approx(24.9004157)
+        assert a.execute("SELECT levels, n_parts FROM osm.building WHERE id = 11001").fetchone() == (6.0, 1)
+        assert a.execute("SELECT count(*) FROM osm.building WHERE id = 13003").fetchone() == (0,)
+        (area,) = a.execute("SELECT area_m2 FROM osm.building WHERE id = -1201").fetchone()
+        assert area == pytest.approx(1600, rel=0.01), "the courtyard is filled"
+        chain = a.execute("SELECT seq, path, counts -> 'delete' ->> 'way' FROM meta.osm_change ORDER BY seq").fetchall()
+        assert chain == [(1, str(c1), "1"), (2, str(c2), "1")]
+    fa, fb = files(tmp_path / "inc"), files(tmp_path / "full")
+    assert fa.pop("tileset.json") and fb.pop("tileset.json") and fa == fb, "every glb and subtree byte for byte"
+    # tileset.json too, but for its tilesetVersion: the sha256 of the OSM file each was built from
+    ta, tb = (json.loads((tmp_path / d / "tileset.json").read_text()) for d in ("inc", "full"))
+    with psycopg.connect(inc) as conn:
+        (state_sha,) = conn.execute("SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1").fetchone()
+    assert ta["asset"].pop("tilesetVersion") == hashlib.sha256(state_path(state_sha).read_bytes()).hexdigest()[:16]
+    assert tb["asset"].pop("tilesetVersion") == hashlib.sha256(merged.read_bytes()).hexdigest()[:16]
+    assert ta == tb
+
+    # the state is made again from the base file and the recorded changes when its file is gone
+    state_path(state_sha).unlink()
+    c3 = tmp_path / "c3.osc"
+    c3.write_text(CHANGE_1.replace('version="2" lat="60.2001795" lon="24.9004157"',
+                                   'version="3" lat="60.2001795" lon="24.9003615"'))
+    run_etl(inc, "update", "--osc", str(c3), env=SMALL)
+    with psycopg.connect(inc) as conn:
+        assert dict(conn.execute("SELECT id, change FROM osm.building_change")) == {10001: "modified"}
+    # make ingest with the base file: the database follows it (plus its changes), nothing to do
+    r = run_etl(inc, "ingest", "--osm", str(base), "--if-stale")
+    assert "current" in r.stdout and "skipped" in r.stdout
+    # applying a change file twice is a no-op; a recorded change file that vanished stops the rebuild of the state
+    r = run_etl(inc, "update", "--osc", str(c3))
+    assert "nothing new to apply" in r.stdout
+    with psycopg.connect(inc) as conn:
+        (state_sha,) = conn.execute("SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1").fetchone()
+    state_path(state_sha).unlink()
+    c1.unlink()
+    c4 = tmp_path / "c4.osc"
+    c4.write_text(CHANGE_2.replace('version="2"', 'version="3"'))
+    r = run_etl(inc, "update", "--osc", str(c4), check=False)
+    assert r.returncode != 0 and f"change file 1 {c1} is missing" in r.stderr and "Traceback" not in r.stderr
