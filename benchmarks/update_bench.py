@@ -169,9 +169,10 @@ def section(s: dict[str, Any] | None) -> list[str]:
     pub = s.get("published") or {}
     out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
             "of its one process, applying the change file included. The update: ingest reads the whole OSM state "
-            "and replaces only the rows that differ, then lod, landmarks, tiles, generalize and textures run over "
-            "the whole city again (incremental stages are not built yet), and the export writes every tile and "
-            f"publishes {pub.get('new_files', '?')} new files of {pub.get('files', '?')}.", ""]
+            "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
+            "alone; landmarks, tiles and generalize run over the whole city again; textures re-textures only the "
+            "units whose input changed; the export writes every tile (each glb carries city-wide landmark ranks) "
+            f"and publishes {pub.get('new_files', '?')} new files of {pub.get('files', '?')}.", ""]
     return out
 
 

@@ -212,7 +212,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
           file=sys.stderr)
     for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
-        rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, keep=stage == "textures"), settings)
+        rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True), settings)
         if rc:
             return rc
     if args.out:
@@ -224,6 +224,17 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
 
 #: Stages that open connections of their own besides the one they are given (a reader, worker processes).
 _NEEDS_URL = ("lod", "generalize", "textures")
+
+
+def _same_code(url: str, stage: str, inputs: dict[str, object]) -> bool:
+    """Did the last successful run of ``stage`` have the settings and code it would have now?"""
+    from core.db import connect
+
+    from . import dag
+
+    with connect(url, autocommit=True) as conn:
+        last = dag.last_run(conn, stage)
+    return bool(last and last.inputs and all(last.inputs.get(k) == inputs[k] for k in ("settings", "code")))
 
 
 def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
@@ -239,9 +250,12 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     module = importlib.import_module(f"etl.stages.{stage}")  # after the check: a skip imports no numpy
 
     kw: dict[str, object] = {}
+    update = bool(getattr(args, "update", False))
     if stage == "textures":  # its fingerprints name its code; in an update it keeps what did not change
-        kw = {"keep": bool(getattr(args, "keep", False)), "code": json.dumps(inputs["code"], sort_keys=True)}
-    with pipeline_run(url, stage, {**settings.as_dict(), **({"keep": True} if kw.get("keep") else {})},
+        kw = {"keep": update, "code": json.dumps(inputs["code"], sort_keys=True)}
+    elif stage == "lod" and update and _same_code(url, stage, inputs):
+        kw = {"changed": True}  # only the buildings the update changed (with new settings or code: all)
+    with pipeline_run(url, stage, {**settings.as_dict(), **({"update": True} if update else {})},
                       inputs=inputs) as run, connect(url) as conn:
         run.counts = module.run(conn, url, settings, **kw) if stage in _NEEDS_URL else module.run(conn, settings)
     return 0

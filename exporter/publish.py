@@ -80,7 +80,8 @@ def publish(url: str, name: str, directory: Path, options: dict[str, object], ru
         shas = list({sha for _, _, sha in listing})
         have = {bytes(s) for (s,) in conn.execute("SELECT sha256 FROM pub.blob WHERE sha256 = ANY(%s)", (shas,))}
         new_files = new_bytes = 0
-        with conn.cursor() as cur, cur.copy("COPY pub.blob (sha256, body) FROM STDIN") as copy:
+        with conn.cursor() as cur, cur.copy("COPY pub.blob (sha256, body) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.set_types(["bytea", "bytea"])  # binary: the bytes as they are, not twice their size in hex
             for _, p, sha in listing:
                 if sha in have:
                     continue

@@ -432,7 +432,21 @@ def _built(src: psycopg.Cursor, settings: Settings, srid: int,
         yield rows, (_lost_batch(rows, out) if isinstance(out, Lost) else out)
 
 
-def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
+#: An update's buildings to draw again: those it added or modified, their outlines (a part's change changes its
+#: outline's remainder) and every part of those outlines; with the ids it deleted, whose rejects and
+#: diagnostics go.
+_AFFECTED = """
+    WITH c AS (SELECT id FROM osm.building_change WHERE change <> 'deleted'),
+         o AS (SELECT id FROM c UNION SELECT b.parent_id FROM osm.building b JOIN c USING (id)
+               WHERE b.parent_id IS NOT NULL)
+    SELECT b.id FROM osm.building b WHERE b.id IN (SELECT id FROM o) OR b.parent_id IN (SELECT id FROM o)
+    UNION SELECT id FROM osm.building_change WHERE change = 'deleted'
+    ORDER BY 1"""
+
+
+def run(conn: psycopg.Connection, url: str, settings: Settings, changed: bool = False) -> dict[str, object]:
+    """Draw every building; with ``changed`` (an update), only those osm.building_change names, with their
+    outlines and parts (_AFFECTED), keeping every other building's meshes."""
     t0 = time.perf_counter()
     srid = working_srid(conn)
     coverage = settings.outline_part_coverage
@@ -444,24 +458,38 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
         # TRUNCATE when the table holds nothing but this stage's LODs: with wal_level=minimal (the local
         # cluster) PostgreSQL then writes the COPY without WAL, ~300 MB less on a 20k-building city
-        others = cur.execute("SELECT EXISTS (SELECT 1 FROM lod.building_mesh WHERE lod <> ALL(%s))",
-                             (list(LODS),)).fetchone()[0]  # type: ignore[index]
-        if others:
-            cur.execute("DELETE FROM lod.building_mesh WHERE lod = ANY(%s)", (list(LODS),))
+        only: list[int] | None = None
+        if changed:
+            only = [i for (i,) in cur.execute(_AFFECTED)]
+            keys = [("W" if i > 0 else "R", abs(i)) for i in only]  # osm2pgsql ids: way id, or minus the relation's
+            cur.execute("DELETE FROM lod.building_mesh WHERE building_id = ANY(%s) AND lod = ANY(%s)",
+                        (only, list(LODS)))
+            for table in ("osm.reject", "meta.diagnostic"):
+                cur.execute(f"DELETE FROM {table} WHERE stage = 'lod' AND (osm_type, osm_id) IN "  # noqa: S608
+                            "(SELECT * FROM unnest(%s::text[], %s::bigint[]))",
+                            ([k[0] for k in keys], [k[1] for k in keys]))
         else:
-            cur.execute("TRUNCATE lod.building_mesh")
-        # the tile tree and its generalized content were built from the old meshes; keeping them would let
-        # export drop or miss buildings
-        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, tiles.building_tile, tiles.tile_content,"
-                    " tex.page, tex.feature_uv, tex.failure, tiles.tile, tiles.grid RESTART IDENTITY")
-        cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
-        cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")
-        total = cur.execute("SELECT count(*) FROM osm.building").fetchone()[0]  # type: ignore[index]
-        hidden = cur.execute("CALL lod.diagnose_hidden_outlines(%s, NULL)", (coverage,)).fetchone()[0]  # type: ignore[index]
+            others = cur.execute("SELECT EXISTS (SELECT 1 FROM lod.building_mesh WHERE lod <> ALL(%s))",
+                                 (list(LODS),)).fetchone()[0]  # type: ignore[index]
+            if others:
+                cur.execute("DELETE FROM lod.building_mesh WHERE lod = ANY(%s)", (list(LODS),))
+            else:
+                cur.execute("TRUNCATE lod.building_mesh")
+            # the tile tree and its generalized content were built from the old meshes; keeping them would let
+            # export drop or miss buildings
+            cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, tiles.building_tile, "
+                        "tiles.tile_content, tex.page, tex.feature_uv, tex.failure, tiles.tile, tiles.grid "
+                        "RESTART IDENTITY")
+            cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
+            cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")
+        total = cur.execute("SELECT count(*) FROM osm.building WHERE %s::bigint[] IS NULL OR id = ANY(%s)",
+                            (only, only)).fetchone()[0]  # type: ignore[index]
+        hidden = cur.execute("CALL lod.diagnose_hidden_outlines(%s, NULL, %s)",
+                             (coverage, only)).fetchone()[0]  # type: ignore[index]
         progress.total = total - hidden
         with reader.cursor(name="lod_input", row_factory=dict_row) as src:
             src.itersize = settings.lod_batch_size
-            src.execute("SELECT * FROM lod.building_input(%s, %s)", (coverage, _SKELETON_VALUES))
+            src.execute("SELECT * FROM lod.building_input(%s, %s, %s)", (coverage, _SKELETON_VALUES, only))
             # The database parses and indexes a batch (COPY) while Python builds the next: two cores busy.
             pending: queue.Queue[Batch | None] = queue.Queue(maxsize=2)
             failure: list[BaseException] = []
@@ -517,6 +545,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     nb = max(counts["buildings"], 1)
     result: dict[str, object] = {
         **counts, **balance.counts(), "hidden_by_parts": hidden, "seconds": round(wall, 3),
+        "changed_only": changed,
         "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         **{f"triangles_per_building_lod{lod}": round(counts[f"triangles_lod{lod}"] / nb, 1) for lod in LODS},
         "lod2_closed_pct": round(100.0 * (1 - counts["lod2_not_closed"] / nb), 3),

@@ -51,15 +51,19 @@ AS $$
     FROM (
         SELECT level, x, y, gen_level, d, cid, count(*) AS n_in,
                array_agg(building_id ORDER BY building_id) AS members,
-               (sum(height * area) / nullif(sum(area), 0))::real AS height, max(height) AS hmax,
-               min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
+               -- every order-sensitive aggregate in member order: the same blocks, bit for bit, whatever
+               -- order the rows come in (an update appends what it changed)
+               (sum(height * area ORDER BY building_id) / nullif(sum(area ORDER BY building_id), 0))::real
+                   AS height, max(height) AS hmax,
+               min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom ORDER BY building_id))
+                   AS joined,
                CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
-                   ST_Buffer(ST_Collect(geom), d / 2, 'join=mitre mitre_limit=3'),
+                   ST_Buffer(ST_Collect(geom ORDER BY building_id), d / 2, 'join=mitre mitre_limit=3'),
                    -d / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
         FROM c
         GROUP BY level, x, y, gen_level, d, cid
     ) a
-    ORDER BY level, x, y, cid
+    ORDER BY level, x, y, members  -- not cid: DBSCAN numbers clusters in the order it meets the rows
 $$;
 COMMENT ON FUNCTION gen.block_clusters() IS
-    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered at gen.tolerance(gen_level) and merged (closed union and plain union as WKB, members, heights, members'' error); tile and cluster order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';
+    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered at gen.tolerance(gen_level) and merged (closed union and plain union as WKB, members, heights, members'' error); tile and member order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';

@@ -5,7 +5,7 @@
 -- at a quarter of the distance first (the closing's cost grows steeply with vertices and distance). A
 -- block's members are the union of its inputs' members and its height their area-weighted height (not the
 -- inputs', whose outlines were simplified and closed). The generalize stage builds the bands upwards, so the
--- children's blocks exist. Same columns as gen.block_clusters; ordered by tile and cluster.
+-- children's blocks exist. Same columns as gen.block_clusters; ordered by tile and members.
 --   band        the band, tiles.tile.gen_level (< 0)
 --   tile_level  the tiles' level (the top tiles of a large city share band -4, so a band runs level by level)
 -- Streamed by a server-side cursor: inlined into the caller's query (LANGUAGE sql, STABLE, not STRICT).
@@ -55,7 +55,8 @@ AS $$
     ), mem AS (
         -- the members' area-weighted height, as in bands 0 and 1, not the inputs' (simplified and closed)
         SELECT c.level, c.x, c.y, c.cid, array_agg(u ORDER BY u) AS members,
-               (sum(g.height * ST_Area(f.geom)) / nullif(sum(ST_Area(f.geom)), 0))::real AS height
+               (sum(g.height * ST_Area(f.geom) ORDER BY u) / nullif(sum(ST_Area(f.geom) ORDER BY u), 0))::real
+                   AS height
         FROM c CROSS JOIN LATERAL unnest(c.members) u
         JOIN gen.footprint f ON f.building_id = u
         JOIN gen.building_mesh g ON g.building_id = u AND g.gen_level = 2
@@ -66,17 +67,18 @@ AS $$
            ST_AsBinary(joined), hmin, n_in
     FROM (
         SELECT level, x, y, gen_level, d, cid, count(*) AS n_in, max(height) AS hmax,
-               min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom)) AS joined,
+               min(height) AS hmin, max(total_error_m) AS err, ST_Multi(ST_Union(geom ORDER BY members)) AS joined,
                -- inputs simplified at d / 4 first: the closing's cost grows steeply with vertices and distance
                CASE WHEN count(*) > 1 THEN ST_Multi(ST_CollectionExtract(ST_MakeValid(ST_Buffer(
-                   ST_Buffer(ST_Collect(ST_SimplifyPreserveTopology(geom, d / 4)), d / 2,
+                   ST_Buffer(ST_Collect(ST_SimplifyPreserveTopology(geom, d / 4) ORDER BY members), d / 2,
                              'join=mitre mitre_limit=3'),
                    -d / 2, 'join=mitre mitre_limit=3')), 3)) END AS closed
         FROM c
         GROUP BY level, x, y, gen_level, d, cid
     ) a
     JOIN mem ON (mem.level, mem.x, mem.y, mem.cid) = (a.level, a.x, a.y, a.cid)
-    ORDER BY a.level, a.x, a.y, a.cid
+    -- member order, and every order-sensitive aggregate in it: the same blocks whatever order the rows come in
+    ORDER BY a.level, a.x, a.y, mem.members
 $$;
 COMMENT ON FUNCTION gen.coarse_block_clusters(integer, integer) IS
-    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered at gen.tolerance(band) and merged; columns as gen.block_clusters; tile and cluster order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';
+    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered at gen.tolerance(band) and merged; columns as gen.block_clusters; tile and member order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';

@@ -1,4 +1,4 @@
--- lod.building_input(coverage, skeleton_shapes) -> one row per building or part the lod stage draws, in id order
+-- lod.building_input(coverage, skeleton_shapes, ids) -> one row per building or part the lod stage draws, in id order
 -- Every osm.building row except outlines whose parts cover at least `coverage` of them (the S3DB outline
 -- rule: their parts are drawn instead, lod.diagnose_hidden_outlines), with its height tags, its footprint
 -- (WKB; for an outline with parts what they leave uncovered, lod.outline_remainder, NULL when that is only
@@ -7,9 +7,11 @@
 -- become the gable) and its straight skeleton (lod.straight_skeleton), both WKB.
 --   coverage         settings.outline_part_coverage
 --   skeleton_shapes  roof:shape values whose roofs are built from the straight skeleton
+--   ids              these osm.building ids alone (an update's), or NULL for all
 -- Streamed by a server-side cursor: inlined into the caller's query (LANGUAGE sql, STABLE, not STRICT).
 -- Example: SELECT id, roof_shape, skeleton IS NOT NULL FROM lod.building_input(0.9, ARRAY['hipped']) LIMIT 5;
-CREATE OR REPLACE FUNCTION lod.building_input(coverage double precision, skeleton_shapes text[])
+CREATE OR REPLACE FUNCTION lod.building_input(coverage double precision, skeleton_shapes text[],
+                                              ids bigint[] DEFAULT NULL)
 RETURNS TABLE (
     id               bigint,
     osm_type         character(1),
@@ -36,6 +38,7 @@ LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     WITH src AS (
         SELECT b.*, (b.kind = 'building' AND b.part IS NULL AND b.n_parts > 0) AS has_parts FROM osm.building b
+        WHERE $3 IS NULL OR b.id = ANY($3)
     )
     SELECT b.id, b.osm_type, b.osm_id, b.building, b.height, b.min_height, b.levels, b.min_level,
            b.roof_levels, b.roof_height, ST_AsBinary(g.geom), b.has_parts, b.part_coverage,
@@ -48,5 +51,5 @@ AS $$
     WHERE NOT (b.has_parts AND coalesce(b.part_coverage, 0) >= $1)
     ORDER BY b.id
 $$;
-COMMENT ON FUNCTION lod.building_input(double precision, text[]) IS
-    'Buildings and parts the lod stage draws (outlines hidden by parts covering coverage left out): tags, footprint or outline remainder (WKB), and for skeleton_shapes the roof footprint and its straight skeleton (WKB); id order. Example: SELECT count(*) FROM lod.building_input(0.9, ARRAY[''hipped'']);';
+COMMENT ON FUNCTION lod.building_input(double precision, text[], bigint[]) IS
+    'Buildings and parts the lod stage draws (outlines hidden by parts covering coverage left out): tags, footprint or outline remainder (WKB), and for skeleton_shapes the roof footprint and its straight skeleton (WKB); id order; ids: those alone (NULL: all). Example: SELECT count(*) FROM lod.building_input(0.9, ARRAY[''hipped'']);';

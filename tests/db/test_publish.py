@@ -174,10 +174,11 @@ def test_a_new_generation_stores_and_serves_only_what_changed(copy_url: str, tmp
 
 
 @pytest.mark.db
-def test_soak_during_a_full_rebuild(soak_url: str, fixtures_city: City, tmp_path: Path) -> None:
+def test_soak_during_a_full_rebuild_and_an_update(soak_url: str, fixtures_city: City, tmp_path: Path) -> None:
     """`serve --db` (its own process, as a user runs it) under 200 requests per second while every stage runs
-    again and the export publishes a new generation: no 5xx, no transport error, no body that is not its ETag,
-    no server connection ever waiting on a lock; then the new generation is served."""
+    again and the export publishes a new generation, then while an update applies a change file and publishes
+    again: no 5xx, no transport error, no body that is not its ETag, no server connection ever waiting on a
+    lock; then the last generation is served."""
     dbname = psycopg.conninfo.conninfo_to_dict(soak_url)["dbname"]
     name = fixtures_city.tiles.name
     env = {**os.environ, "DATABASE_URL": soak_url}
@@ -214,6 +215,12 @@ def test_soak_during_a_full_rebuild(soak_url: str, fixtures_city: City, tmp_path
                 run_etl(soak_url, stage)
             run_etl(soak_url, "export", "--out", str(out))
             time.sleep(2.0)
+            # then an update: the square's corner moves (tests/db/test_update.py writes the same node)
+            osc = tmp_path / "move.osc"
+            osc.write_text('<?xml version="1.0"?><osmChange version="0.6"><modify><node id="100003" version="2" '
+                           'lat="60.2001795" lon="24.9004157"/></modify></osmChange>')
+            run_etl(soak_url, "update", "--osc", str(osc), "--out", str(out))
+            time.sleep(2.0)
         finally:
             stop.set()
             for t in threads:
@@ -225,7 +232,7 @@ def test_soak_during_a_full_rebuild(soak_url: str, fixtures_city: City, tmp_path
         assert r.failures == 0, (figures, err.read()[-2000:])
         assert r.bad_etags == 0 and waits == []
         assert r.requests > 1000 and set(r.statuses) <= {200, 304}
-    # the server now streams the new generation: the rebuilt tiles, the edited building among them
+    # the server now streams the last generation: the rebuilt tiles, the edited building among them
     with published(soak_url, name) as (_, base):
         c = Client(base)
         try:

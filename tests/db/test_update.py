@@ -157,6 +157,10 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             (tex,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
             assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
+            (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
+                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
+            (n,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
+            assert lod["changed_only"] and 0 < lod["in"] < n, "lod drew the changed buildings (and kin) alone"
 
     merged = tmp_path / "merged.osm.pbf"
     apply_changes(base, [c1, c2], merged)
