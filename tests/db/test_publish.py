@@ -227,7 +227,7 @@ def test_soak_during_a_full_rebuild_and_an_update(soak_url: str, fixtures_city: 
                 t.join(120)
         r = result["soak"]
         figures = r.as_dict()
-        print("soak during a full rebuild:", figures)
+        print("soak during a full rebuild and an update:", figures)
         err.seek(0)
         assert r.failures == 0, (figures, err.read()[-2000:])
         assert r.bad_etags == 0 and waits == []
