@@ -5,6 +5,7 @@ nothing imports them back."""
 from __future__ import annotations
 
 import datetime as dt
+import json
 import os
 import platform
 import re
@@ -241,3 +242,48 @@ def pass_mark(ok: bool) -> str:
     return "**pass**" if ok else "**FAIL**"
 
 
+
+
+def section_bench(argv: list[str] | None, prog: str, doc: str, default_osm: Path, db: str,
+                  measure: Any, section: Any, heading: str) -> int:
+    """The command line of a bench that measures one section on one extract in a database of its own (soak_bench,
+    update_bench): --osm, --json (the figures), --write (replace the report's section whose heading starts with
+    ``heading``), --keep (the database)."""
+    import argparse
+
+    from core import cluster
+
+    p = argparse.ArgumentParser(prog=prog, description=doc.splitlines()[0])
+    p.add_argument("--osm", type=Path, default=default_osm)
+    p.add_argument("--json", type=Path, help="write the figures here")
+    p.add_argument("--write", type=Path, help=f"replace this report's {heading[3:]} section (e.g. BENCHMARKS.md)")
+    p.add_argument("--keep", action="store_true", help=f"keep {db}")
+    a = p.parse_args(argv)
+    cluster.ensure()
+    admin_url = cluster.database_url("postgres")
+    try:
+        figures = measure(a.osm.resolve(), admin_url)
+    finally:
+        if not a.keep:
+            drop_db(admin_url, db)
+    text = json.dumps(figures, indent=1)
+    if a.json:
+        a.json.parent.mkdir(parents=True, exist_ok=True)
+        a.json.write_text(text)
+    if a.write:
+        splice(a.write, section(figures), heading)
+        log(f"wrote the {heading[3:]} section of {a.write}")
+    print(text)
+    return 0
+
+
+def splice(path: Path, lines: list[str], heading: str) -> None:
+    """Replace (or add, before "## How to read this") the section of the report at ``path`` whose heading starts
+    with ``heading``."""
+    text = path.read_text().splitlines()
+    start = next((i for i, t in enumerate(text) if t.startswith(heading)), None)
+    if start is None:
+        start = end = next((i for i, t in enumerate(text) if t.startswith("## How to read")), len(text))
+    else:
+        end = next((i for i in range(start + 1, len(text)) if text[i].startswith("## ")), len(text))
+    path.write_text("\n".join([*text[:start], *lines, *text[end:]]) + "\n")

@@ -15,8 +15,6 @@ second) while every stage rebuilds the benchmark extract's database and the expo
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
 import threading
@@ -31,16 +29,15 @@ from benchmarks.common import (
     OUT_ROOT,
     PIPELINE,
     build_pipeline_db,
-    drop_db,
     extract_name,
     last_run,
     log,
     markdown_table,
     run_child,
+    section_bench,
 )
 from benchmarks.servers import spawned
 from benchmarks.soak import RATE, soak
-from core import cluster
 from exporter.publish import tileset_name
 from exporter.server.reader import READER_ROLE
 
@@ -168,42 +165,9 @@ def section(s: dict[str, Any] | None) -> list[str]:
     return out
 
 
-def splice(path: Path, lines: list[str], heading: str = "## Soak") -> None:
-    """Replace (or add, before "## How to read this") the section of the report at ``path`` whose heading starts
-    with ``heading``."""
-    text = path.read_text().splitlines()
-    start = next((i for i, t in enumerate(text) if t.startswith(heading)), None)
-    if start is None:
-        start = end = next((i for i, t in enumerate(text) if t.startswith("## How to read")), len(text))
-    else:
-        end = next((i for i in range(start + 1, len(text)) if text[i].startswith("## ")), len(text))
-    path.write_text("\n".join([*text[:start], *lines, *text[end:]]) + "\n")
-
-
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.soak_bench", description=__doc__.splitlines()[0])
-    p.add_argument("--osm", type=Path, default=DEFAULT_OSM)
-    p.add_argument("--rate", type=float, default=RATE)
-    p.add_argument("--json", type=Path, help="write the figures here")
-    p.add_argument("--write", type=Path, help="replace this report's Soak section (e.g. BENCHMARKS.md)")
-    p.add_argument("--keep", action="store_true", help=f"keep {SOAK_DB}")
-    a = p.parse_args(argv)
-    cluster.ensure()
-    admin_url = cluster.database_url("postgres")
-    try:
-        s = measure(a.osm.resolve(), admin_url, rate=a.rate)
-    finally:
-        if not a.keep:
-            drop_db(admin_url, SOAK_DB)
-    text = json.dumps(s, indent=1)
-    if a.json:
-        a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(text)
-    if a.write:
-        splice(a.write, section(s))
-        log(f"wrote the Soak section of {a.write}")
-    print(text)
-    return 0
+    return section_bench(argv, "python -m benchmarks.soak_bench", __doc__ or "", DEFAULT_OSM, SOAK_DB, measure,
+                         section, "## Soak")
 
 
 if __name__ == "__main__":

@@ -14,8 +14,6 @@
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 import sys
@@ -32,13 +30,12 @@ from benchmarks.common import (
     OUT_ROOT,
     PIPELINE,
     build_pipeline_db,
-    drop_db,
     extract_name,
     log,
     markdown_table,
     run_child,
+    section_bench,
 )
-from core import cluster
 
 UPDATE_DB = "citylod_bench_update"
 DEFAULT_OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
@@ -176,35 +173,9 @@ def section(s: dict[str, Any] | None) -> list[str]:
     return out
 
 
-def splice(path: Path, lines: list[str]) -> None:
-    from benchmarks.soak_bench import splice as _splice
-
-    _splice(path, lines, "## Updates")
-
-
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.update_bench", description=__doc__.splitlines()[0])
-    p.add_argument("--osm", type=Path, default=DEFAULT_OSM)
-    p.add_argument("--json", type=Path, help="write the figures here")
-    p.add_argument("--write", type=Path, help="replace this report's Updates section (e.g. BENCHMARKS.md)")
-    p.add_argument("--keep", action="store_true", help=f"keep {UPDATE_DB}")
-    a = p.parse_args(argv)
-    cluster.ensure()
-    admin_url = cluster.database_url("postgres")
-    try:
-        s = measure(a.osm.resolve(), admin_url)
-    finally:
-        if not a.keep:
-            drop_db(admin_url, UPDATE_DB)
-    text = json.dumps(s, indent=1)
-    if a.json:
-        a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(text)
-    if a.write:
-        splice(a.write, section(s))
-        log(f"wrote the Updates section of {a.write}")
-    print(text)
-    return 0
+    return section_bench(argv, "python -m benchmarks.update_bench", __doc__ or "", DEFAULT_OSM, UPDATE_DB,
+                         measure, section, "## Updates")
 
 
 if __name__ == "__main__":

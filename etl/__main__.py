@@ -159,7 +159,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from . import dag
-    from .runs import pipeline_run
+    from .runs import pipeline_run, sha256_file
     from .stages import ingest
     from .stages import update as up
 
@@ -174,7 +174,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     applied = {c.sha256: c.seq for c in chain.changes}
     new: list[tuple[Path, str, dict[str, dict[str, int]]]] = []
     for f in files:
-        sha = up.sha256_file(f)
+        sha = sha256_file(f)
         if sha in applied:
             print(f"update: {f} was applied already (change {applied[sha]}): skipped", file=sys.stderr)
             continue
@@ -195,7 +195,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
     params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
-    file_sha = up.sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
+    file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
     with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
             connect(url) as conn:
         def record(cur: psycopg.Cursor) -> None:

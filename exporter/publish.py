@@ -59,11 +59,8 @@ def _files(directory: Path) -> Iterator[tuple[str, Path]]:
 
 
 def _sha256(path: Path) -> bytes:
-    h = hashlib.sha256()
     with open(path, "rb") as fh:
-        while chunk := fh.read(1 << 20):
-            h.update(chunk)
-    return h.digest()
+        return hashlib.file_digest(fh, "sha256").digest()
 
 
 def publish(url: str, name: str, directory: Path, options: dict[str, object], run_id: int | None = None,

@@ -30,6 +30,8 @@ import psycopg
 
 from core.settings import REPO
 
+from ..runs import sha256_file
+
 STATE_DIR = REPO / "build" / "osm"
 ACTIONS = ("create", "modify", "delete")
 TYPES = ("node", "way", "relation")
@@ -58,14 +60,6 @@ class Chain:
     @property
     def state_sha256(self) -> str:
         return self.changes[-1].state_sha256 if self.changes else self.base_sha256
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while chunk := fh.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def next_state_sha256(state_sha256: str, change_sha256: str) -> str:

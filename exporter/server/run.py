@@ -109,17 +109,16 @@ def serve(tiles_dir: Path, host: str = "127.0.0.1", port: int = 8765) -> None:
     _run(make_app(tiles_dir=tiles_dir), sock, [f"tiles: {tiles_dir}"])
 
 
-def serve_db(url: str, host: str = "127.0.0.1", port: int = 8765, **source_options: Any) -> None:
-    """Serve the tileset straight from the database at ``url`` (give it reader.reader_url(...)) and the viewer
-    until SIGINT/SIGTERM. ``source_options`` go to DbTileSource (lod, base_height, cache_bytes, pool_size,
-    revalidate_s). Refuses to start when the database cannot be read or holds no current tileset."""
+def _serve_source(source: Any, host: str, port: int, describe: Any) -> None:
+    """Serve ``source`` (a DbTileSource or PublishedSource) until SIGINT/SIGTERM, once its tileset.json could be
+    read; ``describe(source, tileset)`` is the announcement's first line. Refuses to start, in one line, when the
+    database cannot be read or holds no tileset to serve."""
     from .reader import READER_ROLE, READER_URL_ENV, DbUnavailable
-    from .source import DbTileSource, NotReady
+    from .source import NotReady
 
     _check_cesium()
-    sock = _listen_or_exit(host, port)
-    source = DbTileSource(url, **source_options)
     try:
+        sock = _listen_or_exit(host, port)
         try:
             tileset = source.tileset()
         except DbUnavailable as e:
@@ -127,14 +126,26 @@ def serve_db(url: str, host: str = "127.0.0.1", port: int = 8765, **source_optio
                      f"  run `make migrate` (migration 0011 creates the role), or set {READER_URL_ENV}")
         except NotReady as e:
             sys.exit(f"citylod serve --db: {e}")
-        lod = source_options.get("lod")
-        _run(make_app(source=source), sock, [
-            f"tiles: straight from the database ({len(source.snapshot().by_uri):,} glb tiles, "
-            f"{'LOD' + str(lod) if lod else 'every LOD'}, tileset.json {len(tileset.body):,} bytes)",
-            f"cache: {source.cache.budget / 2**20:,.0f} MiB; pool: {source.reader.size} connections"])
+        try:
+            _run(make_app(source=source), sock, [
+                describe(source, tileset),
+                f"cache: {source.cache.budget / 2**20:,.0f} MiB; pool: {source.reader.size} connections"])
+        finally:
+            sock.close()
     finally:
-        sock.close()
         source.close()
+
+
+def serve_db(url: str, host: str = "127.0.0.1", port: int = 8765, **source_options: Any) -> None:
+    """Serve the tileset straight from the database at ``url`` (give it reader.reader_url(...)) and the viewer
+    until SIGINT/SIGTERM. ``source_options`` go to DbTileSource (lod, base_height, cache_bytes, pool_size,
+    revalidate_s). Refuses to start when the database cannot be read or holds no current tileset."""
+    from .source import DbTileSource
+
+    lod = source_options.get("lod")
+    _serve_source(DbTileSource(url, **source_options), host, port, lambda src, tileset: (
+        f"tiles: straight from the database ({len(src.snapshot().by_uri):,} glb tiles, "
+        f"{'LOD' + str(lod) if lod else 'every LOD'}, tileset.json {len(tileset.body):,} bytes)"))
 
 
 def serve_published(url: str, name: str, host: str = "127.0.0.1", port: int = 8765, **source_options: Any) -> None:
@@ -143,26 +154,10 @@ def serve_published(url: str, name: str, host: str = "127.0.0.1", port: int = 87
     (cache_bytes, pool_size, revalidate_s). Refuses to start when the database cannot be read or has no such
     tileset."""
     from .published import PublishedSource
-    from .reader import READER_ROLE, READER_URL_ENV, DbUnavailable
-    from .source import NotReady
 
-    _check_cesium()
-    sock = _listen_or_exit(host, port)
-    source = PublishedSource(url, name, **source_options)
-    try:
-        try:
-            tileset = source.tileset()
-        except DbUnavailable as e:
-            sys.exit(f"citylod serve --db: cannot read the database as {READER_ROLE}: {e}\n"
-                     f"  run `make migrate` (migration 0011 creates the role), or set {READER_URL_ENV}")
-        except NotReady as e:
-            sys.exit(f"citylod serve --db: {e}")
-        listing = source.listing()
-        _run(make_app(source=source), sock, [
-            f"tiles: the published tileset {name!r}, generation {listing.generation} "
-            f"({len(listing.files):,} files, tileset.json {len(tileset.body):,} bytes); a new export is "
-            "picked up as it commits",
-            f"cache: {source.cache.budget / 2**20:,.0f} MiB; pool: {source.reader.size} connections"])
-    finally:
-        sock.close()
-        source.close()
+    def describe(src: PublishedSource, tileset: Any) -> str:
+        listing = src.listing()
+        return (f"tiles: the published tileset {name!r}, generation {listing.generation} ({len(listing.files):,} "
+                f"files, tileset.json {len(tileset.body):,} bytes); a new export is picked up as it commits")
+
+    _serve_source(PublishedSource(url, name, **source_options), host, port, describe)
