@@ -39,7 +39,7 @@ from typing import Any
 
 import psycopg
 
-from benchmarks import fidelity_bench, report_textures, scale_bench, soak_bench, stream_bench, view_bench
+from benchmarks import fidelity_bench, report_textures, scale_bench, soak_bench, stream_bench, update_bench, view_bench
 from benchmarks.common import (
     HEADLINE,
     LOG_DIR,
@@ -651,6 +651,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="take the Soak section from this output of `python -m benchmarks.soak_bench --json` "
                         "(serve --db under 200 requests/s while the benchmark extract is rebuilt, ~6 min)")
     p.add_argument("--no-soak", action="store_true", help="skip the Soak section")
+    p.add_argument("--update-json", type=Path,
+                   help="take the Updates section from this output of `python -m benchmarks.update_bench --json` "
+                        "(a 1 %% change file against the full rebuild of the benchmark extract, ~8 min)")
+    p.add_argument("--no-update", action="store_true", help="skip the Updates section")
     p.add_argument("--no-scale-stages", action="store_true",
                    help="skip the Scale section (the pipeline on the benchmark extract and its 6x replica, ~10 min)")
     p.add_argument("--no-scale", action="store_true",
@@ -671,7 +675,7 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --repeat {args.repeat}"
     if args.files:
         command += " --files " + " ".join(str(f) for f in args.files)
-    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale", "no_scale_stages", "no_soak"):
+    for flag in ("no_server", "no_stream", "no_fidelity", "no_scale", "no_scale_stages", "no_soak", "no_update"):
         if getattr(args, flag):
             command += " --" + flag.replace("_", "-")
     if args.scale_stages_json:
@@ -680,11 +684,14 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --scale-json {args.scale_json}  # from: python -m benchmarks.view_bench scale > {args.scale_json}"
     if args.soak_json:
         command += f" --soak-json {args.soak_json}"
+    if args.update_json:
+        command += f" --update-json {args.update_json}"
 
     results: list[ExtractResult] = []
     scale: dict[str, Any] | None = None
     scale_stages: dict[str, Any] | None = None
     soak: dict[str, Any] | None = None
+    update: dict[str, Any] | None = None
     t0 = time.perf_counter()
     try:
         for f in files:
@@ -700,20 +707,25 @@ def main(argv: list[str] | None = None) -> int:
             soak = json.loads(args.soak_json.read_text())
         elif head is not None and not args.no_soak:
             soak = soak_bench.measure(head, admin_url)
+        if args.update_json:
+            update = json.loads(args.update_json.read_text())
+        elif head is not None and not args.no_update:
+            update = update_bench.measure(head, admin_url)
         if args.scale_json:
             scale = json.loads(args.scale_json.read_text())
         elif head is not None and not args.no_scale:
             scale = view_bench.scale(admin_url, head)
     finally:
         if not args.keep:
-            for db in (BENCH_DB, O2P_DB):
+            for db in (BENCH_DB, O2P_DB, soak_bench.SOAK_DB, update_bench.UPDATE_DB):
                 drop_db(admin_url, db)
             log(f"dropped {BENCH_DB}, {O2P_DB} (use --keep to keep them)")
 
     report = render(results, mach, args.repeat, command, scale, scale_stages)
-    if soak is not None:
+    extra = [*(update_bench.section(update) if update else []), *(soak_bench.section(soak) if soak else [])]
+    if extra:
         before, sep, after = report.partition("## How to read")
-        report = before + "\n".join(soak_bench.section(soak)) + "\n" + sep + after
+        report = before + "\n".join(extra) + "\n" + sep + after
     if args.write:
         Path(args.write).write_text(report)
         log(f"wrote {args.write}")

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import sys
@@ -24,12 +25,14 @@ from xml.sax.saxutils import quoteattr
 
 import osmium
 import psycopg
+from psycopg import sql
 
 from benchmarks.common import (
     LOG_DIR,
     OUT_ROOT,
     PIPELINE,
     build_pipeline_db,
+    drop_db,
     extract_name,
     log,
     markdown_table,
@@ -41,6 +44,45 @@ UPDATE_DB = "citylod_bench_update"
 DEFAULT_OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
 SHARE = 0.01
 STAGES = (*PIPELINE, "export")
+
+
+#: What an update and a full rebuild must hold alike: every table the stages write, compared row for row
+#: (identity columns, numbered by insertion order and never exported, and timestamps left out; meta.dataset's
+#: source file and sha256 name the file each read)
+TABLES = ["osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member", "meta.dataset",
+          "meta.diagnostic", "lod.building_mesh", "lm.building", "tiles.tile", "tiles.building_tile", "tiles.grid",
+          "tiles.tile_content", "gen.footprint", "gen.building_mesh", "gen.block", "tex.page", "tex.feature_uv",
+          "tex.failure"]
+IGNORED = {"osm.reject": {"reject_id"}, "meta.diagnostic": {"diagnostic_id"}, "tex.failure": {"failure_id"},
+           "meta.dataset": {"source_file", "source_sha256"}}
+
+
+def table_rows(conn: psycopg.Connection, table: str) -> list[str]:
+    """The rows of ``table`` as text, sorted (TABLES, IGNORED)."""
+    schema, name = table.split(".")
+    cols = [c for (c,) in conn.execute(
+        "SELECT column_name FROM information_schema.columns WHERE table_schema = %s AND table_name = %s "
+        "AND data_type NOT LIKE 'timestamp%%' ORDER BY ordinal_position", (schema, name))
+        if c not in IGNORED.get(table, set())]
+    query = sql.SQL("SELECT ROW({})::text FROM {}").format(
+        sql.SQL(", ").join(map(sql.Identifier, cols)), sql.Identifier(schema, name))
+    return sorted(r for (r,) in conn.execute(query))
+
+
+def differences(a_url: str, b_url: str) -> dict[str, int]:
+    """Rows that differ between the two databases, by table (only tables that differ)."""
+    out = {}
+    with psycopg.connect(a_url) as a, psycopg.connect(b_url) as b:
+        for table in TABLES:
+            ra, rb = table_rows(a, table), table_rows(b, table)
+            if ra != rb:
+                out[table] = len(set(ra) ^ set(rb)) or abs(len(ra) - len(rb))
+    return out
+
+
+def file_hashes(d: Path) -> dict[str, str]:
+    return {p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(d.rglob("*")) if p.is_file()}
 
 
 class _Ways(osmium.SimpleHandler):
@@ -119,7 +161,13 @@ def stage_seconds(url: str, since: int) -> dict[str, float]:
             (since,))}
 
 
-def measure(osm: Path, admin_url: str, db: str = UPDATE_DB) -> dict[str, Any]:
+def _state_file(url: str) -> str | None:
+    with psycopg.connect(url) as conn:
+        row = conn.execute("SELECT source_file FROM meta.dataset").fetchone()
+    return row[0] if row else None
+
+
+def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True) -> dict[str, Any]:
     name = extract_name(osm)
     logs = LOG_DIR / name / "update"
     t0 = time.perf_counter()
@@ -142,7 +190,21 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB) -> dict[str, Any]:
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
         pub = conn.execute("SELECT n_files, n_new_files, n_new_bytes FROM pub.generation "
                            "ORDER BY generation DESC LIMIT 1").fetchone()
+    state = Path(params_osm) if (params_osm := _state_file(url)) else None
+    verified: dict[str, object] | None = None
+    if verify and state is not None:
+        log(f"{name}: a full rebuild from the update's state file, to compare")
+        full_url = build_pipeline_db(state, admin_url, db + "_full", "update-full")
+        run_child([sys.executable, "-m", "etl", "export", "--out", str(out.with_name(name + "-full"))],
+                  {**env, "DATABASE_URL": full_url}, logs / "export-full.log")
+        tiles_a, tiles_b = file_hashes(out), file_hashes(out.with_name(name + "-full"))
+        verified = {"tables_differing": differences(url, full_url),
+                    "tiles_differing": sorted(k for k in tiles_a.keys() | tiles_b.keys()
+                                              if tiles_a.get(k) != tiles_b.get(k)),
+                    "tiles": len(tiles_a)}
+        drop_db(admin_url, db + "_full")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
+            "verified": verified,
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
             "update_wall_s": round(wall, 1), "update_s": stage_seconds(url, last),
             "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
@@ -163,6 +225,14 @@ def section(s: dict[str, Any] | None) -> list[str]:
            + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + ".", ""]
     out += markdown_table(["stage", "full rebuild s", "update s"],
                           [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
+    v = s.get("verified")
+    if v is not None:
+        same = not v["tables_differing"] and not v["tiles_differing"]
+        out += ["", "Equivalence: a full rebuild from the update's OSM state file (the base file with the change "
+                "applied) into another database, then compared: "
+                + ("every table row for row and all " + f"{v['tiles']:,} files of the tileset byte for byte equal."
+                   if same else f"tables that differ (rows): {v['tables_differing']}; files that differ: "
+                   f"{len(v['tiles_differing'])} of {v['tiles']:,} ({', '.join(v['tiles_differing'][:3])}, ...).")]
     pub = s.get("published") or {}
     out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
             "of its one process, applying the change file included. The update: ingest reads the whole OSM state "

@@ -24,8 +24,9 @@ AS $$
            ST_AsBinary(nb.fixed)
     FROM (
         SELECT bt.group_id,
-               sum(m.height * m.ground_area_m2) FILTER (WHERE m.lod = 2)
-                   / nullif(sum(m.ground_area_m2) FILTER (WHERE m.lod = 2), 0) AS height,
+               -- float sums in member order: the same bits whatever order an update left the rows in
+               sum(m.height * m.ground_area_m2 ORDER BY m.building_id) FILTER (WHERE m.lod = 2)
+                   / nullif(sum(m.ground_area_m2 ORDER BY m.building_id) FILTER (WHERE m.lod = 2), 0) AS height,
                max(m.height) AS hmax, min(m.min_height) AS min_height,
                sum(m.n_triangles) FILTER (WHERE m.lod = 2) AS n_in,
                bool_or(m.n_windows + m.n_doors > 0) FILTER (WHERE m.lod = 3) AS openings

@@ -1,6 +1,7 @@
 -- gen.group_lod2_meshes(group_ids) -> the LOD2 mesh of every building and part of the listed buildings
 -- What a level-2 footprint replaces, for measuring its error: the LOD2 meshes (WKB) of the outlines in
--- group_ids (tiles.building_tile group_id) and of their parts. Inlined into the caller (LANGUAGE sql).
+-- group_ids (tiles.building_tile group_id) and of their parts, in (group_id, building_id) order. Inlined into the
+-- caller (LANGUAGE sql).
 --   group_ids  outline ids (osm.building.id)
 -- Example: SELECT group_id, count(*) FROM gen.group_lod2_meshes(ARRAY(SELECT id FROM osm.building LIMIT 3))
 --          GROUP BY 1;
@@ -14,6 +15,8 @@ AS $$
     SELECT bt.group_id, ST_AsBinary(m.geom)
     FROM tiles.building_tile bt JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
     WHERE bt.group_id = ANY($1)
+    ORDER BY bt.group_id, bt.building_id  -- the error measure reads the meshes in order: the same, whatever
+                                          -- order an update left the rows in
 $$;
 COMMENT ON FUNCTION gen.group_lod2_meshes(bigint[]) IS
     'LOD2 meshes (WKB) of the buildings and parts of the outlines group_ids, by group_id. Example: SELECT count(*) FROM gen.group_lod2_meshes(ARRAY[1]::bigint[]);';

@@ -42,7 +42,8 @@ AS $$
                bool_or(o.name IS NOT NULL) AS named
         FROM osm.building o GROUP BY 1
     ), g AS (
-        SELECT coalesce(o.parent_id, o.id) AS gid, max(m.height) AS height, sum(m.volume_m3) AS volume
+        SELECT coalesce(o.parent_id, o.id) AS gid, max(m.height) AS height,
+               sum(m.volume_m3 ORDER BY m.building_id) AS volume  -- in id order: the same bits after an update
         FROM lod.building_mesh m JOIN osm.building o ON o.id = m.building_id
         WHERE m.lod = 2 GROUP BY 1
     )

@@ -38,7 +38,7 @@ AS $$
                    AND ST_DWithin(l.centroid, b.centroid,
                                   (SELECT max(m.scale_factors[cardinality(m.scale_factors)] * m.radius_m)
                                    FROM lm.building m WHERE m.is_landmark) + b.radius_m)))
-        ORDER BY l.building_id = b.building_id DESC, 8 DESC
+        ORDER BY l.building_id = b.building_id DESC, 8 DESC, l.building_id  -- ties: the lowest id, always
         LIMIT 1
     ) k
     WHERE b.building_id = $1 AND (b.is_landmark OR k.push > 0)

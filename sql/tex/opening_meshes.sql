@@ -12,6 +12,7 @@ LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     SELECT m.building_id, m.semantics, ST_AsBinary(m.geom) FROM lod.building_mesh m
     WHERE m.lod = 3 AND m.building_id = ANY($1) AND m.n_windows + m.n_doors > 0
+    ORDER BY m.building_id
 $$;
 COMMENT ON FUNCTION tex.opening_meshes(bigint[]) IS
     'LOD3 mesh (WKB) and semantics of the buildings in building_ids that have windows or doors. Example: SELECT count(*) FROM tex.opening_meshes(ARRAY[1]::bigint[]);';

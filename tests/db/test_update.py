@@ -15,6 +15,7 @@ from pathlib import Path
 import psycopg
 import pytest
 
+from benchmarks.update_bench import TABLES, table_rows
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
@@ -80,15 +81,6 @@ EXPECTED_CHANGES = {
     2: {-1201: "modified"},
 }
 PIPELINE = ("lod", "landmarks", "tiles", "generalize", "textures")
-#: identity columns (numbered by insertion order, never exported) and the state file's own name and sha
-IGNORED = {"osm.reject": {"reject_id"}, "meta.diagnostic": {"diagnostic_id"}, "tex.failure": {"failure_id"},
-           "meta.dataset": {"source_file", "source_sha256"}}
-TABLES = ["osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member", "meta.dataset",
-          "meta.diagnostic", "lod.building_mesh", "lm.building", "tiles.tile", "tiles.building_tile", "tiles.grid",
-          "tiles.tile_content", "gen.footprint", "gen.building_mesh", "gen.block", "tex.page", "tex.feature_uv",
-          "tex.failure"]
-
-
 #: many small tiles from the few fixtures, so that a change leaves some tiles as they were
 SMALL = {"CITYLOD_TILE_MAX_FEATURES": "4"}
 
@@ -98,16 +90,6 @@ def build(url: str, osm: Path, out: Path) -> None:
     for stage in PIPELINE:
         run_etl(url, stage, env=SMALL)
     run_etl(url, "export", "--out", str(out), env=SMALL)
-
-
-def table_rows(conn: psycopg.Connection, table: str) -> list[str]:
-    schema, name = table.split(".")
-    cols = [c for (c,) in conn.execute(
-        "SELECT column_name FROM information_schema.columns WHERE table_schema = %s AND table_name = %s "
-        "AND data_type NOT LIKE 'timestamp%%' ORDER BY ordinal_position", (schema, name))  # when, not what
-        if c not in IGNORED.get(table, set())]
-    select = ", ".join(f'"{c}"' for c in cols)
-    return sorted(r for (r,) in conn.execute(f"SELECT ROW({select})::text FROM {table}"))  # noqa: S608 - catalog names
 
 
 def files(d: Path) -> dict[str, str]:
