@@ -96,7 +96,7 @@ async def _send_payload(request: Request, p: Payload) -> Response:
 
 
 def db_tiles_route(source: DbTileSource | PublishedSource) -> Route:
-    from .reader import DbUnavailable
+    from .reader import Busy, DbUnavailable
     from .source import NotReady
 
     limiter = anyio.CapacityLimiter(TILE_THREADS)
@@ -115,6 +115,10 @@ def db_tiles_route(source: DbTileSource | PublishedSource) -> Route:
             except NotReady as e:
                 log.warning("no current tileset in the database: %s", e)
                 return _unavailable(f"no current tileset in the database: {e}")
+            except Busy as e:
+                log.warning("a stage holds the tables: %s", e)
+                return _unavailable("a stage is rebuilding the tables, retry later (serve --db without --live "
+                                    "streams the published tileset meanwhile)")
             except DbUnavailable as e:
                 log.warning("database unavailable: %s", e)  # the detail stays in the server's log
                 return _unavailable("database unavailable, retry later")

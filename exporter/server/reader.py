@@ -29,8 +29,10 @@ READER_ROLE = "citylod_reader"
 READER_URL_ENV = "CITYLOD_READER_URL"
 #: Session settings of every server connection: read-only even if the role were not, a bound on each query,
 #: no JIT (its compile time dominates short statements), UTC.
-READER_SESSION = {"default_transaction_read_only": "on", "statement_timeout": "30s", "jit": "off",
-                  "TimeZone": "UTC"}
+#: lock_timeout: a read that would wait behind a stage's lock (a TRUNCATE, a quadtree rebuild: held until the
+#: stage commits, minutes) gives up after 100 ms and is answered 503 at once instead of hanging.
+READER_SESSION = {"default_transaction_read_only": "on", "statement_timeout": "30s", "lock_timeout": "100ms",
+                  "jit": "off", "TimeZone": "UTC"}
 #: While the database is unreachable, at most one connection attempt per this many seconds; the requests in
 #: between are answered at once with the last attempt's error.
 PROBE_INTERVAL_S = 1.0
@@ -43,6 +45,10 @@ T = TypeVar("T")
 
 class DbUnavailable(Exception):
     """The database cannot be reached or answered with an error (answered with 503)."""
+
+
+class Busy(DbUnavailable):
+    """A stage holds a lock on the tables the answer reads (lock_timeout): 503, retry later."""
 
 
 def reader_url(url: str, environ: Mapping[str, str] | None = None) -> str:
@@ -108,6 +114,8 @@ class Reader:
                     return fn(conn)
             except PoolTimeout as e:
                 raise DbUnavailable("every database connection is busy") from e
+            except psycopg.errors.LockNotAvailable as e:
+                raise Busy(one_line(e)) from e
             except psycopg.OperationalError as e:
                 if conn is not None and conn.broken:
                     with self._probe_lock:

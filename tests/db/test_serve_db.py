@@ -590,6 +590,27 @@ def test_database_outage_is_503(outage_url: str, fixtures_city: City, server_url
 
 
 @pytest.mark.db
+def test_a_stage_lock_is_answered_503_not_waited_for(fixtures_city: City) -> None:
+    """--live reads the stage tables; a stage that holds them (a TRUNCATE, the quadtree's rebuild: until it
+    commits) makes a request give up after the reader's lock_timeout and say so, instead of hanging until the
+    statement timeout (30 s), which would answer a different 503."""
+    with running(reader_url(fixtures_city.url, environ={}), revalidate_s=0.0) as (_, base):
+        c = Client(base)
+        try:
+            assert c.get("/tiles/tileset.json")[0] == 200
+            uri = disk_uris(fixtures_city.tiles)[0]  # not built yet by this server: read from the tables
+            with psycopg.connect(fixtures_city.url) as holder:  # rolled back: nothing changes
+                holder.execute("LOCK TABLE tiles.tile, lod.building_mesh IN ACCESS EXCLUSIVE MODE")
+                status, headers, body = c.get(f"/tiles/{uri}")
+                holder.rollback()
+            assert status == 503 and headers["retry-after"]
+            assert body.startswith(b"a stage is rebuilding the tables"), body
+            assert c.get(f"/tiles/{uri}")[0] == 200
+        finally:
+            c.close()
+
+
+@pytest.mark.db
 def test_stale_tiles_are_503_with_the_reason(new_db: Callable[[str], str]) -> None:
     """A migrated database without tiles (a stage still to run): 503 that says so, not a 500."""
     url = new_db("serve_empty")
