@@ -194,6 +194,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     file = {"path": str(chain.base_file), "sha256": chain.base_sha256, "changes": shas}
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
+        before = dag.last_ok_runs(conn, ["ingest"]).get("ingest")  # what lod's meshes were drawn from, if current
     params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
     file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
     with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
@@ -212,7 +213,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
           file=sys.stderr)
     for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
-        rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True), settings)
+        rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True, ingest_before=before), settings)
         if rc:
             return rc
     if args.out:
@@ -226,15 +227,20 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
 _NEEDS_URL = ("lod", "generalize", "textures")
 
 
-def _same_code(url: str, stage: str, inputs: dict[str, object]) -> bool:
-    """Did the last successful run of ``stage`` have the settings and code it would have now?"""
+def _current_before(url: str, stage: str, inputs: dict[str, object], ingest: int | None) -> bool:
+    """Was ``stage`` current before this update's ingest: its last successful run read ingest run ``ingest``
+    and had the settings and code it would have now? (Only then may it redo just what the update changed.)"""
     from core.db import connect
 
     from . import dag
 
     with connect(url, autocommit=True) as conn:
         last = dag.last_run(conn, stage)
-    return bool(last and last.inputs and all(last.inputs.get(k) == inputs[k] for k in ("settings", "code")))
+    if not (last and last.inputs and ingest is not None):
+        return False
+    upstream = last.inputs.get("upstream")
+    return (isinstance(upstream, dict) and upstream.get("ingest") == ingest
+            and all(last.inputs.get(k) == inputs[k] for k in ("settings", "code")))
 
 
 def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
@@ -253,8 +259,8 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     update = bool(getattr(args, "update", False))
     if stage == "textures":  # its fingerprints name its code; in an update it keeps what did not change
         kw = {"keep": update, "code": json.dumps(inputs["code"], sort_keys=True)}
-    elif stage == "lod" and update and _same_code(url, stage, inputs):
-        kw = {"changed": True}  # only the buildings the update changed (with new settings or code: all)
+    elif stage == "lod" and update and _current_before(url, stage, inputs, getattr(args, "ingest_before", None)):
+        kw = {"changed": True}  # only the buildings the update changed (else all: lod was not current before)
     with pipeline_run(url, stage, {**settings.as_dict(), **({"update": True} if update else {})},
                       inputs=inputs) as run, connect(url) as conn:
         run.counts = module.run(conn, url, settings, **kw) if stage in _NEEDS_URL else module.run(conn, settings)

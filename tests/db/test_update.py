@@ -196,3 +196,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     c4.write_text(CHANGE_2.replace('version="2"', 'version="3"'))
     r = run_etl(inc, "update", "--osc", str(c4), check=False)
     assert r.returncode != 0 and f"change file 1 {c1} is missing" in r.stderr and "Traceback" not in r.stderr
+
+    # a full ingest starts a new chain; lod not run since, the next update draws every building, not the changed
+    run_etl(inc, "ingest", "--osm", str(base), env=SMALL)
+    run_etl(inc, "update", "--osc", str(c4), env=SMALL)
+    with psycopg.connect(inc) as conn:
+        (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
+                              "ORDER BY run_id DESC LIMIT 1").fetchone()
+        assert not lod["changed_only"]
+        assert conn.execute("SELECT seq, path FROM meta.osm_change").fetchall() == [(1, str(c4))]
