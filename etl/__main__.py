@@ -192,9 +192,12 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     up.apply_changes(previous, [f for f, _, _ in new], state)
     shas = [c.sha256 for c in chain.changes] + [sha for _, sha, _ in new]
     file = {"path": str(chain.base_file), "sha256": chain.base_sha256, "changes": shas}
+    below = ("lod", "landmarks", "tiles", "generalize", "textures")
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
         before = dag.last_ok_runs(conn, ["ingest"]).get("ingest")  # what lod's meshes were drawn from, if current
+        current = {st for st in below if dag.verdict(conn, st, dag.inputs(conn, st, settings))[0]}
+        (srid,) = conn.execute("SELECT srid FROM meta.dataset").fetchone()  # type: ignore[misc]
     params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
     file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
     with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
@@ -206,16 +209,39 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                             (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
 
         run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
-    from .stages import textures
-
     with connect(url, autocommit=True) as conn:
-        kept = textures.keep_aside(conn)  # before lod and tiles empty them
-    print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
-          file=sys.stderr)
-    for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
-        rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True, ingest_before=before), settings)
-        if rc:
-            return rc
+        same_srid = conn.execute("SELECT srid FROM meta.dataset").fetchone() == (srid,)
+    if not any(run.counts["changed"].values()) and same_srid:  # type: ignore[union-attr]
+        # no building changed: what the stages below derived stands as it is (they read osm.building and the
+        # working CRS, nothing else ingest writes); each current one is recorded again, with the inputs it has
+        # now, instead of doing its work again
+        print("update: no building changed", file=sys.stderr)
+        for stage in below:
+            if stage not in current:
+                current.clear()  # this one runs, and so every stage below it
+                if (rc := cmd_stage(argparse.Namespace(command=stage, if_stale=True), settings)):
+                    return rc
+                continue
+            with connect(url, autocommit=True) as conn:
+                now = dag.inputs(conn, stage, settings)
+                last = conn.execute("SELECT run_id, counts FROM meta.pipeline_run WHERE stage = %s AND status = 'ok' "
+                                    "ORDER BY run_id DESC LIMIT 1", (stage,)).fetchone()
+            assert last is not None
+            with pipeline_run(url, stage, {"carried_from": last[0]}, inputs=now) as carried:
+                carried.counts = {**last[1], "carried_from": last[0]}
+            print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
+    else:
+        from .stages import textures
+
+        with connect(url, autocommit=True) as conn:
+            kept = textures.keep_aside(conn)  # before lod and tiles empty them
+        print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
+              file=sys.stderr)
+        for stage in below:
+            rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True, ingest_before=before),
+                           settings)
+            if rc:
+                return rc
     if args.out:
         return cmd_export(argparse.Namespace(out=args.out, lod=None, publish=args.publish, no_publish=False,
                                              geometry=args.geometry, textures=args.textures, tiling=args.tiling,

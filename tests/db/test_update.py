@@ -205,3 +205,21 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
                               "ORDER BY run_id DESC LIMIT 1").fetchone()
         assert not lod["changed_only"]
         assert conn.execute("SELECT seq, path FROM meta.osm_change").fetchall() == [(1, str(c4))]
+
+    # a change that touches no building (a bench appears): the stages' work stands, carried over; only the export
+    # runs again, and its glbs are the same bytes
+    run_etl(inc, "export", "--out", str(tmp_path / "before"), env=SMALL)
+    c5 = tmp_path / "c5.osc"
+    c5.write_text('<?xml version="1.0"?><osmChange version="0.6"><create><node id="170101" version="1" '
+                  'lat="60.2005" lon="24.9010"><tag k="amenity" v="bench"/></node></create></osmChange>')
+    r = run_etl(inc, "update", "--osc", str(c5), "--out", str(tmp_path / "after"), env=SMALL)
+    assert "no building changed" in r.stderr
+    with psycopg.connect(inc) as conn:
+        assert conn.execute("SELECT count(*) FROM osm.building_change").fetchone() == (0,)
+        carried = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts ? 'carried_from' FROM "
+                                    "meta.pipeline_run WHERE status = 'ok' ORDER BY stage, run_id DESC"))
+    assert all(carried[st] for st in PIPELINE) and not carried["export"] and not carried["ingest"]
+    for st in PIPELINE:  # current with the new ingest run: make finds nothing to do
+        assert "current" in run_etl(inc, st, "--if-stale", env=SMALL).stdout
+    before, after = files(tmp_path / "before"), files(tmp_path / "after")
+    assert before.pop("tileset.json") != after.pop("tileset.json") and before == after
