@@ -161,6 +161,14 @@ def stage_seconds(url: str, since: int) -> dict[str, float]:
             (since,))}
 
 
+def _centre(url: str) -> tuple[float, float]:
+    with psycopg.connect(url) as conn:
+        row = conn.execute("SELECT ST_X(c), ST_Y(c) FROM (SELECT ST_Centroid(bbox) AS c FROM meta.dataset) s"
+                           ).fetchone()
+    assert row is not None
+    return float(row[0]), float(row[1])
+
+
 def _state_file(url: str) -> str | None:
     with psycopg.connect(url) as conn:
         row = conn.execute("SELECT source_file FROM meta.dataset").fetchone()
@@ -185,6 +193,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     log(f"{name}: update with {made['chosen']:,} of {made['building_ways']:,} building ways changed")
     wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
                         logs / "update.log")
+    update_s = stage_seconds(url, last)  # now: the no-building update below records the same stages again
     with psycopg.connect(url) as conn:
         changed = dict(conn.execute("SELECT change, count(*) FROM osm.building_change GROUP BY 1").fetchall())
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
@@ -203,10 +212,20 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
                                               if tiles_a.get(k) != tiles_b.get(k)),
                     "tiles": len(tiles_a)}
         drop_db(admin_url, db + "_full")
+    # then a change that touches no building (a new tagged node): the stages are carried over, the export reruns
+    quiet = OUT_ROOT / "update" / f"{name}-no-building.osc"
+    quiet.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6"><create>'
+                     f'<node id="{10**12}" version="1" lat="{_centre(url)[1]:.7f}" lon="{_centre(url)[0]:.7f}">'
+                     '<tag k="amenity" v="bench"/></node></create></osmChange>\n')
+    with psycopg.connect(url) as conn:
+        (last,) = conn.execute("SELECT max(run_id) FROM meta.pipeline_run").fetchone()  # type: ignore[misc]
+    quiet_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(quiet), "--out", str(out)], env,
+                              logs / "update-no-building.log")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
-            "verified": verified,
+            "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
+            "no_building_s": stage_seconds(url, last),
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
-            "update_wall_s": round(wall, 1), "update_s": stage_seconds(url, last),
+            "update_wall_s": round(wall, 1), "update_s": update_s,
             "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
 
 
@@ -233,6 +252,11 @@ def section(s: dict[str, Any] | None) -> list[str]:
                 + ("every table row for row and all " + f"{v['tiles']:,} files of the tileset byte for byte equal."
                    if same else f"tables that differ (rows): {v['tables_differing']}; files that differ: "
                    f"{len(v['tiles_differing'])} of {v['tiles']:,} ({', '.join(v['tiles_differing'][:3])}, ...).")]
+    if "no_building_wall_s" in s:
+        q = s["no_building_s"]
+        out += ["", "A change that touches no building (one new tagged node) after it: "
+                f"{s['no_building_wall_s']:.1f} s (ingest {q.get('ingest', '?')} s, export {q.get('export', '?')} "
+                "s; lod ... textures carried over, not run)."]
     pub = s.get("published") or {}
     out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
             "of its one process, applying the change file included. The update: ingest reads the whole OSM state "
