@@ -195,7 +195,8 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     below = ("lod", "landmarks", "tiles", "generalize", "textures")
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
-        before = dag.last_ok_runs(conn, ["ingest"]).get("ingest")  # what lod's meshes were drawn from, if current
+        # the stages current before the update (same upstream runs, settings and code): only these may redo
+        # just what the update changed, or be carried over
         current = {st for st in below if dag.verdict(conn, st, dag.inputs(conn, st, settings))[0]}
         (srid,) = conn.execute("SELECT srid FROM meta.dataset").fetchone()  # type: ignore[misc]
     params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
@@ -238,8 +239,8 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
         print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
               file=sys.stderr)
         for stage in below:
-            rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True, ingest_before=before),
-                           settings)
+            rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
+                                              current_before=stage in current), settings)
             if rc:
                 return rc
     if args.out:
@@ -251,22 +252,6 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
 
 #: Stages that open connections of their own besides the one they are given (a reader, worker processes).
 _NEEDS_URL = ("lod", "generalize", "textures")
-
-
-def _current_before(url: str, stage: str, inputs: dict[str, object], ingest: int | None) -> bool:
-    """Was ``stage`` current before this update's ingest: its last successful run read ingest run ``ingest``
-    and had the settings and code it would have now? (Only then may it redo just what the update changed.)"""
-    from core.db import connect
-
-    from . import dag
-
-    with connect(url, autocommit=True) as conn:
-        last = dag.last_run(conn, stage)
-    if not (last and last.inputs and ingest is not None):
-        return False
-    upstream = last.inputs.get("upstream")
-    return (isinstance(upstream, dict) and upstream.get("ingest") == ingest
-            and all(last.inputs.get(k) == inputs[k] for k in ("settings", "code")))
 
 
 def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
@@ -285,7 +270,7 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     update = bool(getattr(args, "update", False))
     if stage == "textures":  # its fingerprints name its code; in an update it keeps what did not change
         kw = {"keep": update, "code": json.dumps(inputs["code"], sort_keys=True)}
-    elif stage == "lod" and update and _current_before(url, stage, inputs, getattr(args, "ingest_before", None)):
+    elif stage == "lod" and update and getattr(args, "current_before", False):
         kw = {"changed": True}  # only the buildings the update changed (else all: lod was not current before)
     with pipeline_run(url, stage, {**settings.as_dict(), **({"update": True} if update else {})},
                       inputs=inputs) as run, connect(url) as conn:

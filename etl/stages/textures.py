@@ -488,6 +488,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure, tex.tile_input RESTART IDENTITY")
         n_kept = 0
+        inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
         for (unit, _, _), out in zip(work, _map_units(work, url, settings, workers), strict=True):
             if isinstance(out, Lost):
                 lost += 1
@@ -498,9 +499,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                     n_kept += 1
                 else:
                     _write(cur, res)
-                cur.execute("INSERT INTO tex.tile_input VALUES (%s, %s, %s, %s, %s, %s, %s)",
-                            (res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages), len(res.uvs),
-                             len(res.failures)))
+                inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages),
+                               len(res.uvs), len(res.failures)))
                 page_texels = sum(p[6] * p[7] for p in res.pages)
                 n_bytes = sum(p[8] for p in res.pages)
                 b = by_band.setdefault(res.tile.gen_level, dict.fromkeys(
@@ -532,6 +532,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         balance = Balance("features", int(expected), {
             "textured": int(totals["textured"] - totals["ktx2_failed"]),
             "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
+        with cur.copy("COPY tex.tile_input FROM STDIN") as copy:
+            for row in inputs:
+                copy.write_row(row)
         cur.execute("TRUNCATE tex.kept_page, tex.kept_feature_uv, tex.kept_failure")  # used: free the space
         cur.execute("ANALYZE tex.page")
         cur.execute("ANALYZE tex.feature_uv")
