@@ -10,6 +10,8 @@ hierarchy only, not ``lod`` tilesets), its features are drawn with one material 
 a tile without texture rows is written exactly as before. The tileset is written into ``<out>.partial`` and
 swapped in at the end in one step (swap_in), so a failed export never leaves a half-written tileset behind and a
 reader of ``<out>`` never meets a tileset.json naming files not there; exports into one directory take turns.
+An export that publishes copies the glb of every tile whose input is the one its tileset's live generation was
+built from (exporter/reuse.py) and builds the others.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex
 from .gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
 from .meshopt import CompressionError
 from .publish import check_name, publish
+from .reuse import TileKey, copy_unchanged, published_inputs, recipe, tile_keys, unchanged
 from .stream import COMPACT, StreamOptions
 from .tileset import TileRecord, build, node_matrix, region_centre
 
@@ -81,7 +84,9 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
      True, None),
     ("n_members", "UINT32", "buildings merged into this feature (1 unless a block)", True, None),
     ("error_m", "FLOAT32", "bound on the distance to the full-detail model (m)", True, None),
-    ("lm_rank", "UINT32", "saliency rank of the building (lm.building.rank, 1 = most salient)", False, 0),
+    # the level, not the city-wide rank: one edit shifts the rank of every building below it, and so every tile
+    ("lm_level", "UINT8", "landmark level of the building (lm.building.level): the Delaunay voting rounds it won, "
+     "0 for most; the higher, the farther away it stands out (absent on blocks)", False, 255),
     # landmark exaggeration (api.landmark_scale / api.landmark_exaggeration, done by the client per frame)
     ("lm_role", "UINT8", "landmark exaggeration: 1 a landmark, 2 a building its scaled footprint would cover, "
      "0 neither", True, None),
@@ -544,13 +549,27 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     root_region = next(r.region for r in records if r.level == 0)
     tiles = [r for r in records if r.is_leaf or lod is None]
     expected = sum(r.n_features if lod else r.content_features for r in tiles)  # type: ignore[misc]
+    # a published tileset: the tiles whose input is what its live generation was built from are copied
+    keys: dict[str, TileKey] = {}
+    same: dict[str, bytes] = {}
+    if publish_as is not None:
+        with connect(url) as conn:
+            seed = recipe(conn, settings, lod, stream, root_region)
+            published = published_inputs(conn, publish_as)
+        keys = tile_keys(url, tiles, seed, lod, stream)
+        same = unchanged(keys, published)
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "features", total=expected)
     n_features, n_triangles, n_bytes, n_fallback = _export_tiles(
-        url, tiles, partial, settings.base_height_m, settings, progress, lod, stream, root_region)
+        url, [r for r in tiles if r.content_uri not in same], partial, settings.base_height_m, settings, progress,
+        lod, stream, root_region)
+    if same:
+        t, b = copy_unchanged(url, same, out, partial)
+        n_features += sum(keys[p].n_features for p in same)  # as api.export_features counts them now
+        n_triangles, n_bytes = n_triangles + t, n_bytes + b
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
     for uri, data in files.items():  # tileset.json and the subtrees
@@ -560,14 +579,16 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     (partial / PARTIAL_MARKER).unlink()
     published: dict[str, object] = {}
     if publish_as is not None:
-        pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict()}, run_id, settings.publish_keep)
+        pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict()}, run_id, settings.publish_keep,
+                      {p: k.key for p, k in keys.items()})
         published = {"published_as": publish_as, **pub.as_dict()}
     swap_in(partial, out)
     seconds = time.perf_counter() - t0
     buildings = sum(r.n_features for r in records if r.is_leaf)
     summary(
         "export", balance,
-        f"{len(tiles):,} glb tiles, {len(files) - 1:,} subtrees, {n_triangles:,} triangles, "
+        f"{len(tiles):,} glb tiles{f' ({len(same):,} unchanged: copied)' if same else ''}, "
+        f"{len(files) - 1:,} subtrees, {n_triangles:,} triangles, "
         f"{n_bytes / 1e6:.2f} MB ({n_bytes / max(buildings, 1):,.0f} bytes/building) -> {out}",
         seconds,
         buildings,
@@ -580,6 +601,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
             "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
             "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
+            "glb_copied": len(same), "glb_built": len(tiles) - len(same),
             "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "directory": str(out), **published}

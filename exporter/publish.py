@@ -64,8 +64,9 @@ def _sha256(path: Path) -> bytes:
 
 
 def publish(url: str, name: str, directory: Path, options: dict[str, object], run_id: int | None = None,
-            keep: int = 2) -> Published:
-    """Publish the files under ``directory`` as the next generation of tileset ``name``."""
+            keep: int = 2, inputs: dict[str, str] | None = None) -> Published:
+    """Publish the files under ``directory`` as the next generation of tileset ``name``; ``inputs``: path ->
+    the fingerprint of what a tile's glb was built from (exporter/reuse.py), recorded with the file."""
     check_name(name)
     if keep < 1:
         raise ValueError(f"publish_keep must be at least 1 (the live generation), not {keep}")
@@ -92,9 +93,10 @@ def publish(url: str, name: str, directory: Path, options: dict[str, object], ru
             "VALUES (%s, %s, %s, %s, %s, %s, %s) RETURNING generation",
             (name, run_id, Jsonb(options), len(listing), total, new_files, new_bytes),
         ).fetchone()  # type: ignore[misc]
-        with conn.cursor() as cur, cur.copy("COPY pub.file (generation, path, sha256) FROM STDIN") as copy:
+        with conn.cursor() as cur, cur.copy(
+                "COPY pub.file (generation, path, sha256, input_digest) FROM STDIN") as copy:
             for rel, _, sha in listing:
-                copy.write_row((generation, rel, sha))
+                copy.write_row((generation, rel, sha, (inputs or {}).get(rel)))
         dropped, blobs = _drop_old(conn, name, keep)
     return Published(generation, len(listing), total, new_files, new_bytes, dropped, blobs)
 

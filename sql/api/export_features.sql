@@ -1,10 +1,11 @@
 -- api.export_features(level, x, y, single_lod DEFAULT NULL, base_height DEFAULT 0) -> what the exporter
 -- writes into tile (level, x, y)'s glb, one row per feature
 -- api.buildings_for_tile's features (with single_lod, a single-LOD tileset's) with their meshes lifted by
--- base_height and transformed to ECEF (EPSG:4978, z = height above the ellipsoid) as WKB, their saliency
--- rank, and the landmark exaggeration metadata of lm.exaggeration_role (role 1 a landmark, 2 a building its
--- scaled footprint would cover, 0 neither; intervals, footprint circle, gap, and the landmark's and the
--- building's ground centres in ECEF as WKB points). Blocks have no rank and no role. Rows in
+-- base_height and transformed to ECEF (EPSG:4978, z = height above the ellipsoid) as WKB, their landmark
+-- level (lm.building.level: local, where the city-wide rank changes in every tile with any edit), and the
+-- landmark exaggeration metadata of lm.exaggeration_role (role 1 a landmark, 2 a building its scaled
+-- footprint would cover, 0 neither; intervals, footprint circle, gap, and the landmark's and the building's
+-- ground centres in ECEF as WKB points). Blocks have no level and no role. Rows in
 -- api.buildings_for_tile's order; the columns up to semantics are api.feature's (migrations/0020).
 --   level, x, y  the tile
 --   single_lod   1, 2 or 3: every building of a leaf at that LOD (NULL: the tile's band)
@@ -36,7 +37,7 @@ RETURNS TABLE (
     error_m            real,
     semantics          bytea,
     ecef_wkb           bytea,
-    lm_rank            integer,
+    lm_level           smallint,
     lm_role            integer,
     lm_landmark_osm_id bigint,
     lm_scale_from_m    real,
@@ -53,7 +54,7 @@ AS $$
            f.name, f.building, f.height, f.min_height, f.levels, f.roof_shape, f.building_colour, f.roof_colour,
            f.building_material, f.roof_material, f.lod, f.gen_level, f.n_members, f.error_m, f.semantics,
            ST_AsBinary(ST_Transform(ST_Translate(f.geom, 0, 0, $5), 4978)),
-           l.rank, coalesce(x.role, 0), lo.osm_id,
+           l.level, coalesce(x.role, 0), lo.osm_id,
            coalesce(x.scale_from_m, 0), coalesce(x.scale_step, 0), coalesce(x.max_scale, 1),
            coalesce(x.landmark_radius_m, 0), coalesce(x.gap_m, 0),
            ST_AsBinary(ST_Transform(ST_Translate(ST_Force3D(x.landmark_centroid), 0, 0, $5), 4978)),
@@ -65,4 +66,4 @@ AS $$
     LEFT JOIN osm.building lo ON lo.id = x.landmark_id
 $$;
 COMMENT ON FUNCTION api.export_features(integer, integer, integer, integer, double precision) IS
-    'What the exporter writes into tile (level, x, y)''s glb: api.buildings_for_tile''s features with ECEF meshes (WKB, lifted by base_height), saliency rank and landmark exaggeration metadata. Example: SELECT feature_kind, lod, count(*) FROM api.export_features(0, 0, 0) GROUP BY 1, 2;';
+    'What the exporter writes into tile (level, x, y)''s glb: api.buildings_for_tile''s features with ECEF meshes (WKB, lifted by base_height), landmark level and landmark exaggeration metadata. Example: SELECT feature_kind, lod, count(*) FROM api.export_features(0, 0, 0) GROUP BY 1, 2;';

@@ -400,7 +400,7 @@ def test_the_tileset_schema_describes_what_compact_glbs_leave_out() -> None:
     cls = building_schema_class()
     assert list(cls["properties"]) == [p[0] for p in PROPERTIES]
     assert all(spec["description"] for spec in cls["properties"].values())
-    assert cls["properties"]["lm_rank"] == {"description": dict((p[0], p[2]) for p in PROPERTIES)["lm_rank"],
-                                            "type": "SCALAR",
-                                            "componentType": "UINT32", "noData": 0}
+    assert cls["properties"]["lm_level"] == {"description": dict((p[0], p[2]) for p in PROPERTIES)["lm_level"],
+                                             "type": "SCALAR",
+                                             "componentType": "UINT8", "noData": 255}
     assert "mesh frame" in cls["properties"]["lm_centre_x"]["description"]  # compact's words (COMPACT_DOCS)

@@ -1,0 +1,135 @@
+"""Copying unchanged tiles: an export of a published tileset builds only the glbs whose input changed.
+
+A tile's glb is a function of what api.export_digest fingerprints (its features, their landmark metadata, its
+atlas pages and UVs), of the exporter's code, settings and options, and of the tile's record in the tree. The
+export records the sha256 of all that per glb (pub.file.input_digest) when it publishes; the next export of the
+same tileset computes it again for every tile (a tenth of the cost of reading the features) and copies the glb
+of every tile whose key is the same: from the export directory when the file there has the published bytes,
+else from pub.blob. So an update that moves a few buildings writes the few tiles they are in and their
+ancestors, and the other glbs keep their bytes (and their ETags).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import psycopg
+
+from core.db import connect
+from core.settings import Settings
+
+from .gltf import read_glb
+from .stream import StreamOptions
+from .tileset import TileRecord
+
+_DIGEST = "SELECT digest, n_features FROM api.export_digest(%s, %s, %s, %s, %s)"
+
+
+@dataclass(frozen=True)
+class TileKey:
+    key: str         # sha256 hex: the recipe, the tile's record, api.export_digest
+    n_features: int  # the features api.export_features gives the tile
+
+
+def recipe(conn: psycopg.Connection, settings: Settings, lod: int | None, stream: StreamOptions,
+           root_region: tuple[float, ...]) -> str:
+    """What every tile's key starts from: the export's code (its Python and SQL, as the pipeline records it),
+    the settings that code reads, the options, and the root region (every glb is placed in its frame)."""
+    from etl.dag import inputs
+
+    now = inputs(conn, "export", settings)
+    return hashlib.sha256(json.dumps([now["code"], now["settings"], lod, stream.as_dict(), list(root_region)],
+                                     sort_keys=True, default=str).encode()).hexdigest()
+
+
+def tile_key(seed: str, rec: TileRecord, digest: str) -> str:
+    return hashlib.sha256(json.dumps([seed, dataclasses.astuple(rec), digest], default=str).encode()).hexdigest()
+
+
+def tile_keys(url: str, tiles: list[TileRecord], seed: str, lod: int | None,
+              stream: StreamOptions) -> dict[str, TileKey]:
+    """Every tile's key by content URI; the digests are read by threads with a connection each (the SQL runs in
+    separate backends), as the export reads the tiles."""
+    textures = stream.textures if lod is None else None
+    local = threading.local()
+    conns: list[psycopg.Connection] = []
+
+    def one(rec: TileRecord) -> tuple[str, TileKey]:
+        if not hasattr(local, "conn"):
+            local.conn = connect(url)
+            conns.append(local.conn)
+        digest, n = local.conn.execute(_DIGEST, (rec.level, rec.x, rec.y, lod, textures)).fetchone()
+        assert rec.content_uri is not None
+        return rec.content_uri, TileKey(tile_key(seed, rec, digest), int(n))
+
+    try:
+        with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+            return dict(pool.map(one, tiles))
+    finally:
+        for c in conns:
+            c.close()
+
+
+def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str, bytes]]:
+    """The live generation of tileset ``name``: path -> (input digest, sha256) of every file that has one."""
+    return {p: (d, bytes(s)) for p, d, s in conn.execute(
+        "SELECT f.path, f.input_digest, f.sha256 FROM pub.file f WHERE f.input_digest IS NOT NULL AND f.generation = "
+        "(SELECT max(generation) FROM pub.generation WHERE tileset = %s)", (name,))}
+
+
+def unchanged(keys: dict[str, TileKey], published: dict[str, tuple[str, bytes]]) -> dict[str, bytes]:
+    """path -> sha256 of the published glb, for every tile whose key is the published one."""
+    return {p: published[p][1] for p, k in keys.items() if p in published and published[p][0] == k.key}
+
+
+def glb_triangles(glb: bytes) -> int:
+    """Triangles of a glb's meshes (index accessor counts / 3), as the export counts the ones it builds."""
+    gltf, _ = read_glb(glb)
+    acc = gltf.get("accessors", [])
+    return sum(acc[p["indices"]]["count"] // 3  # type: ignore[index]
+               for m in gltf.get("meshes", []) for p in m["primitives"])  # type: ignore[union-attr, attr-defined]
+
+
+def _sha256(path: Path) -> bytes | None:
+    try:
+        with open(path, "rb") as fh:
+            return hashlib.file_digest(fh, "sha256").digest()
+    except OSError:
+        return None
+
+
+def copy_unchanged(url: str, reuse: dict[str, bytes], old: Path, new: Path) -> tuple[int, int]:
+    """Put every reused glb under ``new``: hard-linked (else copied) from ``old`` where that file holds the
+    published bytes, the others read from pub.blob. Returns (triangles, bytes)."""
+    from_blob: dict[bytes, list[str]] = {}
+    triangles = n_bytes = 0
+    for path, sha in sorted(reuse.items()):
+        src, dst = old / path, new / path
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if _sha256(src) == sha:
+            try:
+                os.link(src, dst)
+            except OSError:
+                shutil.copyfile(src, dst)
+            data = dst.read_bytes()
+            triangles, n_bytes = triangles + glb_triangles(data), n_bytes + len(data)
+        else:
+            from_blob.setdefault(sha, []).append(path)
+    if from_blob:
+        with connect(url) as conn:
+            for sha, body in conn.execute("SELECT sha256, body FROM pub.blob WHERE sha256 = ANY(%s)",
+                                          (list(from_blob),)):
+                for path in from_blob.pop(bytes(sha)):
+                    (new / path).write_bytes(body)
+                    triangles, n_bytes = triangles + glb_triangles(body), n_bytes + len(body)
+    if from_blob:  # only if other exports published this tileset twice meanwhile, dropping the generation
+        raise RuntimeError(f"published glbs missing from pub.blob: {sorted(p for v in from_blob.values() for p in v)}")
+    return triangles, n_bytes
