@@ -429,25 +429,46 @@ def _kept_prints(conn: psycopg.Connection) -> dict[tuple[int, int, int], str]:
     return {(int(lv), int(x), int(y)): f for lv, x, y, f in rows}
 
 
-def _copy_kept(cur: psycopg.Cursor, res: Result) -> None:
+#: per kept tile, the counts the balance needs as the run that made them wrote them: pages (texels, WebP
+#: bytes, KTX2 bytes), UVs, failure reasons; three grouped reads instead of queries per tile
+_KEPT_PAGES = ("SELECT level, x, y, array_agg(width * height ORDER BY page_no), array_agg(n_bytes ORDER BY page_no), "
+               "array_agg(ktx2_n_bytes ORDER BY page_no) FROM tex.kept_page GROUP BY 1, 2, 3")
+_KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.kept_feature_uv GROUP BY 1, 2, 3"
+_KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.kept_failure GROUP BY 1, 2, 3"
+
+Key = tuple[int, int, int]
+
+
+def _kept_counts(conn: psycopg.Connection) -> dict[str, dict[Key, object]]:
+    return {what: {(int(r[0]), int(r[1]), int(r[2])): r[3:] if what == "pages" else r[3]
+                   for r in conn.execute(q)}
+            for what, q in (("pages", _KEPT_PAGES), ("uvs", _KEPT_UVS), ("fails", _KEPT_FAILS))}
+
+
+def _fill_kept(res: Result, counts: dict[str, dict[Key, object]]) -> None:
     key = (res.tile.level, res.tile.x, res.tile.y)
-    cur.execute("INSERT INTO tex.page SELECT * FROM tex.kept_page WHERE (level, x, y) = (%s, %s, %s)", key)
-    cur.execute("INSERT INTO tex.feature_uv SELECT * FROM tex.kept_feature_uv WHERE (level, x, y) = (%s, %s, %s)",
-                key)
+    texels, webp, ktx2 = counts["pages"].get(key, ((), (), ()))  # type: ignore[misc]
+    fails: list[str] = counts["fails"].get(key) or []  # type: ignore[assignment]
+    res.uvs = [()] * int(counts["uvs"].get(key, 0))  # type: ignore[call-overload]
+    res.failures = [()] * len(fails)
+    res.ktx2_failed = sum(1 for r in fails if r == K.EncodeError.reason)
+    res.pages = [(0,) * 6 + (int(t), 1, int(b)) + (0,) * 8 + ((b"",) if k else (None,)) + (int(k or 0), 0)
+                 for t, b, k in zip(texels, webp, ktx2, strict=True)]
+
+
+def _copy_kept(cur: psycopg.Cursor, keys: list[Key]) -> None:
+    """The kept rows of these tiles back into tex.page, tex.feature_uv and tex.failure: one statement each."""
+    if not keys:
+        return
+    levels, xs, ys = ([k[i] for k in keys] for i in range(3))
+    tiles = "(level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))"
+    cur.execute(f"INSERT INTO tex.page SELECT * FROM tex.kept_page WHERE {tiles}",  # noqa: S608 - fixed text
+                (levels, xs, ys))
+    cur.execute(f"INSERT INTO tex.feature_uv SELECT * FROM tex.kept_feature_uv WHERE {tiles}",  # noqa: S608
+                (levels, xs, ys))
     cols = ", ".join(_FAIL_COLUMNS)
     cur.execute(f"INSERT INTO tex.failure ({cols}) SELECT {cols} FROM tex.kept_failure "  # noqa: S608 - fixed names
-                "WHERE (level, x, y) = (%s, %s, %s) ORDER BY failure_id", key)
-    (n_uv,) = cur.execute("SELECT count(*) FROM tex.kept_feature_uv WHERE (level, x, y) = (%s, %s, %s)",
-                          key).fetchone()  # type: ignore[misc]
-    fails = cur.execute("SELECT reason FROM tex.kept_failure WHERE (level, x, y) = (%s, %s, %s)", key).fetchall()
-    pages = cur.execute("SELECT width * height, n_bytes, ktx2_n_bytes FROM tex.kept_page "
-                        "WHERE (level, x, y) = (%s, %s, %s)", key).fetchall()
-    # the counts the balance needs, as the run that made them wrote them
-    res.uvs = [()] * int(n_uv)
-    res.failures = [()] * len(fails)
-    res.ktx2_failed = sum(1 for (r,) in fails if r == K.EncodeError.reason)
-    res.pages = [(0,) * 6 + (int(t), 1, int(b)) + (0,) * 8 + ((b"",) if k else (None,)) + (int(k or 0), 0)
-                 for t, b, k in pages]
+                f"WHERE {tiles} ORDER BY failure_id", (levels, xs, ys))
 
 
 def _seed(settings: Settings, code: str) -> str:
@@ -474,6 +495,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     expected = sum(t.features for t in tiles)
     seed = _seed(settings, code)
     kept = _kept_prints(conn) if keep else None
+    kept_counts = _kept_counts(conn) if keep else {}
     work: list[Unit] = [(u, None if kept is None else {(t.level, t.x, t.y): kept[(t.level, t.x, t.y)]
                                                         for t in u if (t.level, t.x, t.y) in kept}, seed)
                         for u in units(tiles)]
@@ -487,7 +509,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     ktx2_seconds = 0.0
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure, tex.tile_input RESTART IDENTITY")
-        n_kept = 0
+        kept_keys: list[Key] = []  # copied back after the loop, in three statements
         inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
         for (unit, _, _), out in zip(work, _map_units(work, url, settings, workers), strict=True):
             if isinstance(out, Lost):
@@ -495,8 +517,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                 out = _lost(conn, unit, out, settings)
             for res in out:
                 if res.kept:
-                    _copy_kept(cur, res)
-                    n_kept += 1
+                    _fill_kept(res, kept_counts)
+                    kept_keys.append((res.tile.level, res.tile.x, res.tile.y))
                 else:
                     _write(cur, res)
                 inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages),
@@ -525,6 +547,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                           "panels_mapped"):
                     totals[k] += res.stats.get(k, 0)
                 progress.update(res.features)
+        _copy_kept(cur, kept_keys)
+        n_kept = len(kept_keys)
         if totals["features"] != expected:
             raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
         # every feature of every tile textured or in tex.failure with its reason; checked before commit. A feature
