@@ -82,6 +82,10 @@ class Settings:
     gen_decimate_min_triangles: int = 64
     #: ... by this fraction of their triangles (fast-simplification), kept only within gen.tolerance(3).
     gen_decimate_reduction: float = 0.5
+    #: Features per footprint or decimation batch, at most: a batch is the largest subtree of the tile quadtree
+    #: holding no more (gen.batch_units), so an edit changes the batches where it is and an update copies the
+    #: others' rows from the last run (gen.unit_input).
+    gen_batch_features: int = 2000
     #: Worker processes for the footprint and decimation batches, one batch per Dask task (0: one per CPU core,
     #: at most 4; 1 runs them in the stage's own process). The rows are the same whatever the count.
     gen_workers: int = 0

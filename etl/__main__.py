@@ -232,12 +232,13 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                 carried.counts = {**last[1], "carried_from": last[0]}
             print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
     else:
-        from .stages import textures
+        from .stages import generalize, textures
 
-        with connect(url, autocommit=True) as conn:
-            kept = textures.keep_aside(conn)  # before lod and tiles empty them
-        print(f"update: textures of {kept:,} tiles kept aside, to be used again where their input is unchanged",
-              file=sys.stderr)
+        with connect(url, autocommit=True) as conn:  # before lod and tiles empty them
+            batches = generalize.keep_aside(conn)
+            kept = textures.keep_aside(conn)
+        print(f"update: the footprints and meshes of {batches:,} generalize batches and the textures of {kept:,} "
+              "tiles kept aside, to be used again where their input is unchanged", file=sys.stderr)
         for stage in below:
             rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
                                               current_before=stage in current), settings)
@@ -268,7 +269,7 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
 
     kw: dict[str, object] = {}
     update = bool(getattr(args, "update", False))
-    if stage == "textures":  # its fingerprints name its code; in an update it keeps what did not change
+    if stage in ("generalize", "textures"):  # their fingerprints name their code; an update keeps what did not change
         kw = {"keep": update, "code": json.dumps(inputs["code"], sort_keys=True)}
     elif stage == "lod" and update and getattr(args, "current_before", False):
         kw = {"changed": True}  # only the buildings the update changed (else all: lod was not current before)

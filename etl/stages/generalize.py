@@ -28,6 +28,11 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 
 The footprint and decimation batches are pure work on arrays (footprint_batch, decimation_batch): they run as
 Dask tasks (etl/workers.py; settings.gen_workers) while this process reads the next batch and COPYs the last.
+A batch is a whole subtree of the tile quadtree (gen.batch_units: the largest holding at most
+gen_batch_features features), so what a batch computes depends on the buildings of one place only. Every run
+records per batch the fingerprint of what it read (its rows, LOD2 meshes, settings and code) and what it counted
+(gen.unit_input); an update (keep_aside, then run with keep) copies back the rows of every batch whose
+fingerprint is the same and computes the others, which gives the rows a full run gives.
 A batch whose worker hung or died on every attempt loses no building: a footprint batch's buildings are kept as
 mapped (outline unchanged, their LOD2 meshes as the level-2 mesh, error 0; kept_as_mapped), a decimation batch
 keeps its LOD2 meshes, each saying why in its status ("kept_original: generalize hung ...").
@@ -45,6 +50,9 @@ block's error is that of the omission, sqrt(radius² + height²).
 from __future__ import annotations
 
 import collections
+import hashlib
+import itertools
+import json
 import os
 import time
 from collections.abc import Iterator
@@ -55,8 +63,10 @@ import numpy as np
 import psycopg
 import shapely
 from psycopg.rows import dict_row
+from psycopg.types.json import Jsonb
 
 from core.db import connect, working_srid
+from core.fingerprint import Fingerprint
 from core.geodesy import region_box
 from core.progress import Balance, Progress, summary
 from core.settings import Settings
@@ -69,7 +79,7 @@ from ..geom.hausdorff import hausdorff, outline_hausdorff
 from ..geom.simplify import PIN_DISTANCE, simplify_footprints
 from ..workers import Lost, imap_isolated, worker_count
 
-BATCH = 2000
+BATCH = 2000  # rows per fetch of the blocks' cursors
 OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of the walls
 
 # The stage's queries are functions in sql/gen and sql/tiles (gen.footprint_input, gen.group_lod2_meshes,
@@ -263,30 +273,103 @@ def _mapped(items: Iterator[tuple[Any, tuple[str, tuple]]], settings: Settings) 
         yield flight.popleft(), out
 
 
+Unit = tuple[int, int, int]
+#: the last run's batches, for an update: (step, unit) -> (fingerprint, rows written, figures)
+Kept = dict[tuple[str, Unit], tuple[str, int, dict[str, float]]]
+
+
+@dataclass
+class _Units:
+    """One step's batches: the gen.unit_input rows of this run and the batches whose kept rows are copied."""
+
+    step: str
+    records: list[tuple] = field(default_factory=list)
+    copied: list[tuple[Unit, list[int], tuple[str, int, dict[str, float]]]] = field(default_factory=list)
+
+
+def _unit_rows(src: psycopg.Cursor, size: int) -> Iterator[tuple[Unit, list[dict[str, Any]]]]:
+    """The rows of a cursor ordered by batch unit (gen.batch_units), one unit at a time."""
+    rows = itertools.chain.from_iterable(iter(lambda: src.fetchmany(size), []))
+    for unit, group in itertools.groupby(rows, key=lambda r: (r["unit_level"], r["unit_x"], r["unit_y"])):
+        yield unit, list(group)
+
+
+def _kept_whole(cur: psycopg.Cursor, step: str, ids: list[int]) -> bool:
+    """Whether gen.kept_* hold every row this batch wrote last time (a stage above may have deleted some)."""
+    fp, mesh = cur.execute(
+        "SELECT (SELECT count(*) FROM gen.kept_footprint WHERE building_id = ANY(%(ids)s)), "
+        "(SELECT count(*) FROM gen.kept_building_mesh WHERE building_id = ANY(%(ids)s) AND gen_level = %(g)s)",
+        {"ids": ids, "g": 2 if step == "footprints" else 3}).fetchone()  # type: ignore[misc]
+    return mesh == len(ids) and (step != "footprints" or fp == len(ids))
+
+
+def _reusable(cur: psycopg.Cursor, units: _Units, kept: Kept | None, unit: Unit, print_: str,
+              ids: list[int]) -> bool:
+    """True (and the batch noted to be copied) when the last run read exactly this for the batch."""
+    old = kept.get((units.step, unit)) if kept is not None else None
+    if old is None or old[0] != print_ or old[1] != len(ids) or not _kept_whole(cur, units.step, ids):
+        return False
+    units.copied.append((unit, ids, old))
+    return True
+
+
+def _copy_back(cur: psycopg.Cursor, units: _Units, stats: dict[str, float]) -> int:
+    """The kept rows of the batches to copy, in one statement per table; their figures as the last run counted
+    them. Returns the rows (buildings or features) copied."""
+    ids = [i for _, b, _ in units.copied for i in b]
+    if ids:
+        level = 2 if units.step == "footprints" else 3
+        if units.step == "footprints":
+            cols = ", ".join(_FOOTPRINT_COLUMNS)
+            cur.execute(f"INSERT INTO gen.footprint ({cols}) SELECT {cols} FROM gen.kept_footprint "  # noqa: S608
+                        "WHERE building_id = ANY(%s)", (ids,))
+        cols = ", ".join(_MESH_COLUMNS)
+        cur.execute(f"INSERT INTO gen.building_mesh ({cols}) SELECT {cols} FROM gen.kept_building_mesh "  # noqa: S608
+                    "WHERE building_id = ANY(%s) AND gen_level = %s", (ids, level))
+    for unit, _, (print_, n, figures) in units.copied:
+        _add(stats, figures)
+        units.records.append((units.step, *unit, print_, n, Jsonb(figures)))
+    return len(ids)
+
+
 def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
-                tol: float, progress: Progress) -> dict[str, float]:
+                tol: float, progress: Progress, seed: str, kept: Kept | None) -> tuple[dict[str, float], _Units]:
     stats = {"buildings": 0, "vertices_in": 0, "vertices_out": 0, "kept_original": 0, "max_error_m": 0.0,
              "triangles_in": 0, "triangles_out": 0, "lost": 0}
+    units = _Units("footprints")
     with reader.cursor(name="gen_groups", row_factory=dict_row) as src, conn.cursor() as cur:
-        src.itersize = BATCH
-        src.execute("SELECT * FROM gen.footprint_input(%s)", (PIN_DISTANCE,))
+        src.itersize = settings.gen_batch_features
+        src.execute("SELECT * FROM gen.footprint_input(%s, %s)", (PIN_DISTANCE, settings.gen_batch_features))
 
-        def items() -> Iterator[tuple[tuple[list[dict[str, Any]], list[tuple[int, bytes]]], tuple[str, tuple]]]:
-            while rows := src.fetchmany(BATCH):
+        def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]], list[tuple[int, bytes]]],
+                                      tuple[str, tuple]]]:
+            for unit, rows in _unit_rows(src, settings.gen_batch_features):
                 # measured against what the band replaces: the LOD2 meshes of the building and its parts
                 ids = [r["group_id"] for r in rows]
                 meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)", (ids,)).fetchall()
-                yield (rows, meshes), ("footprints", (rows, meshes, tol, settings.gen_max_area_change, srid))
+                f = Fingerprint(seed)
+                f.rows(rows)
+                for g, mesh in meshes:
+                    f.put(g)
+                    f.put(mesh)
+                if _reusable(cur, units, kept, unit, print_ := f.hexdigest(), ids):
+                    progress.update(len(rows))
+                    continue
+                yield (unit, print_, rows, meshes), ("footprints", (rows, meshes, tol, settings.gen_max_area_change,
+                                                                    srid))
 
-        for (rows, meshes), out in _mapped(items(), settings):
+        for (unit, print_, rows, meshes), out in _mapped(items(), settings):
             if isinstance(out, Lost):
                 out = kept_as_mapped(rows, meshes, tol, srid, f"kept_original: generalize {out.reason} "
                                                               f"(its batch of {len(rows)} buildings: {out.detail})")
                 stats["lost"] += len(rows)
+                print_ = None  # type: ignore[assignment]  # never copied: computed again next time
             _copy(cur, out)
             _add(stats, out.stats)
+            units.records.append((units.step, *unit, print_, len(rows), Jsonb(out.stats)))
             progress.update(len(rows))
-    return stats
+        _copy_back(cur, units, stats)
+    return stats, units
 
 
 def _copy(cur: psycopg.Cursor, out: _Out) -> None:
@@ -302,14 +385,23 @@ def _copy(cur: psycopg.Cursor, out: _Out) -> None:
 
 
 def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
-                tol: float) -> dict[str, float]:
+                tol: float, seed: str, kept: Kept | None) -> tuple[dict[str, float], _Units]:
     stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0, "lost": 0}
+    units = _Units("decimation")
     with reader.cursor(name="gen_features", row_factory=dict_row) as src, conn.cursor() as cur:
-        src.itersize = BATCH
-        src.execute("SELECT * FROM gen.decimation_input(%s)", (settings.gen_decimate_min_triangles,))
+        src.itersize = settings.gen_batch_features
+        src.execute("SELECT * FROM gen.decimation_input(%s, %s)",
+                    (settings.gen_decimate_min_triangles, settings.gen_batch_features))
         args = (tol, settings.gen_decimate_reduction, settings.gen_decimate_min_triangles, srid)
-        items = ((rows, ("decimation", (rows, *args))) for rows in iter(lambda: src.fetchmany(BATCH), []))
-        for rows, out in _mapped(items, settings):
+
+        def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]]], tuple[str, tuple]]]:
+            for unit, rows in _unit_rows(src, settings.gen_batch_features):
+                f = Fingerprint(seed)
+                f.rows(rows)
+                if not _reusable(cur, units, kept, unit, print_ := f.hexdigest(), [r["building_id"] for r in rows]):
+                    yield (unit, print_, rows), ("decimation", (rows, *args))
+
+        for (unit, print_, rows), out in _mapped(items(), settings):
             if isinstance(out, Lost):
                 # the batch keeps its LOD2 meshes as they are (a row with no mesh of its own), saying why
                 detail = f"kept: decimation {out.reason} ({out.detail})"
@@ -317,9 +409,12 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
                 out = decimation_batch(lost, *args)
                 out.meshes = [(*m[:-1], detail) for m in out.meshes]
                 stats["lost"] += len(rows)
+                print_ = None  # type: ignore[assignment]
             _copy(cur, out)
             _add(stats, out.stats)
-    return stats
+            units.records.append((units.step, *unit, print_, len(rows), Jsonb(out.stats)))
+        _copy_back(cur, units, stats)
+    return stats, units
 
 
 def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
@@ -405,7 +500,33 @@ def store_boxes(cur: psycopg.Cursor) -> None:
                                                          [t["y"] for t in tiles], boxes.ravel().tolist()))
 
 
-def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, object]:
+def keep_aside(conn: psycopg.Connection) -> int:
+    """Copy gen.footprint and gen.building_mesh to gen.kept_* (an update, before the stages above change them);
+    returns the batches of the last run that can be copied back where their input is unchanged."""
+    with conn.transaction():
+        conn.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh")
+        conn.execute("INSERT INTO gen.kept_footprint SELECT * FROM gen.footprint")
+        conn.execute("INSERT INTO gen.kept_building_mesh SELECT * FROM gen.building_mesh")
+        return int(conn.execute("SELECT count(*) FROM gen.unit_input WHERE fingerprint IS NOT NULL"
+                                ).fetchone()[0])  # type: ignore[index]
+
+
+def _seed(settings: Settings, code: str, srid: int, tol: dict[int, float]) -> str:
+    """What every batch fingerprint of this run starts from: the settings, the stage's code as etl/dag.py
+    records it (new code never copies old rows), the working CRS and the tolerances."""
+    return hashlib.sha256(json.dumps([settings.as_dict(), code, srid, tol], sort_keys=True,
+                                     default=str).encode()).hexdigest()
+
+
+def _kept(conn: psycopg.Connection) -> Kept:
+    return {(step, (int(lv), int(x), int(y))): (f, int(n), stats) for step, lv, x, y, f, n, stats in conn.execute(
+        "SELECT step, level, x, y, fingerprint, n_rows, stats FROM gen.unit_input WHERE fingerprint IS NOT NULL")}
+
+
+def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
+        code: str = "") -> dict[str, object]:
+    """Generalize every tile; with ``keep`` (an update, after keep_aside), copy back the footprints and meshes
+    of the batches whose input did not change instead of computing them again. ``code``: see _seed."""
     t0 = time.perf_counter()
     srid = working_srid(conn)
     if not conn.execute("SELECT EXISTS (SELECT 1 FROM tiles.tile)").fetchone()[0]:  # type: ignore[index]
@@ -413,16 +534,25 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     tol = {g: float(conn.execute("SELECT gen.tolerance(%s)", (g,)).fetchone()[0]) for g in range(5)}  # type: ignore[index]
     seconds: dict[str, float] = {}
     n_groups = conn.execute("SELECT count(DISTINCT group_id) FROM tiles.building_tile").fetchone()[0]  # type: ignore[index]
+    if settings.gen_batch_features < 1:
+        raise ValueError("gen_batch_features must be at least 1")
+    seed = _seed(settings, code, srid, tol)
+    kept = _kept(conn) if keep else None
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
         # the inputs are read whole: plan for all rows, not the fast-start plans cursors get by default
         reader.execute("SET cursor_tuple_fraction = 1.0")
-        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint RESTART IDENTITY")  # ids as from scratch
+        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, gen.unit_input RESTART IDENTITY")
         step = time.perf_counter()
-        fp = _footprints(conn, reader, settings, srid, tol[2], Progress("generalize", "buildings", total=n_groups))
+        fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],
+                                   Progress("generalize", "buildings", total=n_groups), seed, kept)
         seconds["footprints"] = time.perf_counter() - step
         step = time.perf_counter()
-        dec = _decimation(conn, reader, settings, srid, tol[3])
+        dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept)
         seconds["decimation"] = time.perf_counter() - step
+        with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
+            for row in fp_units.records + dec_units.records:
+                copy.write_row(row)
+        cur.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh")  # used (or stale): free the space
         step = time.perf_counter()
         # the blocks join the footprints and meshes just written: without statistics the planner takes the
         # TRUNCATEd tables for empty and scans them once per member (minutes at 100k buildings)
@@ -451,6 +581,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     result: dict[str, object] = {
         **balance.counts(), "buildings": n_groups, "tolerance_m": tol,
         "footprints": fp, "decimation": dec, "blocks": blk,
+        "batches": {u.step: {"computed": len(u.records) - len(u.copied), "copied": len(u.copied)}
+                    for u in (fp_units, dec_units)},
         "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
@@ -458,7 +590,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings) -> dict[str, obj
     summary(
         "generalize", balance,
         f"footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, {dec['decimated']:,} LOD2 meshes "
-        f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings",
+        f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings"
+        + (f"; footprint batches copied {len(fp_units.copied):,} of {len(fp_units.records):,}, decimation "
+           f"{len(dec_units.copied):,} of {len(dec_units.records):,}" if keep else ""),
         wall, n_groups,
     )
     return result

@@ -48,6 +48,7 @@ from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
 from core.db import connect
+from core.fingerprint import Fingerprint
 from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
@@ -237,23 +238,13 @@ def _openings(conn: psycopg.Connection, rows: list[Feature]) -> list[tuple[int, 
 def fingerprint(seed: str, tile: Tile, rows: list[Feature], openings: list[tuple[int, bytes | None, bytes]]) -> str:
     """sha256 of what texturing reads for ``tile``: ``seed`` (the stage's settings and code), the tile's band,
     error and count, its feature rows (every column, in order) and its LOD2 buildings' openings."""
-    h = hashlib.sha256(seed.encode())
-    h.update(repr((tile.level, tile.x, tile.y, tile.gen_level, tile.geometric_error, tile.is_leaf,
-                   tile.features)).encode())
-
-    def put(v: object) -> None:
-        b = bytes(v) if isinstance(v, bytes | bytearray | memoryview) else repr(v).encode()
-        h.update(len(b).to_bytes(8, "little"))
-        h.update(b)
-
-    for r in rows:
-        for k in sorted(r):
-            put(k)
-            put(r[k])
+    f = Fingerprint(seed)
+    f.put((tile.level, tile.x, tile.y, tile.gen_level, tile.geometric_error, tile.is_leaf, tile.features))
+    f.rows(rows)  # type: ignore[arg-type]
     for o in openings:
         for v in o:
-            put(v)
-    return h.hexdigest()
+            f.put(v)
+    return f.hexdigest()
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,

@@ -11,9 +11,9 @@ import pytest
 
 #: Every set-returning function a stage or the exporter reads, called as they call it.
 READ = {
-    "gen.footprint_input": "SELECT * FROM gen.footprint_input(0.1)",
+    "gen.footprint_input": "SELECT * FROM gen.footprint_input(0.1, 2000)",
     "gen.group_lod2_meshes": "SELECT * FROM gen.group_lod2_meshes(ARRAY[1, 2]::bigint[])",
-    "gen.decimation_input": "SELECT * FROM gen.decimation_input(64)",
+    "gen.decimation_input": "SELECT * FROM gen.decimation_input(64, 2000)",
     "gen.block_clusters": "SELECT * FROM gen.block_clusters()",
     "gen.coarse_block_clusters": "SELECT * FROM gen.coarse_block_clusters(-1, 2)",
     "gen.coarse_bands": "SELECT * FROM gen.coarse_bands(NULL)",

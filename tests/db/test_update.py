@@ -82,7 +82,8 @@ EXPECTED_CHANGES = {
 }
 PIPELINE = ("lod", "landmarks", "tiles", "generalize", "textures")
 #: many small tiles from the few fixtures, so that a change leaves some tiles as they were
-SMALL = {"CITYLOD_TILE_MAX_FEATURES": "4"}
+#: many tiles and many generalize batches from the few fixtures
+SMALL = {"CITYLOD_TILE_MAX_FEATURES": "4", "CITYLOD_GEN_BATCH_FEATURES": "8"}
 
 
 def build(url: str, osm: Path, out: Path) -> None:
@@ -139,6 +140,15 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             (tex,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
             assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
+            (gen,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
+                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
+            for step in ("footprints", "decimation"):  # the batches the change missed are copied, the rest computed
+                assert gen["batches"][step]["copied"] > 0 and gen["batches"][step]["computed"] > 0, (step, gen)
+            (exp,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' "
+                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
+            assert exp["glb_built"] > 0 and exp["glb_copied"] == exp["glb"] - exp["glb_built"], exp
+            # the first change adds a building beyond the others: the root region, every glb's frame, grows
+            assert (exp["glb_copied"] > 0) == (seq == 2), exp
             (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
             (n,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()

@@ -1,0 +1,28 @@
+"""sha256 fingerprints of what a unit of work read, so an update can tell which units it must compute again."""
+
+from __future__ import annotations
+
+import hashlib
+
+
+class Fingerprint:
+    """A sha256 fed values one at a time, each length-prefixed (bytes as they are, anything else as its repr), so
+    two different sequences of values never hash alike by running into each other."""
+
+    def __init__(self, seed: str) -> None:
+        self._h = hashlib.sha256(seed.encode())
+
+    def put(self, v: object) -> None:
+        b = bytes(v) if isinstance(v, bytes | bytearray | memoryview) else repr(v).encode()
+        self._h.update(len(b).to_bytes(8, "little"))
+        self._h.update(b)
+
+    def rows(self, rows: list[dict[str, object]]) -> None:
+        """Every column of every row, by name, in order."""
+        for r in rows:
+            for k in sorted(r):
+                self.put(k)
+                self.put(r[k])
+
+    def hexdigest(self) -> str:
+        return self._h.hexdigest()
