@@ -42,7 +42,8 @@ AS $$
     JOIN osm.building o ON o.id = s.group_id
     JOIN gen.batch_units($2) u ON (u.level, u.x, u.y) = (s.level, s.x, s.y)
     LEFT JOIN LATERAL (
-        SELECT ST_Collect(ST_Boundary(n.geom_local)) AS fixed
+        -- in id order: the same bytes whatever order an update left the rows and the index in
+        SELECT ST_Collect(ST_Boundary(n.geom_local) ORDER BY n.id) AS fixed
         FROM osm.building n
         WHERE n.geom_local && ST_Expand(o.geom_local, $1) AND n.id <> o.id AND n.parent_id IS NULL
           AND ST_DWithin(n.geom_local, o.geom_local, $1)
