@@ -194,6 +194,12 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
                         logs / "update.log")
     update_s = stage_seconds(url, last)  # now: the no-building update below records the same stages again
+    with psycopg.connect(url) as conn:  # what each stage of the update kept or copied
+        runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
+                                 "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id", (last,)).fetchall())
+    reused = {"generalize": runs.get("generalize", {}).get("batches"),
+              "textures": {k: runs.get("textures", {}).get(k) for k in ("tiles", "tiles_kept")},
+              "export": {k: runs.get("export", {}).get(k) for k in ("glb", "glb_built", "glb_copied")}}
     with psycopg.connect(url) as conn:
         changed = dict(conn.execute("SELECT change, count(*) FROM osm.building_change GROUP BY 1").fetchall())
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
@@ -225,7 +231,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
             "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
             "no_building_s": stage_seconds(url, last),
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
-            "update_wall_s": round(wall, 1), "update_s": update_s,
+            "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused,
             "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
 
 
@@ -258,12 +264,23 @@ def section(s: dict[str, Any] | None) -> list[str]:
                 f"{s['no_building_wall_s']:.1f} s (ingest {q.get('ingest', '?')} s, export {q.get('export', '?')} "
                 "s; lod ... textures carried over, not run)."]
     pub = s.get("published") or {}
+    r = s.get("reused") or {}
+    g, t, e = r.get("generalize") or {}, r.get("textures") or {}, r.get("export") or {}
+
+    def batches(step: str) -> str:
+        b = g.get(step) or {}
+        return f"{b.get('computed', '?')} of {b.get('computed', 0) + b.get('copied', 0) or '?'}"
+
     out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
             "of its one process, applying the change file included. The update: ingest reads the whole OSM state "
             "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
-            "alone; landmarks, tiles and generalize run over the whole city again; textures re-textures only the "
-            "units whose input changed; the export writes every tile (each glb carries city-wide landmark ranks) "
-            f"and publishes {pub.get('new_files', '?')} new files of {pub.get('files', '?')}.", ""]
+            "alone; landmarks and tiles run over the whole city again; generalize computes the footprint and "
+            f"decimation batches whose input changed ({batches('footprints')} and {batches('decimation')}; the "
+            "others' rows are copied) and makes every block and the hierarchy again; textures textures the tiles "
+            f"whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
+            f"{t.get('tiles', '?')}); the export builds the glbs whose input changed ({e.get('glb_built', '?')} of "
+            f"{e.get('glb', '?')}; the others are copied) and publishes {pub.get('new_files', '?')} new files of "
+            f"{pub.get('files', '?')}.", ""]
     return out
 
 

@@ -501,7 +501,7 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
         SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
                f.n_members, f.n_triangles, f.error_m, b[1], b[2], b[3], b[4]
         FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
-        CROSS JOIN LATERAL (SELECT tiles.feature_sphere(f.geom, %s) AS b) sp
+        CROSS JOIN LATERAL (SELECT tiles.feature_sphere(Box3D(f.geom), ST_SRID(f.geom), %s) AS b) sp
         WHERE t.level < %s""", (Settings().base_height_m, up))
     for lvl in range(up - 1, -1, -1):
         conn.execute("""

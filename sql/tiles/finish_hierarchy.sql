@@ -21,10 +21,11 @@ BEGIN
     SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level,
            f.n_members, f.n_triangles, f.error_m, f.min_height, f.height,
            ST_Transform(ST_Envelope(f.geom), 4326)::box2d AS ext,
-           tiles.feature_sphere(f.geom, base_height) AS sphere,
+           tiles.feature_sphere(bx.b, bx.srid, base_height) AS sphere,
            CASE WHEN f.feature_kind <> 'block' THEN coalesce(o.parent_id, o.id) END AS group_id
     FROM tiles.tile t
     CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
+    CROSS JOIN LATERAL (SELECT Box3D(f.geom) AS b, ST_SRID(f.geom) AS srid) bx  -- each mesh read once
     LEFT JOIN osm.building o ON f.feature_kind <> 'block' AND o.id = f.building_id;
 
     TRUNCATE tiles.tile_content;
