@@ -12,7 +12,8 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
    closed and within gen.tolerance(3) -> gen.building_mesh (gen_level 3; every feature has a row).
 3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it closer than
    gen.tolerance(level) are clustered (ST_ClusterDBSCAN), merged by buffer-union-unbuffer, simplified at the
-   same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members.
+   same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members, a tile
+   at a time, each block named by a hash of its tile, band and smallest member (block_ids).
    Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
    same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
    large as a fine tile's instead of repeating every 10 m block of the city.
@@ -91,7 +92,7 @@ _MESH_COLUMNS = ("building_id", "gen_level", "geom", "semantics", "n_triangles",
 _MESH_TYPES = ("int8", "int2", "bytea", "bytea", "int4", "int4", "float4", "float4", "float4", "float4", "text")
 _FOOTPRINT_COLUMNS = ("building_id", "geom", "tolerance_m", "n_vertices_in", "n_vertices_out", "area_in_m2",
                       "area_out_m2", "error_m", "status")
-_BLOCK_COLUMNS = ("level", "x", "y", "gen_level", "members", "n_members", "footprint", "geom", "semantics",
+_BLOCK_COLUMNS = ("block_id", "level", "x", "y", "gen_level", "members", "n_members", "footprint", "geom", "semantics",
                   "n_triangles", "height", "error_m", "total_error_m", "omitted", "collapse_m")
 
 
@@ -417,6 +418,15 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
     return stats, units
 
 
+def block_ids(rows: list[dict[str, Any]]) -> list[int]:
+    """gen.block.block_id: a 63-bit hash of the block's tile, band and smallest member. A tile's blocks never
+    share a member, so it is unique; and it is the same whenever the block is made, so a change elsewhere does
+    not renumber it (an identity would: every block written after the change, in every glb that draws one)."""
+    return [int.from_bytes(hashlib.blake2b(repr((int(r["level"]), int(r["x"]), int(r["y"]), int(r["gen_level"]),
+                                                  int(min(r["members"])))).encode(), digest_size=8).digest(),
+                           "little") >> 1 for r in rows]
+
+
 def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
             coarse: tuple[int, int] | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
@@ -431,7 +441,10 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             src.execute("SELECT * FROM gen.block_clusters()")
         else:
             src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s)", coarse)
-        while rows := src.fetchmany(BATCH):
+        # a tile's blocks are one batch: what its simplification and measures give depends on that tile alone
+        for _, tile_rows in itertools.groupby(itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
+                                              key=lambda r: (r["level"], r["x"], r["y"])):
+            rows = list(tile_rows)
             n = len(rows)
             tol = np.array([r["tolerance"] for r in rows], float)
             merged = shapely.from_wkb([r["merged"] for r in rows])
@@ -458,9 +471,10 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             fps = _ewkb(geoms, srid)
             sem = ex.semantics.tobytes()
             offs = ex.offsets.tolist()
+            ids = block_ids(rows)
             with cur.copy(f"COPY gen.block ({', '.join(_BLOCK_COLUMNS)}) FROM STDIN") as copy:
                 for j, r in enumerate(rows):
-                    copy.write_row((r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
+                    copy.write_row((ids[j], r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
                                     fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
                                     float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
                                     float(collapse[j])))

@@ -3,7 +3,7 @@
 -- distance, gen.tolerance(gen_level) (ST_ClusterDBSCAN on the level-2 footprints, gen.footprint), and each
 -- cluster merged: closing by buffer-unbuffer with mitred joins, which keeps right angles; a lone building
 -- keeps its simplified footprint. The generalize stage simplifies, extrudes and measures them
--- (gen.block). Ordered by tile and cluster (the order gen.block's ids are given in).
+-- (gen.block), a tile at a time. Ordered by tile and members.
 --   level, x, y, gen_level  the tile and its band
 --   tolerance               gen.tolerance(gen_level) (m): the merge distance
 --   members                 osm.building ids of the outlines merged, ascending
