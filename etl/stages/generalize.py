@@ -33,7 +33,8 @@ A batch is a whole subtree of the tile quadtree (gen.batch_units: the largest ho
 gen_batch_features features), so what a batch computes depends on the buildings of one place only. Every run
 records per batch the fingerprint of what it read (its rows, LOD2 meshes, settings and code) and what it counted
 (gen.unit_input); an update (keep_aside, then run with keep) copies back the rows of every batch whose
-fingerprint is the same and computes the others, which gives the rows a full run gives.
+fingerprint is the same and computes the others, which gives the rows a full run gives. Blocks the same way, a
+block tile being the unit (block_digests: the buildings below it, hashed up the quadtree).
 A batch whose worker hung or died on every attempt loses no building: a footprint batch's buildings are kept as
 mapped (outline unchanged, their LOD2 meshes as the level-2 mesh, error 0; kept_as_mapped), a decimation batch
 keeps its LOD2 meshes, each saying why in its status ("kept_original: generalize hung ...").
@@ -427,23 +428,101 @@ def block_ids(rows: list[dict[str, Any]]) -> list[int]:
                            "little") >> 1 for r in rows]
 
 
+@dataclass
+class _BlockReuse:
+    """The block tiles' fingerprints of this run (block_digests), the last run's (an update: else None), and
+    the gen.unit_input rows and copies this run makes (step blocks, a tile per unit)."""
+
+    digests: dict[Unit, str]
+    kept: Kept | None
+    units: _Units = field(default_factory=lambda: _Units("blocks"))
+
+
+def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
+    """Per tile of the block bands (gen_level <= 1), a fingerprint of everything its blocks are made from: the
+    buildings below it as the blocks read them (gen.leaf_block_input), hashed up the quadtree with each tile's
+    place and band, so a tile's covers its children's blocks (made from the same buildings) as well."""
+    tiles = conn.execute("SELECT level, x, y, gen_level, is_leaf FROM tiles.tile ORDER BY level DESC, x, y").fetchall()
+    leaf = {(int(lv), int(x), int(y)): d for lv, x, y, d in conn.execute("SELECT * FROM gen.leaf_block_input()")}
+    below: dict[Unit, list[str]] = collections.defaultdict(list)
+    out: dict[Unit, str] = {}
+    for lv, x, y, g, is_leaf in tiles:  # children (deeper levels) first
+        key = (int(lv), int(x), int(y))
+        f = Fingerprint(seed)
+        f.put((key, g, is_leaf, leaf.get(key)))
+        for d in sorted(below.pop(key, [])):
+            f.put(d)
+        out[key] = f.hexdigest()
+        if lv > 0:
+            below[(lv - 1, x >> 1, y >> 1)].append(out[key])
+    band = {(int(lv), int(x), int(y)): g for lv, x, y, g, _ in tiles}
+    return {k: d for k, d in out.items() if band[k] is not None and band[k] <= 1}
+
+
+def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> tuple[list[Unit], list[Unit]]:
+    """(tiles to make, tiles whose kept blocks are copied): a tile is copied when the last run recorded its
+    fingerprint and gen.kept_block holds every block it made."""
+    if reuse.kept is None:
+        return tiles, []
+    counts = {(int(lv), int(x), int(y)): int(n) for lv, x, y, n in cur.execute(
+        "SELECT level, x, y, count(*) FROM gen.kept_block GROUP BY 1, 2, 3")}
+    copy = []
+    for t in tiles:
+        old = reuse.kept.get(("blocks", t))
+        if old is not None and old[0] == reuse.digests.get(t) and counts.get(t, 0) == old[1]:
+            copy.append(t)
+    return [t for t in tiles if t not in set(copy)], copy
+
+
+def _copy_blocks(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
+    """The kept blocks of these tiles back into gen.block as they were made (an omission on tile error undone:
+    the hierarchy step decides it again), with the figures the last run counted for them."""
+    if not tiles:
+        return
+    cols = [c for c in _BLOCK_COLUMNS if c not in ("omitted", "error_m", "total_error_m")]
+    cur.execute(
+        f"INSERT INTO gen.block ({', '.join(cols)}, omitted, error_m, total_error_m) "  # noqa: S608 - fixed names
+        f"SELECT {', '.join(cols)}, omitted AND built_error_m IS NULL, coalesce(built_error_m, error_m), "
+        "coalesce(built_total_error_m, total_error_m) FROM gen.kept_block "
+        "WHERE (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+        ([t[0] for t in tiles], [t[1] for t in tiles], [t[2] for t in tiles]))
+    for t in tiles:
+        print_, n, figures = reuse.kept[("blocks", t)]  # type: ignore[index]
+        _add(stats, figures)
+        reuse.units.copied.append((t, [], (print_, n, figures)))
+        reuse.units.records.append(("blocks", *t, print_, n, Jsonb(figures)))
+
+
 def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
-            coarse: tuple[int, int] | None = None) -> dict[str, float]:
+            coarse: tuple[int, int] | None = None, reuse: _BlockReuse | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
-    ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already)."""
+    ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already).
+    With ``reuse``, every tile is recorded with its fingerprint, and in an update the tiles whose fingerprint
+    is the last run's get their kept blocks back instead."""
     stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
     with conn.cursor(name="gen_blocks", row_factory=dict_row) as src, conn.cursor() as cur:
         src.itersize = BATCH
+        make: list[Unit] | None = None
+        if reuse is not None:
+            here = [(int(lv), int(x), int(y)) for lv, x, y in cur.execute(
+                "SELECT level, x, y FROM tiles.tile WHERE CASE WHEN %(g)s::int IS NULL THEN gen_level IN (0, 1) "
+                "ELSE gen_level = %(g)s AND level = %(lv)s END ORDER BY level, x, y",
+                {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None})]
+            make, copy = _block_tiles(cur, reuse, here)
+            _copy_blocks(cur, reuse, copy, stats)
+        lvs, xs, ys = ([t[i] for t in make] for i in range(3)) if make is not None else (None, None, None)
         if coarse is None:
-            src.execute("SELECT * FROM gen.block_clusters()")
+            src.execute("SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[])", (lvs, xs, ys))
         else:
-            src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s)", coarse)
+            src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[])", (*coarse, xs, ys))
+        made: set[Unit] = set()
         # a tile's blocks are one batch: what its simplification and measures give depends on that tile alone
-        for _, tile_rows in itertools.groupby(itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
-                                              key=lambda r: (r["level"], r["x"], r["y"])):
+        for tile, tile_rows in itertools.groupby(
+                itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
+                key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"]))):
             rows = list(tile_rows)
             n = len(rows)
             tol = np.array([r["tolerance"] for r in rows], float)
@@ -478,16 +557,22 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                                     fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
                                     float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
                                     float(collapse[j])))
-            stats["blocks"] += n
-            stats["omitted"] += int(omitted.sum())
-            stats["members"] += sum(len(m) for m in members)
-            stats["max_error_m"] = max(stats["max_error_m"], float(err.max(initial=0.0)))
+            figures = {"blocks": n, "omitted": int(omitted.sum()), "members": sum(len(m) for m in members),
+                       "max_error_m": float(err.max(initial=0.0))}
+            _add(stats, figures)
+            if reuse is not None:
+                reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), n, Jsonb(figures)))
+                made.add(tile)
             progress.update(n)
+        if reuse is not None:  # tiles that made no block (every building below a landmark) have their row too
+            empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
+            reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty))
+                                    for t in make or [] if t not in made]
     return stats
 
 
-def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_level: int | None = None
-                  ) -> dict[str, float]:
+def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_level: int | None = None,
+                  reuse: _BlockReuse | None = None) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
     band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
@@ -498,7 +583,7 @@ def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_l
     omitted: dict[int, int] = {}
     for g, lv in pairs:
         conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
-        st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv))
+        st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv), reuse)
         out[g] = out.get(g, 0) + int(st["blocks"])
         omitted[g] = omitted.get(g, 0) + int(st["omitted"])
     return {"coarse_blocks": out, "coarse_omitted": omitted}  # type: ignore[dict-item]
@@ -518,9 +603,10 @@ def keep_aside(conn: psycopg.Connection) -> int:
     """Copy gen.footprint and gen.building_mesh to gen.kept_* (an update, before the stages above change them);
     returns the batches of the last run that can be copied back where their input is unchanged."""
     with conn.transaction():
-        conn.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh")
+        conn.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh, gen.kept_block")
         conn.execute("INSERT INTO gen.kept_footprint SELECT * FROM gen.footprint")
         conn.execute("INSERT INTO gen.kept_building_mesh SELECT * FROM gen.building_mesh")
+        conn.execute("INSERT INTO gen.kept_block SELECT * FROM gen.block")
         return int(conn.execute("SELECT count(*) FROM gen.unit_input WHERE fingerprint IS NOT NULL"
                                 ).fetchone()[0])  # type: ignore[index]
 
@@ -563,17 +649,18 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         step = time.perf_counter()
         dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept)
         seconds["decimation"] = time.perf_counter() - step
-        with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
-            for row in fp_units.records + dec_units.records:
-                copy.write_row(row)
-        cur.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh")  # used (or stale): free the space
         step = time.perf_counter()
         # the blocks join the footprints and meshes just written: without statistics the planner takes the
         # TRUNCATEd tables for empty and scans them once per member (minutes at 100k buildings)
         cur.execute("ANALYZE gen.footprint")
         cur.execute("ANALYZE gen.building_mesh")
-        blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"))
-        blk.update(coarse_blocks(conn, settings, srid))
+        reuse = _BlockReuse(block_digests(conn, seed), kept)
+        blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse=reuse)
+        blk.update(coarse_blocks(conn, settings, srid, reuse=reuse))
+        with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
+            for row in fp_units.records + dec_units.records + reuse.units.records:
+                copy.write_row(row)
+        cur.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh, gen.kept_block")  # used: free the space
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))
@@ -596,7 +683,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         **balance.counts(), "buildings": n_groups, "tolerance_m": tol,
         "footprints": fp, "decimation": dec, "blocks": blk,
         "batches": {u.step: {"computed": len(u.records) - len(u.copied), "copied": len(u.copied)}
-                    for u in (fp_units, dec_units)},
+                    for u in (fp_units, dec_units, reuse.units)},
         "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
@@ -606,7 +693,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         f"footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, {dec['decimated']:,} LOD2 meshes "
         f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings"
         + (f"; footprint batches copied {len(fp_units.copied):,} of {len(fp_units.records):,}, decimation "
-           f"{len(dec_units.copied):,} of {len(dec_units.records):,}" if keep else ""),
+           f"{len(dec_units.copied):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.copied):,} of "
+           f"{len(reuse.units.records):,}" if keep else ""),
         wall, n_groups,
     )
     return result

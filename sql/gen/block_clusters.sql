@@ -1,9 +1,11 @@
--- gen.block_clusters() -> one row per block of the 10 m and 5 m bands (gen_level 0 and 1), before simplification
+-- gen.block_clusters(levels, xs, ys) -> one row per block of the 10 m and 5 m bands (gen_level 0 and 1), before
+-- simplification
 -- Per tile of those bands, its unprotected buildings (landmarks are never merged) clustered at the band's
 -- distance, gen.tolerance(gen_level) (ST_ClusterDBSCAN on the level-2 footprints, gen.footprint), and each
 -- cluster merged: closing by buffer-unbuffer with mitred joins, which keeps right angles; a lone building
 -- keeps its simplified footprint. The generalize stage simplifies, extrudes and measures them
 -- (gen.block), a tile at a time. Ordered by tile and members.
+--   levels, xs, ys          the tiles to make (NULL: every tile of those bands)
 --   level, x, y, gen_level  the tile and its band
 --   tolerance               gen.tolerance(gen_level) (m): the merge distance
 --   members                 osm.building ids of the outlines merged, ascending
@@ -13,8 +15,8 @@
 --   joined                  the plain union of the members' footprints (WKB)
 --   n_in                    inputs clustered (a block of 1 is a lone building)
 -- Streamed by a server-side cursor: inlined into the caller's query (LANGUAGE sql, STABLE, not STRICT).
--- Example: SELECT level, x, y, count(*), sum(n_in) FROM gen.block_clusters() GROUP BY 1, 2, 3;
-CREATE OR REPLACE FUNCTION gen.block_clusters()
+-- Example: SELECT level, x, y, count(*), sum(n_in) FROM gen.block_clusters(NULL, NULL, NULL) GROUP BY 1, 2, 3;
+CREATE OR REPLACE FUNCTION gen.block_clusters(levels smallint[], xs integer[], ys integer[])
 RETURNS TABLE (
     level           smallint,
     x               integer,
@@ -33,7 +35,8 @@ RETURNS TABLE (
 LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     WITH t AS (
-        SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile WHERE gen_level IN (0, 1)
+        SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile
+        WHERE gen_level IN (0, 1) AND ($1 IS NULL OR (level, x, y) IN (SELECT * FROM unnest($1, $2, $3)))
     ), m AS (
         SELECT t.level, t.x, t.y, t.gen_level, t.d, f.building_id, f.geom, g.height, g.total_error_m,
                ST_Area(f.geom) AS area
@@ -65,5 +68,5 @@ AS $$
     ) a
     ORDER BY level, x, y, members  -- not cid: DBSCAN numbers clusters in the order it meets the rows
 $$;
-COMMENT ON FUNCTION gen.block_clusters() IS
-    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered at gen.tolerance(gen_level) and merged (closed union and plain union as WKB, members, heights, members'' error); tile and member order. Example: SELECT level, x, y, count(*) FROM gen.block_clusters() GROUP BY 1, 2, 3;';
+COMMENT ON FUNCTION gen.block_clusters(smallint[], integer[], integer[]) IS
+    'Blocks of the 10 m and 5 m bands before simplification: per tile, its unprotected buildings clustered at gen.tolerance(gen_level) and merged (closed union and plain union as WKB, members, heights, members'' error); tile and member order; only the tiles listed unless NULL. Example: SELECT level, x, y, count(*) FROM gen.block_clusters(NULL, NULL, NULL) GROUP BY 1, 2, 3;';

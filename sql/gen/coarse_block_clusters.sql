@@ -1,4 +1,5 @@
--- gen.coarse_block_clusters(band, tile_level) -> one row per block of the tiles of band `band` at tile_level
+-- gen.coarse_block_clusters(band, tile_level, xs, ys) -> one row per block of the tiles of band `band` at
+-- tile_level
 -- The coarser bands (gen_level < 0, the tiles above height 4): per tile, what its children draw in its place
 -- (their blocks, gen.block, and for a child in a finer band its unprotected buildings' level-2 footprints),
 -- clustered at gen.tolerance(band) and merged the same way as gen.block_clusters, the inputs simplified
@@ -8,9 +9,10 @@
 -- children's blocks exist. Same columns as gen.block_clusters; ordered by tile and members.
 --   band        the band, tiles.tile.gen_level (< 0)
 --   tile_level  the tiles' level (the top tiles of a large city share band -4, so a band runs level by level)
+--   xs, ys      the tiles to make (NULL: all of them)
 -- Streamed by a server-side cursor: inlined into the caller's query (LANGUAGE sql, STABLE, not STRICT).
--- Example: SELECT x, y, count(*) FROM gen.coarse_block_clusters(-1, 2) GROUP BY 1, 2;
-CREATE OR REPLACE FUNCTION gen.coarse_block_clusters(band integer, tile_level integer)
+-- Example: SELECT x, y, count(*) FROM gen.coarse_block_clusters(-1, 2, NULL, NULL) GROUP BY 1, 2;
+CREATE OR REPLACE FUNCTION gen.coarse_block_clusters(band integer, tile_level integer, xs integer[], ys integer[])
 RETURNS TABLE (
     level           smallint,
     x               integer,
@@ -30,7 +32,7 @@ LANGUAGE sql STABLE PARALLEL SAFE
 AS $$
     WITH t AS (
         SELECT level, x, y, gen_level, gen.tolerance(gen_level) AS d FROM tiles.tile
-        WHERE gen_level = $1 AND level = $2
+        WHERE gen_level = $1 AND level = $2 AND ($3 IS NULL OR (x, y) IN (SELECT * FROM unnest($3, $4)))
     ), ch AS (
         SELECT t.level, t.x, t.y, t.gen_level, t.d, c.level AS cl, c.x AS cx, c.y AS cy, c.gen_level AS cg
         FROM t JOIN tiles.tile c ON c.level = t.level + 1 AND c.x BETWEEN 2 * t.x AND 2 * t.x + 1
@@ -80,5 +82,5 @@ AS $$
     -- member order, and every order-sensitive aggregate in it: the same blocks whatever order the rows come in
     ORDER BY a.level, a.x, a.y, mem.members
 $$;
-COMMENT ON FUNCTION gen.coarse_block_clusters(integer, integer) IS
-    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered at gen.tolerance(band) and merged; columns as gen.block_clusters; tile and member order. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2);';
+COMMENT ON FUNCTION gen.coarse_block_clusters(integer, integer, integer[], integer[]) IS
+    'Blocks of a coarser band (band < 0) at one tile level before simplification: per tile, its children''s blocks and finer buildings clustered at gen.tolerance(band) and merged; columns as gen.block_clusters; tile and member order; only the tiles xs, ys unless NULL. Example: SELECT count(*) FROM gen.coarse_block_clusters(-1, 2, NULL, NULL);';

@@ -20,7 +20,9 @@ BEGIN
     CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
     WHERE NOT k.omitted AND b.total <= t.geometric_error AND (max_level IS NULL OR t.level <= max_level);
 
-    UPDATE gen.block k SET omitted = true, error_m = o.collapse_m, total_error_m = o.total
+    -- the errors as made kept beside: an update copies the block as it was made (etl/stages/generalize.py)
+    UPDATE gen.block k SET omitted = true, error_m = o.collapse_m, total_error_m = o.total,
+                           built_error_m = k.error_m, built_total_error_m = k.total_error_m
     FROM _omit o WHERE k.block_id = o.block_id;
 
     UPDATE tiles.tile t
