@@ -295,7 +295,8 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
     params["publish"] = publish_as
     with pipeline_run(url, "export", params, inputs=inputs) as run:
         run.counts = export_tileset(url, out, settings, lod=args.lod, stream=stream, publish_as=publish_as,
-                                    run_id=run.run_id)
+                                    run_id=run.run_id,
+                                    code=json.dumps([inputs["code"], inputs["settings"]], sort_keys=True))
         run.output = tileset_output(out)
     return 0
 

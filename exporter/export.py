@@ -520,21 +520,23 @@ def _directory_lock(out: Path) -> Iterator[None]:
 
 def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
                    stream: StreamOptions = COMPACT, publish_as: str | None = None,
-                   run_id: int | None = None) -> dict[str, object]:
+                   run_id: int | None = None, code: str = "") -> dict[str, object]:
     """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
     every building at that one level of detail (1 block, 2 roofs, 3 facades). Exports into one directory are
     serialized, and each swaps its tileset in whole (swap_in). With ``publish_as`` the same files become the
-    next generation of that tileset in the database (exporter/publish.py), before the directory's swap."""
+    next generation of that tileset in the database (exporter/publish.py), before the directory's swap; with
+    ``code`` too (the export's code and settings as etl/dag.py records them), the tiles whose input is the one
+    the live generation was built from are copied from it (exporter/reuse.py)."""
     if lod not in (None, 1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
     if publish_as is not None:
         check_name(publish_as)
     with _directory_lock(out):
-        return _export_tileset(url, out, settings, lod, stream, publish_as, run_id)
+        return _export_tileset(url, out, settings, lod, stream, publish_as, run_id, code)
 
 
 def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, stream: StreamOptions,
-                    publish_as: str | None, run_id: int | None) -> dict[str, object]:
+                    publish_as: str | None, run_id: int | None, code: str) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     for p in (out, partial):
@@ -552,11 +554,10 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     # a published tileset: the tiles whose input is what its live generation was built from are copied
     keys: dict[str, TileKey] = {}
     same: dict[str, bytes] = {}
-    if publish_as is not None:
+    if publish_as is not None and code:
         with connect(url) as conn:
-            seed = recipe(conn, settings, lod, stream, root_region)
             published = published_inputs(conn, publish_as)
-        keys = tile_keys(url, tiles, seed, lod, stream)
+        keys = tile_keys(url, tiles, recipe(code, lod, stream, root_region), lod, stream)
         same = unchanged(keys, published)
     if partial.exists():
         shutil.rmtree(partial)

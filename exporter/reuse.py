@@ -24,7 +24,6 @@ from pathlib import Path
 import psycopg
 
 from core.db import connect
-from core.settings import Settings
 
 from .gltf import read_glb
 from .stream import StreamOptions
@@ -39,15 +38,12 @@ class TileKey:
     n_features: int  # the features api.export_features gives the tile
 
 
-def recipe(conn: psycopg.Connection, settings: Settings, lod: int | None, stream: StreamOptions,
-           root_region: tuple[float, ...]) -> str:
-    """What every tile's key starts from: the export's code (its Python and SQL, as the pipeline records it),
-    the settings that code reads, the options, and the root region (every glb is placed in its frame)."""
-    from etl.dag import inputs
-
-    now = inputs(conn, "export", settings)
-    return hashlib.sha256(json.dumps([now["code"], now["settings"], lod, stream.as_dict(), list(root_region)],
-                                     sort_keys=True, default=str).encode()).hexdigest()
+def recipe(code: str, lod: int | None, stream: StreamOptions, root_region: tuple[float, ...]) -> str:
+    """What every tile's key starts from: ``code`` (the export's Python and SQL and the settings they read, as
+    the command line has etl/dag.py record them), the options, and the root region (every glb is placed in its
+    frame)."""
+    return hashlib.sha256(json.dumps([code, lod, stream.as_dict(), list(root_region)], sort_keys=True,
+                                     default=str).encode()).hexdigest()
 
 
 def tile_key(seed: str, rec: TileRecord, digest: str) -> str:
