@@ -3,7 +3,7 @@
 A tile's glb is a function of what api.export_digest fingerprints (its features, their landmark metadata, its
 atlas pages and UVs), of the exporter's code, settings and options, and of the tile's record in the tree. The
 export records the sha256 of all that per glb (pub.file.input_digest) when it publishes; the next export of the
-same tileset computes it again for every tile (a tenth of the cost of reading the features) and copies the glb
+same tileset computes it again for every tile (under half the cost of reading the features) and copies the glb
 of every tile whose key is the same: from the export directory when the file there has the published bytes,
 else from pub.blob. So an update that moves a few buildings writes the few tiles they are in and their
 ancestors, and the other glbs keep their bytes (and their ETags).
