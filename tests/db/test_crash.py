@@ -36,13 +36,15 @@ def test_a_killed_stage_is_failed_at_its_last_heartbeat_and_its_workers_end(city
     c = city("fixtures")
     conn = conn_of(c.url)
     watch = conn_of(c.url)
-    # export's Dask workers read the landmarks; its own process does not: with lm.building locked, the stage
-    # waits in its workers, alive, until it is killed
+    # export's Dask workers read the landmarks; its own process does not (without publishing: a publishing export
+    # first fingerprints every tile itself): with lm.building locked, the stage waits in its workers, alive,
+    # until it is killed
     locker = conn_of(c.url)
     locker.autocommit = False
     locker.execute("LOCK TABLE lm.building IN ACCESS EXCLUSIVE MODE")
     before = watch.execute("SELECT coalesce(max(run_id), 0) FROM meta.pipeline_run").fetchone()[0]
-    proc = subprocess.Popen([sys.executable, "-m", "etl", "export", "--out", str(tmp_path / "tiles")], cwd=REPO,
+    proc = subprocess.Popen([sys.executable, "-m", "etl", "export", "--out", str(tmp_path / "tiles"), "--no-publish"],
+                            cwd=REPO,
                             env={**os.environ, "DATABASE_URL": c.url, "CITYLOD_EXPORT_WORKERS": "2"},
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
