@@ -13,7 +13,7 @@ tolerances come from one SQL function, gen.tolerance(gen_level) (10 m at level 0
 3. blocks (levels 1 and 0): in every tile of those bands, the unprotected buildings below it closer than
    gen.tolerance(level) are clustered (ST_ClusterDBSCAN), merged by buffer-union-unbuffer, simplified at the
    same tolerance and extruded flat to the members' area-weighted height -> gen.block with its members, a tile
-   at a time, each block named by a hash of its tile, band and smallest member (block_ids).
+   at a time, each block named by its smallest member and its tile's level (block_ids).
    Tiles above those (levels -1 .. -4 of a large city) merge their children's blocks and buildings the
    same way at 20 m, 40 m, 80 m, 160 m, level by level upwards, so a coarse tile's content stays about as
    large as a fine tile's instead of repeating every 10 m block of the city.
@@ -420,12 +420,19 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
 
 
 def block_ids(rows: list[dict[str, Any]]) -> list[int]:
-    """gen.block.block_id: a 63-bit hash of the block's tile, band and smallest member. A tile's blocks never
-    share a member, so it is unique; and it is the same whenever the block is made, so a change elsewhere does
-    not renumber it (an identity would: every block written after the change, in every glb that draws one)."""
-    return [int.from_bytes(hashlib.blake2b(repr((int(r["level"]), int(r["x"]), int(r["y"]), int(r["gen_level"]),
-                                                  int(min(r["members"])))).encode(), digest_size=8).digest(),
-                           "little") >> 1 for r in rows]
+    """gen.block.block_id: the block's smallest member and its tile's level, packed as (2m, or -2m + 1 for a
+    relation's negative id) * 32 + level. A building is below one tile per level and a tile's blocks never share
+    a member, so the pair is unique; it is the same whenever the block is made, so a change elsewhere does not
+    renumber it (an identity would: every block written after the change, in every glb that draws one); and it
+    stays below 2^53, which a JavaScript client reads exactly (a 63-bit hash came back from loaders.gl as a
+    string)."""
+    out = []
+    for r in rows:
+        m, level = int(min(r["members"])), int(r["level"])
+        if not 0 <= level < 32:
+            raise ValueError(f"tile level {level} does not fit a block id (0 .. 31)")
+        out.append((2 * m if m >= 0 else -2 * m + 1) * 32 + level)
+    return out
 
 
 @dataclass
