@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
 import psycopg
 
 from . import cluster
@@ -27,3 +33,31 @@ def working_srid(conn: psycopg.Connection) -> int:
     if not row or row[0] is None:
         raise RuntimeError("no dataset loaded: run the ingest stage first (make ingest)")
     return int(row[0])
+
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@contextlib.contextmanager
+def thread_map(url: str, fn: Callable[[psycopg.Connection, T], R], items: Iterable[T],
+               workers: int) -> Iterator[Iterator[R]]:
+    """``fn(conn, item)`` for every item, in order, by ``workers`` threads that each open a connection of their
+    own (the SQL runs in separate backends, and numpy releases the GIL); the threads stop and the connections
+    close when the block ends, consumed or not."""
+    local = threading.local()
+    conns: list[psycopg.Connection] = []
+
+    def one(item: T) -> R:
+        if not hasattr(local, "conn"):
+            local.conn = connect(url)
+            conns.append(local.conn)
+        return fn(local.conn, item)
+
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
+        yield pool.map(one, items)
+    finally:
+        pool.shutdown(cancel_futures=True)
+        for c in conns:
+            c.close()

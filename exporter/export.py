@@ -25,10 +25,8 @@ import json
 import os
 import shutil
 import sys
-import threading
 import time
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -37,7 +35,7 @@ import psycopg
 import shapely
 from psycopg.rows import dict_row
 
-from core.db import connect
+from core.db import connect, thread_map
 from core.geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
 from core.progress import Balance, Progress, summary
 from core.settings import Settings
@@ -386,33 +384,23 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
     from etl.workers import SCHEDULER_ENV, Lost, imap_isolated, worker_count
 
     args = (base_height, lod, stream, root_region)
-    conns: list[psycopg.Connection] = []
-    if settings.export_workers == 0 and not os.environ.get(SCHEDULER_ENV):
-        # the local default: threads of this process, each with its own connection (the SQL runs in separate
-        # backends and numpy releases the GIL). On 2 cores they are at least as fast as 2 Dask workers, whose
-        # results travel back through the scheduler: Liechtenstein 10.2 s (make bench, threads) against 15.9 s
-        # (make bench, Dask); its 6x 51.8 s against 53.9 s (the same database, one after the other)
-        local = threading.local()
-
-        def one(rec: TileRecord) -> tuple[bytes, int, int]:
-            if not hasattr(local, "conn"):
-                local.conn = connect(url)
-                conns.append(local.conn)
-            return tile_glb(local.conn, rec, *args)
-
-        pool = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1))
-        results: Iterator[tuple[bytes, int, int] | Lost] = pool.map(one, tiles)
-    else:
-        pool = None
-        workers = worker_count(settings.export_workers, 2)
-        if workers <= 1:
-            conns.append(connect(url))
-            results = (tile_glb(conns[0], rec, *args) for rec in tiles)
+    with contextlib.ExitStack() as stack:
+        if settings.export_workers == 0 and not os.environ.get(SCHEDULER_ENV):
+            # the local default: threads of this process, each with its own connection. On 2 cores they are at
+            # least as fast as 2 Dask workers, whose results travel back through the scheduler: Liechtenstein
+            # 10.2 s (make bench, threads) against 15.9 s (make bench, Dask); its 6x 51.8 s against 53.9 s (the
+            # same database, one after the other)
+            results: Iterator[tuple[bytes, int, int] | Lost] = stack.enter_context(thread_map(
+                url, lambda conn, rec: tile_glb(conn, rec, *args), tiles, min(4, os.cpu_count() or 1)))
         else:
-            results = imap_isolated(_tile_task, tiles, min(workers, len(tiles)), settings.export_tile_timeout_s,
-                                    _init_worker, (url, *args), window=4 * workers)
-    n_features = n_triangles = n_bytes = n_fallback = 0
-    try:
+            workers = worker_count(settings.export_workers, 2)
+            if workers <= 1:
+                conn = stack.enter_context(connect(url))
+                results = (tile_glb(conn, rec, *args) for rec in tiles)
+            else:
+                results = imap_isolated(_tile_task, tiles, min(workers, len(tiles)), settings.export_tile_timeout_s,
+                                        _init_worker, (url, *args), window=4 * workers)
+        n_features = n_triangles = n_bytes = n_fallback = 0
         for rec, res in zip(tiles, results, strict=True):
             if isinstance(res, Lost):
                 raise RuntimeError(f"tile {rec.level}/{rec.x}/{rec.y} was not written: {res.detail}; the tileset "
@@ -425,11 +413,6 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
             n_features, n_triangles, n_bytes = n_features + f, n_triangles + t, n_bytes + len(glb)
             n_fallback += int(stream.compact and not is_compact(glb))
             progress.update(f)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
-        for c in conns:
-            c.close()
     return n_features, n_triangles, n_bytes, n_fallback
 
 

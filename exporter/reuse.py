@@ -3,7 +3,7 @@
 A tile's glb is a function of what api.export_digest fingerprints (its features, their landmark metadata, its
 atlas pages and UVs), of the exporter's code, settings and options, and of the tile's record in the tree. The
 export records the sha256 of all that per glb (pub.file.input_digest) when it publishes; the next export of the
-same tileset computes it again for every tile (under half the cost of reading the features) and copies the glb
+same tileset computes it again for every tile (about half the cost of reading the features) and copies the glb
 of every tile whose key is the same: from the export directory when the file there has the published bytes,
 else from pub.blob. So an update that moves a few buildings writes the few tiles they are in and their
 ancestors, and the other glbs keep their bytes (and their ETags).
@@ -15,15 +15,13 @@ import dataclasses
 import hashlib
 import json
 import os
-import shutil
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import psycopg
 
-from core.db import connect
+from core.db import connect, thread_map
+from core.fingerprint import run_seed
 
 from .gltf import read_glb
 from .stream import StreamOptions
@@ -42,8 +40,7 @@ def recipe(code: str, lod: int | None, stream: StreamOptions, root_region: tuple
     """What every tile's key starts from: ``code`` (the export's Python and SQL and the settings they read, as
     the command line has etl/dag.py record them), the options, and the root region (every glb is placed in its
     frame)."""
-    return hashlib.sha256(json.dumps([code, lod, stream.as_dict(), list(root_region)], sort_keys=True,
-                                     default=str).encode()).hexdigest()
+    return run_seed(code, lod, stream.as_dict(), list(root_region))
 
 
 def tile_key(seed: str, rec: TileRecord, digest: str) -> str:
@@ -55,23 +52,14 @@ def tile_keys(url: str, tiles: list[TileRecord], seed: str, lod: int | None,
     """Every tile's key by content URI; the digests are read by threads with a connection each (the SQL runs in
     separate backends), as the export reads the tiles."""
     textures = stream.textures if lod is None else None
-    local = threading.local()
-    conns: list[psycopg.Connection] = []
 
-    def one(rec: TileRecord) -> tuple[str, TileKey]:
-        if not hasattr(local, "conn"):
-            local.conn = connect(url)
-            conns.append(local.conn)
-        digest, n = local.conn.execute(_DIGEST, (rec.level, rec.x, rec.y, lod, textures)).fetchone()
+    def one(conn: psycopg.Connection, rec: TileRecord) -> tuple[str, TileKey]:
+        digest, n = conn.execute(_DIGEST, (rec.level, rec.x, rec.y, lod, textures)).fetchone()  # type: ignore[misc]
         assert rec.content_uri is not None
         return rec.content_uri, TileKey(tile_key(seed, rec, digest), int(n))
 
-    try:
-        with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
-            return dict(pool.map(one, tiles))
-    finally:
-        for c in conns:
-            c.close()
+    with thread_map(url, one, tiles, min(4, os.cpu_count() or 1)) as keys:
+        return dict(keys)
 
 
 def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str, bytes]]:
@@ -94,14 +82,6 @@ def glb_triangles(glb: bytes) -> int:
                for m in gltf.get("meshes", []) for p in m["primitives"])  # type: ignore[union-attr, attr-defined]
 
 
-def _sha256(path: Path) -> bytes | None:
-    try:
-        with open(path, "rb") as fh:
-            return hashlib.file_digest(fh, "sha256").digest()
-    except OSError:
-        return None
-
-
 def copy_unchanged(url: str, reuse: dict[str, bytes], old: Path, new: Path) -> tuple[int, int]:
     """Put every reused glb under ``new``: hard-linked (else copied) from ``old`` where that file holds the
     published bytes, the others read from pub.blob. Returns (triangles, bytes)."""
@@ -110,12 +90,15 @@ def copy_unchanged(url: str, reuse: dict[str, bytes], old: Path, new: Path) -> t
     for path, sha in sorted(reuse.items()):
         src, dst = old / path, new / path
         dst.parent.mkdir(parents=True, exist_ok=True)
-        if _sha256(src) == sha:
+        try:
+            data: bytes | None = src.read_bytes()
+        except OSError:
+            data = None
+        if data is not None and hashlib.sha256(data).digest() == sha:
             try:
                 os.link(src, dst)
             except OSError:
-                shutil.copyfile(src, dst)
-            data = dst.read_bytes()
+                dst.write_bytes(data)
             triangles, n_bytes = triangles + glb_triangles(data), n_bytes + len(data)
         else:
             from_blob.setdefault(sha, []).append(path)

@@ -52,9 +52,7 @@ block's error is that of the omission, sqrt(radius² + height²).
 from __future__ import annotations
 
 import collections
-import hashlib
 import itertools
-import json
 import os
 import time
 from collections.abc import Iterator
@@ -68,7 +66,7 @@ from psycopg.rows import dict_row
 from psycopg.types.json import Jsonb
 
 from core.db import connect, working_srid
-from core.fingerprint import Fingerprint
+from core.fingerprint import Fingerprint, run_seed
 from core.geodesy import region_box
 from core.progress import Balance, Progress, summary
 from core.settings import Settings
@@ -478,7 +476,8 @@ def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> 
         old = reuse.kept.get(("blocks", t))
         if old is not None and old[0] == reuse.digests.get(t) and counts.get(t, 0) == old[1]:
             copy.append(t)
-    return [t for t in tiles if t not in set(copy)], copy
+    copied = set(copy)
+    return [t for t in tiles if t not in copied], copy
 
 
 def _copy_blocks(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
@@ -621,8 +620,7 @@ def keep_aside(conn: psycopg.Connection) -> int:
 def _seed(settings: Settings, code: str, srid: int, tol: dict[int, float]) -> str:
     """What every batch fingerprint of this run starts from: the settings, the stage's code as etl/dag.py
     records it (new code never copies old rows), the working CRS and the tolerances."""
-    return hashlib.sha256(json.dumps([settings.as_dict(), code, srid, tol], sort_keys=True,
-                                     default=str).encode()).hexdigest()
+    return run_seed(settings.as_dict(), code, srid, tol)
 
 
 def _kept(conn: psycopg.Connection) -> Kept:

@@ -32,8 +32,6 @@ vertex colours in KTX2 exports. Features in = textured + textured in WebP only +
 from __future__ import annotations
 
 import atexit
-import hashlib
-import json
 import math
 import os
 import time
@@ -48,7 +46,7 @@ from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
 from core.db import connect
-from core.fingerprint import Fingerprint
+from core.fingerprint import Fingerprint, run_seed
 from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
@@ -465,7 +463,7 @@ def _copy_kept(cur: psycopg.Cursor, keys: list[Key]) -> None:
 def _seed(settings: Settings, code: str) -> str:
     """What every fingerprint of this run starts from: the settings and ``code``, a digest of the stage's code
     (the command line passes the one etl/dag.py records, so new code never keeps old textures)."""
-    return hashlib.sha256(json.dumps([settings.as_dict(), code], sort_keys=True, default=str).encode()).hexdigest()
+    return run_seed(settings.as_dict(), code)
 
 
 def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,

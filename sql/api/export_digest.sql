@@ -4,8 +4,8 @@
 -- (pub.file.input_digest) and copies an unchanged tile's glb instead of building it again, so an update
 -- re-exports only the tiles whose content changed. Every column of api.export_features is hashed under its own
 -- name (tests/db/test_export_reuse.py checks that none is missing), geometries as their EWKB in the working CRS
--- (the ECEF transform and base_height are the exporter's and go into its side of the fingerprint): under half
--- the cost of api.export_features itself (Liechtenstein, every tile: 3.9 s against 8.2 s). n_features: the rows api.export_features returns.
+-- (the ECEF transform and base_height are the exporter's and go into its side of the fingerprint): about half
+-- the cost of api.export_features itself (Liechtenstein, every tile, one connection: 4.0 s against 7.5 s). n_features: the rows api.export_features returns.
 --   level, x, y  the tile
 --   single_lod   as api.export_features
 --   textures     webp or ktx2: also hash api.tile_pages in that format and api.tile_uvs (NULL: untextured export)
