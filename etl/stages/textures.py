@@ -109,7 +109,8 @@ class Result:
     seconds: float = 0.0
     ktx2_seconds: float = 0.0
     fingerprint: str | None = None  # of everything read for the tile (tex.tile_input)
-    kept: bool = False  # the unit's input had not changed: its rows are copied back from tex.kept_*
+    kept: bool = False  # the tile's input had not changed: its rows are copied back from tex.kept_*
+    redrawn: bool = False  # kept, but drawn again for its unit's chart cache (its unit's LOD2 tile changed)
 
 
 def resolution(geometric_error: float, settings: Settings) -> tuple[float, float]:
@@ -246,7 +247,9 @@ def fingerprint(seed: str, tile: Tile, rows: list[Feature], openings: list[tuple
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
-              store: bool, rows: list[Feature] | None = None) -> Result:
+              store: bool, rows: list[Feature] | None = None, encode: bool = True) -> Result:
+    """Texture ``tile``. ``encode`` False: only draw it, for the charts it adds to ``cache`` (its pages are
+    kept from the last run, so neither encoded nor returned)."""
     t0 = time.perf_counter()
     rho, distance = resolution(tile.geometric_error, settings)
     pad = padding_for(rho, settings)
@@ -278,7 +281,7 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
             detail = "".join(traceback.format_exception_only(type(e), e)).strip()
             res.failures += [_failure(key, rows[i], "tile_texturing_failed", detail) for i in good]
             good, tt = [], None
-    if tt is not None:
+    if tt is not None and encode:
         rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
         util = tt.layout.utilization
         refused: dict[int, str] = {}
@@ -343,7 +346,9 @@ def _do_unit(item: Unit) -> list[Result]:
     """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. When every
     tile's input has the fingerprint its kept textures were made from, nothing is textured: the results say
     ``kept`` and the main process copies the kept rows back (the same bytes: texturing is a function of the
-    fingerprinted input)."""
+    fingerprinted input). Otherwise every tile is textured again but the leaves whose input is unchanged: those
+    are only drawn, for the charts the unit's LOD2 tile reads, and their rows copied back too (encoding is
+    most of a tile's time)."""
     unit, kept, seed = item
     conn, settings = _WORKER["conn"], _WORKER["settings"]
     rows = [_features(conn, t, _FEATURES) for t in unit]
@@ -357,10 +362,19 @@ def _do_unit(item: Unit) -> list[Result]:
         return out
     shared = any(t.gen_level == 3 for t in unit)
     cache = X.ChartCache() if shared else None
-    results = [_one_tile(t, conn, settings, cache, store=shared and t.gen_level == 4, rows=r)
-               for t, r in zip(unit, rows, strict=True)]
-    for res, f in zip(results, prints, strict=True):
+    results = []
+    for t, r, f in zip(unit, rows, prints, strict=True):
+        store = shared and t.gen_level == 4
+        # a leaf as it was is drawn again for the charts the LOD2 tile reads from the cache, not encoded: its
+        # pages are the kept ones (a leaf reads no chart of another leaf: a building is in one leaf)
+        same = store and kept is not None and kept.get((t.level, t.x, t.y)) == f
+        res = _one_tile(t, conn, settings, cache, store=store, rows=r, encode=not same)
+        if same:
+            rho, distance = resolution(t.geometric_error, settings)
+            res = Result(t, rho, distance, padding_for(rho, settings), features=len(r), seconds=res.seconds,
+                         kept=True, redrawn=True)
         res.fingerprint = f
+        results.append(res)
     return results
 
 
@@ -421,7 +435,8 @@ def _kept_prints(conn: psycopg.Connection) -> dict[tuple[int, int, int], str]:
 #: per kept tile, the counts the balance needs as the run that made them wrote them: pages (texels, WebP
 #: bytes, KTX2 bytes), UVs, failure reasons; three grouped reads instead of queries per tile
 _KEPT_PAGES = ("SELECT level, x, y, array_agg(width * height ORDER BY page_no), array_agg(n_bytes ORDER BY page_no), "
-               "array_agg(ktx2_n_bytes ORDER BY page_no) FROM tex.kept_page GROUP BY 1, 2, 3")
+               "array_agg(ktx2_n_bytes ORDER BY page_no), sum(utilization * width * height) "
+               "FROM tex.kept_page GROUP BY 1, 2, 3")
 _KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.kept_feature_uv GROUP BY 1, 2, 3"
 _KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.kept_failure GROUP BY 1, 2, 3"
 
@@ -436,7 +451,8 @@ def _kept_counts(conn: psycopg.Connection) -> dict[str, dict[Key, object]]:
 
 def _fill_kept(res: Result, counts: dict[str, dict[Key, object]]) -> None:
     key = (res.tile.level, res.tile.x, res.tile.y)
-    texels, webp, ktx2 = counts["pages"].get(key, ((), (), ()))  # type: ignore[misc]
+    texels, webp, ktx2, content = counts["pages"].get(key, ((), (), (), 0))  # type: ignore[misc]
+    res.stats = {"content_texels": round(content or 0)}  # as its pages' utilizations say: for the summary
     fails: list[str] = counts["fails"].get(key) or []  # type: ignore[assignment]
     res.uvs = [()] * int(counts["uvs"].get(key, 0))  # type: ignore[call-overload]
     res.failures = [()] * len(fails)
@@ -496,6 +512,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                             "ktx2_bytes", "page_texels", "content_texels", "rendered_texels", "copied", "resized",
                             "flat", "sheets", "scaled", "panels_mapped"), 0)
     ktx2_seconds = 0.0
+    redrawn = 0  # kept tiles drawn again for their unit's chart cache
     with conn.transaction(), conn.cursor() as cur:
         cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure, tex.tile_input RESTART IDENTITY")
         kept_keys: list[Key] = []  # copied back after the loop, in three statements
@@ -506,6 +523,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                 out = _lost(conn, unit, out, settings)
             for res in out:
                 if res.kept:
+                    redrawn += res.redrawn
                     _fill_kept(res, kept_counts)
                     kept_keys.append((res.tile.level, res.tile.x, res.tile.y))
                 else:
@@ -566,12 +584,13 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         f"utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)"
-        + (f"; {n_kept:,} tiles kept as they were" if keep else ""),
+        + (f"; {n_kept:,} tiles kept as they were ({redrawn:,} of them drawn again for a chart cache)"
+           if keep else ""),
         seconds,
         buildings,
     )
     return {**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
-            "units_lost": lost,
+            "tiles_redrawn": redrawn, "units_lost": lost,
             "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}
