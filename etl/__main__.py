@@ -239,11 +239,16 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
             kept = textures.keep_aside(conn)
         print(f"update: the footprints and meshes of {batches:,} generalize batches and the textures of {kept:,} "
               "tiles kept aside, to be used again where their input is unchanged", file=sys.stderr)
-        for stage in below:
-            rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
-                                              current_before=stage in current), settings)
-            if rc:
-                return rc
+        from .workers import shared_cluster
+
+        # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece)
+        with shared_cluster(max(min(4, os.cpu_count() or 1), settings.lod_workers, settings.gen_workers,
+                                settings.tex_workers)):
+            for stage in below:
+                rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
+                                                  current_before=stage in current), settings)
+                if rc:
+                    return rc
     if args.out:
         return cmd_export(argparse.Namespace(out=args.out, lod=None, publish=args.publish, no_publish=False,
                                              geometry=args.geometry, textures=args.textures, tiling=args.tiling,

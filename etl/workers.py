@@ -22,6 +22,9 @@ What a stage needs beyond a pool, kept from the process pool this replaced:
   wait in a bounded buffer), so one long item does not idle the others;
 * an exception raised by ``fn`` is the caller's bug and is raised here as a ``WorkerError`` with the worker's
   traceback;
+* within ``shared_cluster(workers)`` (an update runs five stages and an export in one process) every call uses
+  one local cluster, its workers warm with the stages' imports, instead of starting and stopping its own (about
+  1 s each); a call still runs at most ``workers`` of its items at once;
 * the local cluster is closed at the end, its worker processes killed if they will not exit; a local worker
   whose stage process died (kill -9: no cleanup runs) ends with it, as Dask's worker processes watch their
   parent (tests/db/test_crash.py).
@@ -53,6 +56,7 @@ NO_WORKER_S = 120.0
 SLOW_S = 120.0  # a unit running this long is named on stderr (once): the stream waits for it
 BUFFER_PER_THREAD = 16  # finished items held for in-order yield, per cluster thread, when no window is given
 _END = object()
+_SHARED: dict[str, Any] = {}  # "client": the shared_cluster of this process, while one is open
 
 
 @dataclass(frozen=True)
@@ -103,6 +107,9 @@ def dask_client(workers: int) -> Iterator[Any]:
     from distributed import Client, LocalCluster
 
     address = os.environ.get(SCHEDULER_ENV)
+    if not address and "client" in _SHARED:
+        yield _SHARED["client"]  # shared_cluster's: it closes it
+        return
     if address:
         client = Client(address, timeout=30)
         try:
@@ -132,6 +139,21 @@ def dask_client(workers: int) -> Iterator[Any]:
         finally:
             client.close()
             _close_cluster(cluster, before)
+
+
+@contextlib.contextmanager
+def shared_cluster(workers: int) -> Iterator[None]:
+    """Within: every imap_isolated of this process runs on one local cluster of ``workers`` processes (none is
+    started when CITYLOD_DASK_SCHEDULER names a cluster: the calls use that one as always)."""
+    if os.environ.get(SCHEDULER_ENV) or "client" in _SHARED:
+        yield
+        return
+    with dask_client(workers) as client:
+        _SHARED["client"] = client
+        try:
+            yield
+        finally:
+            _SHARED.pop("client", None)
 
 
 def _close_cluster(cluster: Any, before: set[int | None]) -> None:
@@ -196,6 +218,8 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
             # die with that worker (and count a failure) and be timed from when it was queued
             nonlocal submitted, pending
             threads = max(1, sum(client.nthreads().values()))
+            if "client" in _SHARED:  # a shared cluster may have more workers than this call asked for
+                threads = min(threads, workers)
             held = window if window is not None else BUFFER_PER_THREAD * threads
             while pending is not _END and len(flight) < threads and len(flight) + len(done) < held:
                 key = f"{prefix}{submitted}"

@@ -119,3 +119,33 @@ def test_a_free_worker_takes_the_next_items_while_an_earlier_one_runs(tmp_path) 
     items = [("wait", flag)] + [("wait", "/")] * 4 + [("touch", flag)]
     out = list(W.imap_isolated(wait_for, items, workers=2, timeout=60.0))
     assert out == ["released"] * 5 + ["touched"]
+
+
+def pid(_: object) -> int:
+    return os.getpid()
+
+
+def running(item: tuple[str, int]) -> int:
+    """Creates ``path.N`` while it runs (N: its index), and returns how many of them existed at once at most."""
+    path, i = item
+    mine = f"{path}.{i}"
+    open(mine, "w").close()
+    most = 0
+    for _ in range(10):
+        most = max(most, sum(1 for f in os.listdir(os.path.dirname(path)) if f.startswith(os.path.basename(path))))
+        time.sleep(0.05)
+    os.unlink(mine)
+    return most
+
+
+def test_calls_within_a_shared_cluster_use_its_warm_workers_and_keep_their_own_limit(tmp_path) -> None:
+    apart = [set(W.imap_isolated(pid, range(4), workers=2, timeout=30.0)) for _ in range(2)]
+    assert not apart[0] & apart[1], "each call outside a shared cluster starts workers of its own"
+    with W.shared_cluster(2):
+        calls = [set(W.imap_isolated(pid, range(6), workers=2, timeout=30.0)) for _ in range(3)]
+        one = list(W.imap_isolated(running, [(str(tmp_path / "run"), i) for i in range(4)], workers=1,
+                                   timeout=30.0))
+    # three calls, one cluster: its two worker processes ran every item (three own clusters: six processes)
+    assert len(set.union(*calls)) <= 2 and os.getpid() not in set.union(*calls), calls
+    assert max(one) == 1, "a call asking for one worker runs one item at a time on a cluster of two"
+    assert "client" not in W._SHARED
