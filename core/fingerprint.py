@@ -25,11 +25,25 @@ class Fingerprint:
         self._h.update(b)
 
     def rows(self, rows: list[dict[str, object]]) -> None:
-        """Every column of every row, by name, in order."""
+        """Every column of every row, by name, in order. The rows share their columns (one query's): the names
+        are hashed once, then per row its bytes values each length-prefixed and the others in one repr."""
+        if not rows:
+            return
+        keys = sorted(rows[0])
+        self.put(keys)
+        h = self._h
         for r in rows:
-            for k in sorted(r):
-                self.put(k)
-                self.put(r[k])
+            scalars: list[object] = []
+            for k in keys:
+                v = r[k]
+                if isinstance(v, bytes | bytearray | memoryview):
+                    b = v if isinstance(v, bytes) else bytes(v)
+                    h.update(len(b).to_bytes(8, "little"))
+                    h.update(b)
+                    scalars.append(...)  # where a bytes value was: no value a query returns reads as Ellipsis
+                else:
+                    scalars.append(v)
+            self.put(scalars)
 
     def hexdigest(self) -> str:
         return self._h.hexdigest()
