@@ -38,6 +38,7 @@ closest-point arithmetic its precision.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -476,6 +477,7 @@ def _point_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt((r * r).sum(axis=1))
 
 
+GRID_BITS = 16  # outline_hausdorff's tree measures on a grid of 2^-16 m (15 µm): exact under its shifts
 _GEOS_PAIR_MAX = 250_000  # vertex pairs up to which GEOS' quadratic discrete Hausdorff is the faster
 
 
@@ -513,19 +515,27 @@ def _outline_tree(la: np.ndarray, lb: np.ndarray) -> np.ndarray:
     n = len(la)
     out = np.zeros(n)
     lines = [la, lb]
-    bounds = np.concatenate([shapely.bounds(g) for g in lines])
-    if not np.isfinite(bounds).any():
+    ba, bb = (shapely.bounds(g) for g in lines)
+    if not (np.isfinite(ba).any() or np.isfinite(bb).any()):
         return out
-    w = np.nanmax(bounds[:, 2]) - np.nanmin(bounds[:, 0])
-    h = np.nanmax(bounds[:, 3]) - np.nanmin(bounds[:, 1])
-    step = 3.0 * (w + h) + 1.0  # > twice any distance within a pair plus a pair's width
+    # each pair in its own frame (its corner, floored to the metre) on a grid of 2^-GRID_BITS m, then moved
+    # apart by a power of two: the moved coordinates are exact, and so are their differences, which is all a
+    # point-to-segment distance reads, so a pair measures the same whatever else is in the batch (an update
+    # copies blocks measured in another batch than a full rebuild's)
+    corner = np.floor(np.fmin(ba[:, :2], bb[:, :2]))
+    corner = np.where(np.isfinite(corner), corner, 0.0)
+    extent = np.nan_to_num(np.fmax(ba[:, 2:], bb[:, 2:]) - corner).max(initial=0.0)
+    step = 2.0 ** math.ceil(math.log2(3.0 * 2.0 * extent + 1.0))  # > twice any distance in a pair plus its width
+    if n * step >= 2.0 ** (52 - GRID_BITS):
+        raise ValueError(f"{n} pairs {extent:.0f} m wide do not fit the exact grid: measure fewer at a time")
     shift = np.arange(n) * step
     pts, segs = [], []
     for g in lines:
         parts, owner = shapely.get_parts(g, return_index=True)
         xy, part = shapely.get_coordinates(parts, return_index=True)
         own = owner[part]
-        xy = xy + np.stack([shift[own], np.zeros(len(own))], axis=1)
+        xy = np.round((xy - corner[own]) * 2.0 ** GRID_BITS) / 2.0 ** GRID_BITS
+        xy[:, 0] += shift[own]
         pts.append((xy, own))
         same = part[1:] == part[:-1]
         segs.append((np.stack([xy[:-1][same], xy[1:][same]], axis=1), own[:-1][same]))

@@ -92,7 +92,7 @@ _MESH_TYPES = ("int8", "int2", "bytea", "bytea", "int4", "int4", "float4", "floa
 _FOOTPRINT_COLUMNS = ("building_id", "geom", "tolerance_m", "n_vertices_in", "n_vertices_out", "area_in_m2",
                       "area_out_m2", "error_m", "status")
 _BLOCK_COLUMNS = ("block_id", "level", "x", "y", "gen_level", "members", "n_members", "footprint", "geom", "semantics",
-                  "n_triangles", "height", "error_m", "total_error_m", "omitted", "collapse_m")
+                  "n_triangles", "height", "error_m", "total_error_m", "omitted", "collapse_m", "input_digest")
 
 
 def _ewkb(geoms: np.ndarray, srid: int) -> list[bytes]:
@@ -435,12 +435,15 @@ def block_ids(rows: list[dict[str, Any]]) -> list[int]:
 
 @dataclass
 class _BlockReuse:
-    """The block tiles' fingerprints of this run (block_digests), the last run's (an update: else None), and
-    the gen.unit_input rows and copies this run makes (step blocks, a tile per unit)."""
+    """The block tiles' fingerprints of this run (block_digests), the last run's (an update: else None), the
+    gen.unit_input rows and copies this run makes (step blocks, a tile per unit), the run's seed (in every
+    block's input_digest) and the blocks copied one at a time from the tiles made again."""
 
     digests: dict[Unit, str]
     kept: Kept | None
     units: _Units = field(default_factory=lambda: _Units("blocks"))
+    seed: str = ""
+    blocks_copied: int = 0
 
 
 def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
@@ -480,23 +483,75 @@ def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> 
     return [t for t in tiles if t not in copied], copy
 
 
+_KEPT_COLS = [c for c in _BLOCK_COLUMNS if c not in ("omitted", "error_m", "total_error_m")]
+#: kept blocks back into gen.block as they were made (an omission on tile error undone: the hierarchy step
+#: decides it again); the caller adds the WHERE clause
+_COPY_KEPT_BLOCKS = (
+    f"INSERT INTO gen.block ({', '.join(_KEPT_COLS)}, omitted, error_m, total_error_m) "  # noqa: S608 - fixed names
+    f"SELECT {', '.join(_KEPT_COLS)}, omitted AND built_error_m IS NULL, coalesce(built_error_m, error_m), "
+    "coalesce(built_total_error_m, total_error_m) FROM gen.kept_block ")
+
+
 def _copy_blocks(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
     """The kept blocks of these tiles back into gen.block as they were made (an omission on tile error undone:
     the hierarchy step decides it again), with the figures the last run counted for them."""
     if not tiles:
         return
-    cols = [c for c in _BLOCK_COLUMNS if c not in ("omitted", "error_m", "total_error_m")]
-    cur.execute(
-        f"INSERT INTO gen.block ({', '.join(cols)}, omitted, error_m, total_error_m) "  # noqa: S608 - fixed names
-        f"SELECT {', '.join(cols)}, omitted AND built_error_m IS NULL, coalesce(built_error_m, error_m), "
-        "coalesce(built_total_error_m, total_error_m) FROM gen.kept_block "
-        "WHERE (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
-        ([t[0] for t in tiles], [t[1] for t in tiles], [t[2] for t in tiles]))
+    cur.execute(_COPY_KEPT_BLOCKS + "WHERE (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+                ([t[0] for t in tiles], [t[1] for t in tiles], [t[2] for t in tiles]))
     for t in tiles:
         print_, n, figures = reuse.kept[("blocks", t)]  # type: ignore[index]
         _add(stats, figures)
         reuse.units.copied.append((t, [], (print_, n, figures)))
         reuse.units.records.append(("blocks", *t, print_, n, Jsonb(figures)))
+
+
+def _make_blocks(cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Settings,
+                 srid: int) -> tuple[list[float], list[bool], int]:
+    """Simplify, extrude and measure the clusters ``rows`` (of gen.block_clusters or gen.coarse_block_clusters),
+    write them to gen.block, and return their errors (as stored: real), omissions and member count. Each
+    block's figures depend on its own row alone (outline_hausdorff measures a batch's pairs apart), so a block
+    made in another batch, as an update copies it, is the same block."""
+    if not rows:
+        return [], [], 0
+    n = len(rows)
+    tol = np.array([r["tolerance"] for r in rows], float)
+    merged = shapely.from_wkb([r["merged"] for r in rows])
+    s = simplify_footprints(merged, tol, max_area_change=settings.gen_max_area_change)
+    geoms = np.where(shapely.is_empty(s.geoms), merged, s.geoms)
+    top = np.array([r["height"] if r["height"] is not None else r["hmax"] for r in rows], float)
+    ex, _ = _solids(geoms, np.zeros(n), top)
+    members = [list(r["members"]) for r in rows]
+    # prisms against prisms: the outlines' Hausdorff distance, the gaps the merge filled (at most half
+    # the distance) and the largest roof height change bound the distance between the solids
+    joined = shapely.from_wkb([r["joined"] for r in rows])
+    hmax = np.array([r["hmax"] for r in rows], float)
+    outline = outline_hausdorff(geoms, joined, tol / 4)
+    gap = np.where(np.array([r["n_in"] for r in rows]) > 1, tol / 2, 0.0)  # only merges fill gaps
+    dz = np.maximum(hmax - top, top - np.array([r["hmin"] for r in rows], float))
+    err = np.hypot(np.maximum(outline, gap), np.maximum(dz, 0.0))
+    # selection: a block that fits within the band's tolerance of one point (the centre of its members'
+    # bounding circle, at ground level) is omitted from its tile; that collapse is then its error
+    collapse = np.hypot(shapely.minimum_bounding_radius(joined), hmax)
+    omitted = collapse <= tol
+    err = np.where(omitted, collapse, err)
+    total = err + np.array([float(r["members_error_m"]) for r in rows])
+    wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
+    fps = _ewkb(geoms, srid)
+    sem = ex.semantics.tobytes()
+    offs = ex.offsets.tolist()
+    ids = block_ids(rows)
+    with cur.copy(f"COPY gen.block ({', '.join(_BLOCK_COLUMNS)}) FROM STDIN") as copy:
+        for j, r in enumerate(rows):
+            copy.write_row((ids[j], r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
+                            fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
+                            float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
+                            float(collapse[j]), r["input_digest"]))
+    # the errors as stored (real), so that copied blocks count alike
+    errs = [float(e) for e in err.astype(np.float32)]
+    omits = [bool(o) for o in omitted]
+    n_members = sum(len(m) for m in members)
+    return errs, omits, n_members
 
 
 def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
@@ -520,56 +575,43 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             make, copy = _block_tiles(cur, reuse, here)
             _copy_blocks(cur, reuse, copy, stats)
         lvs, xs, ys = ([t[i] for t in make] for i in range(3)) if make is not None else (None, None, None)
+        # the kept blocks of the tiles made again: a cluster made of the same inputs is copied, not made
+        skip = None if reuse is None or reuse.kept is None or not make else [d for (d,) in cur.execute(
+            "SELECT input_digest FROM gen.kept_block WHERE input_digest IS NOT NULL "
+            "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))", (lvs, xs, ys))]
+        seed = reuse.seed if reuse is not None else ""
         if coarse is None:
-            src.execute("SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[])", (lvs, xs, ys))
+            src.execute("SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[], %s, %s::text[])",
+                        (lvs, xs, ys, seed, skip))
         else:
-            src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[])", (*coarse, xs, ys))
+            src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[], %s, %s::text[])",
+                        (*coarse, xs, ys, seed, skip))
         made: set[Unit] = set()
         # a tile's blocks are one batch: what its simplification and measures give depends on that tile alone
         for tile, tile_rows in itertools.groupby(
                 itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
                 key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"]))):
-            rows = list(tile_rows)
-            n = len(rows)
-            tol = np.array([r["tolerance"] for r in rows], float)
-            merged = shapely.from_wkb([r["merged"] for r in rows])
-            s = simplify_footprints(merged, tol, max_area_change=settings.gen_max_area_change)
-            geoms = np.where(shapely.is_empty(s.geoms), merged, s.geoms)
-            top = np.array([r["height"] if r["height"] is not None else r["hmax"] for r in rows], float)
-            ex, _ = _solids(geoms, np.zeros(n), top)
-            members = [list(r["members"]) for r in rows]
-            # prisms against prisms: the outlines' Hausdorff distance, the gaps the merge filled (at most half
-            # the distance) and the largest roof height change bound the distance between the solids
-            joined = shapely.from_wkb([r["joined"] for r in rows])
-            hmax = np.array([r["hmax"] for r in rows], float)
-            outline = outline_hausdorff(geoms, joined, tol / 4)
-            gap = np.where(np.array([r["n_in"] for r in rows]) > 1, tol / 2, 0.0)  # only merges fill gaps
-            dz = np.maximum(hmax - top, top - np.array([r["hmin"] for r in rows], float))
-            err = np.hypot(np.maximum(outline, gap), np.maximum(dz, 0.0))
-            # selection: a block that fits within the band's tolerance of one point (the centre of its members'
-            # bounding circle, at ground level) is omitted from its tile; that collapse is then its error
-            collapse = np.hypot(shapely.minimum_bounding_radius(joined), hmax)
-            omitted = collapse <= tol
-            err = np.where(omitted, collapse, err)
-            total = err + np.array([float(r["members_error_m"]) for r in rows])
-            wkbs = encode_triangles_batch(ex.triangles, ex.offsets, srid)
-            fps = _ewkb(geoms, srid)
-            sem = ex.semantics.tobytes()
-            offs = ex.offsets.tolist()
-            ids = block_ids(rows)
-            with cur.copy(f"COPY gen.block ({', '.join(_BLOCK_COLUMNS)}) FROM STDIN") as copy:
-                for j, r in enumerate(rows):
-                    copy.write_row((ids[j], r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
-                                    fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
-                                    float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
-                                    float(collapse[j])))
-            figures = {"blocks": n, "omitted": int(omitted.sum()), "members": sum(len(m) for m in members),
-                       "max_error_m": float(err.max(initial=0.0))}
+            everything = list(tile_rows)
+            rows = [r for r in everything if r["merged"] is not None]
+            same = [r["input_digest"] for r in everything if r["merged"] is None]  # in skip: copied
+            errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
+            if same:
+                got = cur.execute(_COPY_KEPT_BLOCKS + "WHERE (level, x, y) = (%s, %s, %s) AND input_digest = ANY(%s) "
+                                  "RETURNING omitted, error_m, n_members", (*tile, same)).fetchall()
+                if len(got) != len(same):
+                    raise RuntimeError(f"tile {tile}: {len(same)} kept blocks to copy, {len(got)} found")
+                omits += [bool(o) for o, _, _ in got]
+                errs += [float(np.float32(e)) for _, e, _ in got]  # a real read as text: its float32 again
+                n_members += sum(int(k) for _, _, k in got)
+                if reuse is not None:
+                    reuse.blocks_copied += len(got)
+            figures = {"blocks": len(omits), "omitted": sum(omits), "members": n_members,
+                       "max_error_m": max(errs, default=0.0)}
             _add(stats, figures)
             if reuse is not None:
-                reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), n, Jsonb(figures)))
+                reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), len(omits), Jsonb(figures)))
                 made.add(tile)
-            progress.update(n)
+            progress.update(len(omits))
         if reuse is not None:  # tiles that made no block (every building below a landmark) have their row too
             empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
             reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty))
@@ -659,7 +701,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         # TRUNCATEd tables for empty and scans them once per member (minutes at 100k buildings)
         cur.execute("ANALYZE gen.footprint")
         cur.execute("ANALYZE gen.building_mesh")
-        reuse = _BlockReuse(block_digests(conn, seed), kept)
+        reuse = _BlockReuse(block_digests(conn, seed), kept, seed=seed)
         blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse=reuse)
         blk.update(coarse_blocks(conn, settings, srid, reuse=reuse))
         with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
@@ -688,7 +730,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         **balance.counts(), "buildings": n_groups, "tolerance_m": tol,
         "footprints": fp, "decimation": dec, "blocks": blk,
         "batches": {u.step: {"computed": len(u.records) - len(u.copied), "copied": len(u.copied)}
-                    for u in (fp_units, dec_units, reuse.units)},
+                    for u in (fp_units, dec_units, reuse.units)}
+        | {"blocks_copied": reuse.blocks_copied},  # from the tiles made again, one cluster at a time
         "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
@@ -699,7 +742,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings"
         + (f"; footprint batches copied {len(fp_units.copied):,} of {len(fp_units.records):,}, decimation "
            f"{len(dec_units.copied):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.copied):,} of "
-           f"{len(reuse.units.records):,}" if keep else ""),
+           f"{len(reuse.units.records):,} (and {reuse.blocks_copied:,} blocks of the others)" if keep else ""),
         wall, n_groups,
     )
     return result

@@ -142,6 +142,7 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
             (gen,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
+            assert gen["batches"]["blocks_copied"] > 0, gen  # the blocks the change missed in the tiles it hit
             for step in ("footprints", "decimation", "blocks"):  # the batches the change missed are copied, the rest
                 assert gen["batches"][step]["copied"] > 0 and gen["batches"][step]["computed"] > 0, (step, gen)
             (exp,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' "

@@ -255,3 +255,12 @@ def test_outline_hausdorff_matches_geos_on_small_and_large_outlines() -> None:
 
     ref = np.array([max(directed(x, y), directed(y, x)) for x, y in zip(a, b, strict=True)])
     assert np.all(got <= ref + 0.1) and np.all(got >= ref - spacing / 2 - 0.1), (got, ref)
+    # a pair measures the same bits alone, in this batch, and in a batch of other far and wide pairs (an update
+    # copies blocks measured in other batches than a full rebuild's); the big pairs take the segment tree
+    big = np.flatnonzero(n_pairs > _GEOS_PAIR_MAX)
+    for k in big:
+        alone = outline_hausdorff(a[k:k + 1], b[k:k + 1], spacing)[0]
+        wide = shapely.box(UTM[0] - 90_000, UTM[1], UTM[0] - 87_000, UTM[1] + 3_000)
+        others = outline_hausdorff(np.array([wide, a[k], *a]), np.array([shapely.simplify(wide, 1.0), b[k], *b]),
+                                   spacing)
+        assert alone == got[k] == others[1] == others[2 + k], (alone, got[k], others[1], others[2 + k])
