@@ -587,7 +587,8 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[], %s, %s::text[])",
                         (*coarse, xs, ys, seed, skip))
         made: set[Unit] = set()
-        # a tile's blocks are one batch: what its simplification and measures give depends on that tile alone
+        # a tile's blocks are one batch (a block depends on its own cluster alone: _make_blocks); the clusters
+        # in skip come back unmade, and their kept blocks are copied
         for tile, tile_rows in itertools.groupby(
                 itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
                 key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"]))):
