@@ -7,14 +7,19 @@
    (a mapper's edits are local): every other one gets a new height (a tag edit), the others have one node
    moved by half a metre (a geometry edit: every building drawn with that node moves);
 3. ``python -m etl update --osc that --out the export`` in one process, timed, with its stages' own seconds
-   (meta.pipeline_run) and what the export published anew.
+   (meta.pipeline_run) and what the export published anew;
+4. a real change (benchmarks/history.py): the extract as it was on HISTORY_BEFORE, as far as its own versions
+   and timestamps tell, built in full in another database and exported, then updated with the change file of
+   what mappers created since, timed the same way and compared with the full rebuild of step 1.
 
 ``--json PATH`` writes the figures; ``--write BENCHMARKS.md`` replaces its "## Updates" section.
 """
 
 from __future__ import annotations
 
+import datetime as dt
 import hashlib
+import json
 import math
 import os
 import sys
@@ -39,10 +44,14 @@ from benchmarks.common import (
     run_child,
     section_bench,
 )
+from benchmarks.history import split
 
 UPDATE_DB = "citylod_bench_update"
 DEFAULT_OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
 SHARE = 0.01
+#: the real change's start (step 4): Liechtenstein's buildings created from here to the extract (2022-07-24) are
+#: about 1 % of them
+HISTORY_BEFORE = dt.datetime(2022, 5, 7, tzinfo=dt.UTC)
 STAGES = (*PIPELINE, "export")
 
 
@@ -175,6 +184,68 @@ def _state_file(url: str) -> str | None:
     return row[0] if row else None
 
 
+def _reused(url: str, last: int) -> dict[str, Any]:
+    """What each stage of the update after run ``last`` computed and what it copied."""
+    with psycopg.connect(url) as conn:
+        runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
+                                 "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id", (last,)).fetchall())
+    return {"generalize": runs.get("generalize", {}).get("batches"),
+            "textures": {k: runs.get("textures", {}).get(k) for k in ("tiles", "tiles_kept", "tiles_redrawn")},
+            "export": {k: runs.get("export", {}).get(k) for k in ("glb", "glb_built", "glb_copied")}}
+
+
+def _changed(url: str) -> dict[str, int]:
+    with psycopg.connect(url) as conn:
+        return dict(conn.execute("SELECT change, count(*) FROM osm.building_change GROUP BY 1").fetchall())
+
+
+def _last_run(url: str) -> int:
+    with psycopg.connect(url) as conn:
+        (last,) = conn.execute("SELECT max(run_id) FROM meta.pipeline_run").fetchone()  # type: ignore[misc]
+    return int(last)
+
+
+def _same_tilesets(a: Path, b: Path) -> list[str]:
+    """Files that differ between two export directories; tileset.json without its tilesetVersion (the sha256
+    of the OSM file each was built from: a state file made by an update is not the extract's bytes)."""
+    fa, fb = file_hashes(a), file_hashes(b)
+    fa.pop("tileset.json", None), fb.pop("tileset.json", None)
+    differ = sorted(k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k))
+    ta, tb = (json.loads((d / "tileset.json").read_text()) for d in (a, b))
+    ta["asset"].pop("tilesetVersion", None), tb["asset"].pop("tilesetVersion", None)
+    return differ + (["tileset.json"] if ta != tb else [])
+
+
+def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out: Path,
+                    verify: bool = True) -> dict[str, Any]:
+    """Step 4 of the module doc: ``full_url`` and ``full_out`` are the full rebuild of ``osm`` and its export."""
+    name = extract_name(osm)
+    day = HISTORY_BEFORE.date().isoformat()
+    base = OUT_ROOT / "update" / f"{name}-{day}.osm.pbf"
+    change = OUT_ROOT / "update" / f"{name}-since-{day}.osc"
+    made = split(osm, HISTORY_BEFORE, base, change)
+    log(f"{name}: as it was on {day}, then updated with what mappers created since ({made})")
+    url = build_pipeline_db(base, admin_url, db + "_history", "update-history")
+    env = {**os.environ, "DATABASE_URL": url}
+    out = OUT_ROOT / "update" / f"{name}-history"
+    logs = LOG_DIR / name / "update-history"
+    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
+    full = stage_seconds(url, 0)
+    full.pop("migrate", None)
+    last = _last_run(url)
+    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
+                        logs / "update.log")
+    res: dict[str, Any] = {"before": day, "created": made, "changed": _changed(url), "full_s": full,
+                           "full_total_s": round(sum(full.values()), 1), "update_wall_s": round(wall, 1),
+                           "update_s": stage_seconds(url, last), "reused": _reused(url, last)}
+    if verify:
+        differ = _same_tilesets(out, full_out)
+        res["verified"] = {"tables_differing": differences(url, full_url), "tiles_differing": differ,
+                           "tiles": len(file_hashes(out))}
+    drop_db(admin_url, db + "_history")
+    return res
+
+
 def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True) -> dict[str, Any]:
     name = extract_name(osm)
     logs = LOG_DIR / name / "update"
@@ -186,22 +257,17 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     full = stage_seconds(url, 0)
     full.pop("migrate", None)
     full_wall = time.perf_counter() - t0
+    history = measure_history(osm, admin_url, db, url, out, verify)
     change = OUT_ROOT / "update" / f"{name}-1pct.osc"
     made = write_change(osm, change)
-    with psycopg.connect(url) as conn:
-        (last,) = conn.execute("SELECT max(run_id) FROM meta.pipeline_run").fetchone()  # type: ignore[misc]
+    last = _last_run(url)
     log(f"{name}: update with {made['chosen']:,} of {made['building_ways']:,} building ways changed")
     wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
                         logs / "update.log")
     update_s = stage_seconds(url, last)  # now: the no-building update below records the same stages again
-    with psycopg.connect(url) as conn:  # what each stage of the update kept or copied
-        runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
-                                 "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id", (last,)).fetchall())
-    reused = {"generalize": runs.get("generalize", {}).get("batches"),
-              "textures": {k: runs.get("textures", {}).get(k) for k in ("tiles", "tiles_kept")},
-              "export": {k: runs.get("export", {}).get(k) for k in ("glb", "glb_built", "glb_copied")}}
+    reused = _reused(url, last)
+    changed = _changed(url)
     with psycopg.connect(url) as conn:
-        changed = dict(conn.execute("SELECT change, count(*) FROM osm.building_change GROUP BY 1").fetchall())
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
         pub = conn.execute("SELECT n_files, n_new_files, n_new_bytes FROM pub.generation "
                            "ORDER BY generation DESC LIMIT 1").fetchone()
@@ -223,15 +289,14 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     quiet.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6"><create>'
                      f'<node id="{10**12}" version="1" lat="{_centre(url)[1]:.7f}" lon="{_centre(url)[0]:.7f}">'
                      '<tag k="amenity" v="bench"/></node></create></osmChange>\n')
-    with psycopg.connect(url) as conn:
-        (last,) = conn.execute("SELECT max(run_id) FROM meta.pipeline_run").fetchone()  # type: ignore[misc]
+    last = _last_run(url)
     quiet_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(quiet), "--out", str(out)], env,
                               logs / "update-no-building.log")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
             "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
             "no_building_s": stage_seconds(url, last),
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
-            "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused,
+            "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused, "history": history,
             "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
 
 
@@ -276,12 +341,50 @@ def section(s: dict[str, Any] | None) -> list[str]:
             "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
             "alone; landmarks and tiles run over the whole city again; generalize computes the footprint and "
             f"decimation batches and the block tiles whose input changed ({batches('footprints')}, "
-            f"{batches('decimation')} and {batches('blocks')}; the others' rows are copied) and the hierarchy "
+            f"{batches('decimation')} and {batches('blocks')}; the others' rows are copied, and of the block tiles "
+            f"made again the {_n(g.get('blocks_copied'))} blocks whose inputs did not change) and the hierarchy "
             "again; textures textures the tiles "
             f"whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
-            f"{t.get('tiles', '?')}); the export builds the glbs whose input changed ({e.get('glb_built', '?')} of "
+            f"{t.get('tiles', '?')}, and draws {t.get('tiles_redrawn', '?')} kept ones again for a chart cache); "
+            f"the export builds the glbs whose input changed ({e.get('glb_built', '?')} of "
             f"{e.get('glb', '?')}; the others are copied) and publishes {pub.get('new_files', '?')} new files of "
             f"{pub.get('files', '?')}.", ""]
+    return out + history_section(s.get("history"))
+
+
+def _n(v: object) -> str:
+    return f"{v:,}" if isinstance(v, int) else "?"
+
+
+def history_section(h: dict[str, Any] | None) -> list[str]:
+    """The real change's paragraph and table (measure_history)."""
+    if not h:
+        return []
+    c, t = h["created"], (h.get("reused") or {}).get("textures") or {}
+    e = (h.get("reused") or {}).get("export") or {}
+    out = ["### A real change", "",
+           f"The same extract as it was on {h['before']}, as far as its own versions and timestamps tell "
+           "(`python -m benchmarks.history`: every object at version 1 stamped after that day left out), built in "
+           f"full in another database, then updated with the change file of what mappers created since "
+           f"({c['ways']:,} ways, {c['relations']:,} relations, {c['nodes']:,} nodes; osm.building_change: "
+           + ", ".join(f"{n:,} {k}" for k, n in sorted(h["changed"].items())) + "). "
+           f"Measured: {h['update_wall_s']:.1f} s against that full rebuild's {h['full_total_s']:.1f} s, "
+           f"{100 * h['update_wall_s'] / h['full_total_s']:.0f} %; textures made "
+           f"{(t.get('tiles') or 0) - (t.get('tiles_kept') or 0)} of {t.get('tiles', '?')} tiles again (and drew "
+           f"{t.get('tiles_redrawn', '?')} kept ones again for a chart cache), the export built "
+           f"{e.get('glb_built', '?')} of {e.get('glb', '?')} glbs. Unlike the 1 % above, these edits are spread "
+           "over the whole extract, as two and a half months of a country's mapping are: the tiles they touch, "
+           "and their ancestors, are what an update makes again.", ""]
+    out += markdown_table(["stage", "full rebuild s", "update s"],
+                          [[st, h["full_s"].get(st, ""), h["update_s"].get(st, "")] for st in STAGES], "lrr")
+    v = h.get("verified")
+    if v is not None:
+        same = not v["tables_differing"] and not v["tiles_differing"]
+        out += ["", "Equivalence with the full rebuild of the extract itself (the first one above, before its own "
+                "update): " + (f"every table row for row and all {v['tiles']:,} files equal (tileset.json but for "
+                               "its tilesetVersion, the sha256 of the OSM file read)." if same else
+                               f"tables that differ (rows): {v['tables_differing']}; files that differ: "
+                               f"{v['tiles_differing'][:5]}."), ""]
     return out
 
 
