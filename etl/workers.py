@@ -22,7 +22,7 @@ What a stage needs beyond a pool, kept from the process pool this replaced:
   wait in a bounded buffer), so one long item does not idle the others;
 * an exception raised by ``fn`` is the caller's bug and is raised here as a ``WorkerError`` with the worker's
   traceback;
-* within ``shared_cluster(workers)`` (an update runs five stages and an export in one process) every call uses
+* within ``shared_cluster(workers)`` (an update runs its stages in one process) every call uses
   one local cluster, its workers warm with the stages' imports, instead of starting and stopping its own (about
   1 s each); a call still runs at most ``workers`` of its items at once;
 * the local cluster is closed at the end, its worker processes killed if they will not exit; a local worker

@@ -441,8 +441,8 @@ class _BlockReuse:
 
     digests: dict[Unit, str]
     kept: Kept | None
+    seed: str
     units: _Units = field(default_factory=lambda: _Units("blocks"))
-    seed: str = ""
     blocks_copied: int = 0
 
 
@@ -554,38 +554,36 @@ def _make_blocks(cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Sett
     return errs, omits, n_members
 
 
-def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress,
-            coarse: tuple[int, int] | None = None, reuse: _BlockReuse | None = None) -> dict[str, float]:
+def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress, reuse: _BlockReuse,
+            coarse: tuple[int, int] | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
     ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already).
-    With ``reuse``, every tile is recorded with its fingerprint, and in an update the tiles whose fingerprint
-    is the last run's get their kept blocks back instead."""
+    Every tile is recorded in ``reuse`` with its fingerprint; in an update the tiles whose fingerprint is the
+    last run's get their kept blocks back instead, and in the others the clusters whose input digest a kept
+    block has."""
     stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
     # the TRUNCATE's lock), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
     with conn.cursor(name="gen_blocks", row_factory=dict_row) as src, conn.cursor() as cur:
         src.itersize = BATCH
-        make: list[Unit] | None = None
-        if reuse is not None:
-            here = [(int(lv), int(x), int(y)) for lv, x, y in cur.execute(
-                "SELECT level, x, y FROM tiles.tile WHERE CASE WHEN %(g)s::int IS NULL THEN gen_level IN (0, 1) "
-                "ELSE gen_level = %(g)s AND level = %(lv)s END ORDER BY level, x, y",
-                {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None})]
-            make, copy = _block_tiles(cur, reuse, here)
-            _copy_blocks(cur, reuse, copy, stats)
-        lvs, xs, ys = ([t[i] for t in make] for i in range(3)) if make is not None else (None, None, None)
+        here = [(int(lv), int(x), int(y)) for lv, x, y in cur.execute(
+            "SELECT level, x, y FROM tiles.tile WHERE CASE WHEN %(g)s::int IS NULL THEN gen_level IN (0, 1) "
+            "ELSE gen_level = %(g)s AND level = %(lv)s END ORDER BY level, x, y",
+            {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None})]
+        make, copy = _block_tiles(cur, reuse, here)
+        _copy_blocks(cur, reuse, copy, stats)
+        lvs, xs, ys = ([t[i] for t in make] for i in range(3))
         # the kept blocks of the tiles made again: a cluster made of the same inputs is copied, not made
-        skip = None if reuse is None or reuse.kept is None or not make else [d for (d,) in cur.execute(
+        skip = None if reuse.kept is None or not make else [d for (d,) in cur.execute(
             "SELECT input_digest FROM gen.kept_block WHERE input_digest IS NOT NULL "
             "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))", (lvs, xs, ys))]
-        seed = reuse.seed if reuse is not None else ""
         if coarse is None:
             src.execute("SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[], %s, %s::text[])",
-                        (lvs, xs, ys, seed, skip))
+                        (lvs, xs, ys, reuse.seed, skip))
         else:
             src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[], %s, %s::text[])",
-                        (*coarse, xs, ys, seed, skip))
+                        (*coarse, xs, ys, reuse.seed, skip))
         made: set[Unit] = set()
         # a tile's blocks are one batch (a block depends on its own cluster alone: _make_blocks); the clusters
         # in skip come back unmade, and their kept blocks are copied
@@ -604,35 +602,33 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                 omits += [bool(o) for o, _, _ in got]
                 errs += [float(np.float32(e)) for _, e, _ in got]  # a real read as text: its float32 again
                 n_members += sum(int(k) for _, _, k in got)
-                if reuse is not None:
-                    reuse.blocks_copied += len(got)
+                reuse.blocks_copied += len(got)
             figures = {"blocks": len(omits), "omitted": sum(omits), "members": n_members,
                        "max_error_m": max(errs, default=0.0)}
             _add(stats, figures)
-            if reuse is not None:
-                reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), len(omits), Jsonb(figures)))
-                made.add(tile)
+            reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), len(omits), Jsonb(figures)))
+            made.add(tile)
             progress.update(len(omits))
-        if reuse is not None:  # tiles that made no block (every building below a landmark) have their row too
-            empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
-            reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty))
-                                    for t in make or [] if t not in made]
+        # tiles that made no block (every building below a landmark) have their row too
+        empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
+        reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty)) for t in make if t not in made]
     return stats
 
 
-def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, max_level: int | None = None,
-                  reuse: _BlockReuse | None = None) -> dict[str, float]:
+def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, reuse: _BlockReuse | None = None,
+                  max_level: int | None = None) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
     band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
     "coarse_omitted": {g: n}})."""
+    reuse = reuse or _BlockReuse({}, None, seed="")  # outside a run (benchmarks/view_bench.py): nothing recorded
     pairs = [(int(g), int(lv)) for g, lv in conn.execute(
         "SELECT gen_level, level FROM gen.coarse_bands(%s)", (max_level,))]
     out: dict[int, int] = {}
     omitted: dict[int, int] = {}
     for g, lv in pairs:
         conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
-        st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), (g, lv), reuse)
+        st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), reuse, (g, lv))
         out[g] = out.get(g, 0) + int(st["blocks"])
         omitted[g] = omitted.get(g, 0) + int(st["omitted"])
     return {"coarse_blocks": out, "coarse_omitted": omitted}  # type: ignore[dict-item]
@@ -703,8 +699,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         cur.execute("ANALYZE gen.footprint")
         cur.execute("ANALYZE gen.building_mesh")
         reuse = _BlockReuse(block_digests(conn, seed), kept, seed=seed)
-        blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse=reuse)
-        blk.update(coarse_blocks(conn, settings, srid, reuse=reuse))
+        blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse)
+        blk.update(coarse_blocks(conn, settings, srid, reuse))
         with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
             for row in fp_units.records + dec_units.records + reuse.units.records:
                 copy.write_row(row)
