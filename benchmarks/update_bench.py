@@ -23,6 +23,7 @@ import json
 import math
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -87,6 +88,64 @@ def differences(a_url: str, b_url: str) -> dict[str, int]:
             if ra != rb:
                 out[table] = len(set(ra) ^ set(rb)) or abs(len(ra) - len(rb))
     return out
+
+
+class Reader:
+    """An analyst reading while a run writes: a thread that counts the rows of every table of TABLES and the
+    root tile's content (api.buildings_for_tile) over and over, each read giving up after LOCK_TIMEOUT when it
+    would wait on a lock. ``report()`` after the ``with``: the reads, those that gave up, the stages seen running,
+    and per table the counts seen that are neither the count before nor the count after (a table emptied or
+    half written while the run ran)."""
+
+    LOCK_TIMEOUT = "100ms"
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.queries: dict[str, sql.Composable] = {
+            t: sql.SQL("SELECT count(*) FROM {}").format(sql.Identifier(*t.split("."))) for t in TABLES}
+        self.queries["api.buildings_for_tile(0, 0, 0)"] = sql.SQL(
+            "SELECT count(*) FROM api.buildings_for_tile(0, 0, 0)")
+        self.seen: dict[str, set[int]] = {name: set() for name in self.queries}
+        self.running: set[str] = set()
+        self.errors: list[str] = []
+        self.rounds = 0
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._poll, name="reader")
+
+    def _counts(self, conn: psycopg.Connection) -> dict[str, int]:
+        return {name: conn.execute(q).fetchone()[0] for name, q in self.queries.items()}  # type: ignore[index]
+
+    def _poll(self) -> None:
+        with psycopg.connect(self.url, autocommit=True) as conn:
+            conn.execute(sql.SQL("SET lock_timeout = {}").format(sql.Literal(self.LOCK_TIMEOUT)))
+            while not self._done.is_set():
+                try:
+                    self.running.update(s for (s,) in conn.execute(
+                        "SELECT stage FROM meta.pipeline_run WHERE status = 'running'"))
+                    for name, n in self._counts(conn).items():
+                        self.seen[name].add(n)
+                    self.rounds += 1
+                except psycopg.Error as e:
+                    self.errors.append(f"{type(e).__name__}: {str(e).splitlines()[0]}")
+
+    def __enter__(self) -> Reader:
+        with psycopg.connect(self.url, autocommit=True) as conn:
+            self.before = self._counts(conn)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        self._thread.join()
+        with psycopg.connect(self.url, autocommit=True) as conn:
+            self.after = self._counts(conn)
+
+    def report(self) -> dict[str, Any]:
+        odd = {name: sorted(s - {self.before[name], self.after[name]}) for name, s in self.seen.items()
+               if s - {self.before[name], self.after[name]}}
+        return {"rounds": self.rounds, "lock_timeouts": sum("LockNotAvailable" in e for e in self.errors),
+                "errors": self.errors[:5], "running": sorted(self.running), "odd_counts": odd,
+                "tables": len(self.queries)}
 
 
 def file_hashes(d: Path) -> dict[str, str]:
@@ -293,11 +352,21 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     last = _last_run(url)
     quiet_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(quiet), "--out", str(out)], env,
                               logs / "update-no-building.log")
+    # then another 1 % change, the same buildings edited again, with an analyst reading every table meanwhile
+    # (not timed: the reader takes a core)
+    again = OUT_ROOT / "update" / f"{name}-1pct-again.osc"
+    state = Path(params_osm) if (params_osm := _state_file(url)) else None
+    assert state is not None
+    write_change(state, again)
+    with Reader(url) as reader:
+        run_child([sys.executable, "-m", "etl", "update", "--osc", str(again), "--out", str(out)], env,
+                  logs / "update-read.log")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
             "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
             "no_building_s": stage_seconds(url, last),
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
             "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused, "history": history,
+            "readers": reader.report(),
             "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
 
 
@@ -329,6 +398,16 @@ def section(s: dict[str, Any] | None) -> list[str]:
         out += ["", "A change that touches no building (one new tagged node) after it: "
                 f"{s['no_building_wall_s']:.1f} s (ingest {q.get('ingest', '?')} s, export {q.get('export', '?')} "
                 "s; lod ... textures carried over, not run)."]
+    if rd := s.get("readers"):
+        odd = rd["odd_counts"]
+        out += ["", "An analyst meanwhile (`Reader` in benchmarks/update_bench.py): while another such change was "
+                f"applied (not timed), one connection counted the rows of the {rd['tables'] - 1} tables the stages "
+                "write and the root tile's content (api.buildings_for_tile) over and over, each read giving up "
+                f"after {Reader.LOCK_TIMEOUT} on a lock: {rd['rounds']:,} rounds, {rd['lock_timeouts']:,} reads "
+                "gave up, "
+                + ("no table seen emptied or half written (every count the one before or the one after the "
+                   "update)" if not odd else f"tables seen with other counts: {odd}")
+                + f"; stages seen running: {', '.join(rd['running'])}."]
     pub = s.get("published") or {}
     r = s.get("reused") or {}
     g, t, e = r.get("generalize") or {}, r.get("textures") or {}, r.get("export") or {}

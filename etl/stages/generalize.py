@@ -562,8 +562,8 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
     last run's get their kept blocks back instead, and in the others the clusters whose input digest a kept
     block has."""
     stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
-    # reads the footprints this transaction wrote, so on the writing connection (another one would wait for
-    # the TRUNCATE's lock), a batch at a time between the COPYs
+    # reads the footprints this transaction wrote, so on the writing connection (another one would read the
+    # rows of before), a batch at a time between the COPYs
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
     with conn.cursor(name="gen_blocks", row_factory=dict_row) as src, conn.cursor() as cur:
         src.itersize = BATCH
@@ -685,7 +685,10 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
         # the inputs are read whole: plan for all rows, not the fast-start plans cursors get by default
         reader.execute("SET cursor_tuple_fraction = 1.0")
-        cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, gen.unit_input RESTART IDENTITY")
+        # not TRUNCATE: its lock would make every reader of these tables wait for the stage (seconds to minutes),
+        # and a reader's older snapshot would find them empty; deleted rows stay theirs until the commit
+        cur.execute("DELETE FROM gen.block; DELETE FROM gen.building_mesh; DELETE FROM gen.footprint; "
+                    "DELETE FROM gen.unit_input")
         step = time.perf_counter()
         fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],
                                    Progress("generalize", "buildings", total=n_groups), seed, kept)
@@ -695,7 +698,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         seconds["decimation"] = time.perf_counter() - step
         step = time.perf_counter()
         # the blocks join the footprints and meshes just written: without statistics the planner takes the
-        # TRUNCATEd tables for empty and scans them once per member (minutes at 100k buildings)
+        # tables for what they held before (empty after a full lod) and scans them once per member (minutes at
+        # 100k buildings)
         cur.execute("ANALYZE gen.footprint")
         cur.execute("ANALYZE gen.building_mesh")
         reuse = _BlockReuse(block_digests(conn, seed), kept, seed=seed)

@@ -296,7 +296,9 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
     counts = IngestCounts()
     with conn.transaction(), conn.cursor() as cur:
         if update:
-            cur.execute("TRUNCATE osm.building_import, osm.building_relation, osm.building_relation_member")
+            # not TRUNCATE: readers see the rows of before until the commit and never wait for it
+            cur.execute("TRUNCATE osm.building_import")  # the staging table, read by nobody else
+            cur.execute("DELETE FROM osm.building_relation")  # its members with it (ON DELETE CASCADE)
             cur.execute("DELETE FROM osm.reject WHERE stage = 'ingest'")
             cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'ingest'")
         else:

@@ -127,7 +127,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     centroids = shapely.to_wkb(shapely.set_srid(shapely.points(xy), srid), include_srid=True) if n else []
     band = [int(b) if lm_ else None for b, lm_ in zip(lod2_band.tolist(), is_landmark.tolist(), strict=True)]
     with conn.transaction(), conn.cursor() as cur:
-        cur.execute("TRUNCATE lm.building")
+        cur.execute("DELETE FROM lm.building")  # not TRUNCATE: readers keep the rows of before until the commit
         with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
             for i in np.argsort(rank).tolist():  # in rank order, as analysts read it

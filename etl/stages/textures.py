@@ -514,7 +514,12 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     ktx2_seconds = 0.0
     redrawn = 0  # kept tiles drawn again for their unit's chart cache
     with conn.transaction(), conn.cursor() as cur:
-        cur.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure, tex.tile_input RESTART IDENTITY")
+        # not TRUNCATE (see generalize.run): readers keep the pages of before until the commit, without waiting;
+        # failure_id numbered from 1 again, as TRUNCATE ... RESTART IDENTITY did (the old rows are this
+        # transaction's deleted ones, so no id collides, even after a rollback)
+        cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure; "
+                    "DELETE FROM tex.tile_input")
+        cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
         kept_keys: list[Key] = []  # copied back after the loop, in three statements
         inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
         for (unit, _, _), out in zip(work, _map_units(work, url, settings, workers), strict=True):

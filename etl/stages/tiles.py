@@ -14,8 +14,8 @@ from core.settings import Settings
 def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     with conn.transaction():
-        # the textures hang off the tiles (foreign keys): emptied at once rather than row by row with them
-        conn.execute("TRUNCATE tex.page, tex.feature_uv, tex.failure RESTART IDENTITY")
+        # in place (sql/tiles/build_quadtree.sql): the blocks and textures of the tiles that stay are kept until
+        # their stages replace them
         conn.execute(
             "CALL tiles.build_quadtree(%s, %s, %s, %s, %s)",
             # budgeted on LOD3, the largest mesh of every building, so any exported LOD fits the triangle budget

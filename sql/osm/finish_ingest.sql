@@ -191,9 +191,11 @@ BEGIN
         TRUNCATE osm.building_change;
     ELSE
         -- An update: the rows that differ in anything ingest derives (landmarks' protected flag aside) are
-        -- deleted, with everything derived from them downstream (ON DELETE CASCADE), and inserted anew; the
-        -- others are not touched. osm.building_change lists them for the stages below.
-        TRUNCATE osm.building_change;
+        -- updated in place, so what the stages below derived from them stays readable until those stages
+        -- replace it; deleted buildings go with what was derived from them (ON DELETE CASCADE); the others are
+        -- not touched. osm.building_change lists them for the stages below. No TRUNCATE: readers of these
+        -- tables see the rows of before until the commit and never wait for it.
+        DELETE FROM osm.building_change;
         INSERT INTO osm.building_change (id, change)
         SELECT coalesce(n.id, o.id),
                CASE WHEN o.id IS NULL THEN 'added' WHEN n.id IS NULL THEN 'deleted' ELSE 'modified' END
@@ -210,9 +212,21 @@ BEGIN
                 o.roof_orientation, o.building_colour, o.roof_colour, o.building_material, o.roof_material, o.tags,
                 o.geom, o.geom_local, o.area_m2, o.repaired, o.repair_reason, o.parent_id, o.parent_source,
                 o.n_parts, o.part_coverage);
-        DELETE FROM osm.building b USING osm.building_change c WHERE b.id = c.id;
+        DELETE FROM osm.building b USING osm.building_change c WHERE b.id = c.id AND c.change = 'deleted';
+        UPDATE osm.building b
+        SET (osm_type, osm_id, kind, building, part, name, height, min_height, levels, min_level, roof_levels,
+             roof_height, roof_angle, roof_shape, roof_direction, roof_orientation, building_colour, roof_colour,
+             building_material, roof_material, tags, geom, geom_local, area_m2, repaired, repair_reason, parent_id,
+             parent_source, n_parts, part_coverage)
+          = (n.osm_type, n.osm_id, n.kind, n.building, n.part, n.name, n.height, n.min_height, n.levels,
+             n.min_level, n.roof_levels, n.roof_height, n.roof_angle, n.roof_shape, n.roof_direction,
+             n.roof_orientation, n.building_colour, n.roof_colour, n.building_material, n.roof_material, n.tags,
+             n.geom, n.geom_local, n.area_m2, n.repaired, n.repair_reason, n.parent_id, n.parent_source,
+             n.n_parts, n.part_coverage)
+        FROM _building n JOIN osm.building_change c ON c.id = n.id AND c.change = 'modified'
+        WHERE b.id = n.id;
         INSERT INTO osm.building
-        SELECT n.* FROM _building n JOIN osm.building_change c ON c.id = n.id AND c.change <> 'deleted';
+        SELECT n.* FROM _building n JOIN osm.building_change c ON c.id = n.id AND c.change = 'added';
     END IF;
     ANALYZE osm.building;  -- for the stages that read it next (autovacuum sees it only after the commit)
     TRUNCATE osm.building_import;

@@ -10,6 +10,11 @@
 --     every LOD below it, heights above the ellipsoid from base_height) and geometric error 0 for leaves;
 --     inner tiles get theirs from the generalize stage (tiles.finish_hierarchy), which measures it;
 --   * tiles.building_tile gets each mesh's leaf, its outline (group) and the anchor point that placed it.
+-- Both tables are changed in place, never emptied: tiles that vanished are deleted (with what hangs off them),
+-- tiles whose cell, counts or mesh region changed are updated (the columns the generalize stage owns, geometric
+-- error, content counts, region and box, stay as they were until it runs), new ones inserted; building_tile
+-- rows likewise. So in an update the blocks and textures of the other tiles stay readable, as they were, until
+-- their stages replace them (readers see the old rows, never none).
 -- Example: CALL tiles.build_quadtree(3, 500, 100000, 16, 0);
 CREATE OR REPLACE PROCEDURE tiles.build_quadtree(
     lod integer,
@@ -31,9 +36,6 @@ BEGIN
     IF v_srid IS NULL THEN
         RAISE EXCEPTION 'no dataset loaded (meta.dataset is empty): run the ingest stage first';
     END IF;
-    TRUNCATE tiles.tile_content;  -- would go with the tiles (cascade), row by row
-    DELETE FROM tiles.building_tile;
-    DELETE FROM tiles.tile;
     DELETE FROM tiles.grid;
 
     CREATE TEMP TABLE _grp ON COMMIT DROP AS
@@ -96,17 +98,17 @@ BEGIN
     ANALYZE _grp;
     ANALYZE _cell;
 
-    -- Leaves: region of their meshes at every LOD (each mesh's working-CRS box, reprojected).
-    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri,
-                            height, gen_level)
-    SELECT c.level, c.x, c.y, true, c.nf, c.nt,
+    -- The tiles as this run makes them: leaves, region of their meshes at every LOD (each mesh's working-CRS
+    -- box, reprojected).
+    CREATE TEMP TABLE _tile ON COMMIT DROP AS
+    SELECT c.level::smallint AS level, c.x, c.y, true AS is_leaf, c.nf::integer AS n_features, c.nt AS n_triangles,
            ST_MakeEnvelope(v_ox + c.x * v_size / 2 ^ c.level, v_oy + c.y * v_size / 2 ^ c.level,
-                           v_ox + (c.x + 1) * v_size / 2 ^ c.level, v_oy + (c.y + 1) * v_size / 2 ^ c.level, v_srid),
+                           v_ox + (c.x + 1) * v_size / 2 ^ c.level, v_oy + (c.y + 1) * v_size / 2 ^ c.level, v_srid)
+               AS cell,
            ARRAY[radians(ST_XMin(e.ext)), radians(ST_YMin(e.ext)), radians(ST_XMax(e.ext)), radians(ST_YMax(e.ext)),
-                 base_height + e.zmin, base_height + e.zmax],
-           0.0,
-           format('content/%s/%s/%s.glb', c.level, c.x, c.y),
-           0, 4
+                 base_height + e.zmin, base_height + e.zmax] AS region,
+           format('content/%s/%s/%s.glb', c.level, c.x, c.y) AS content_uri,
+           0::smallint AS height, 4::smallint AS gen_level
     FROM _cell c
     JOIN (
         -- bounds of every LOD's mesh: roofs add height, onion domes and LOD3 openings stand out of the walls
@@ -120,17 +122,15 @@ BEGIN
     WHERE c.is_leaf;
 
     -- Inner tiles: union of the leaves below them (each leaf expanded to all its ancestors).
-    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error, content_uri,
-                            height, gen_level)
+    INSERT INTO _tile
     SELECT a.level, a.x, a.y, false, sum(l.n_features), sum(l.n_triangles),
            ST_MakeEnvelope(v_ox + a.x * v_size / 2 ^ a.level, v_oy + a.y * v_size / 2 ^ a.level,
                            v_ox + (a.x + 1) * v_size / 2 ^ a.level, v_oy + (a.y + 1) * v_size / 2 ^ a.level, v_srid),
            ARRAY[min(l.region[1]), min(l.region[2]), max(l.region[3]), max(l.region[4]),
                  min(l.region[5]), max(l.region[6])],
-           NULL,
            format('content/%s/%s/%s.glb', a.level, a.x, a.y),
            max(l.level - a.level), NULL
-    FROM tiles.tile l
+    FROM _tile l
     CROSS JOIN LATERAL (
         SELECT k AS level, l.x >> (l.level - k) AS x, l.y >> (l.level - k) AS y
         FROM generate_series(0, l.level - 1) k
@@ -138,15 +138,45 @@ BEGIN
     WHERE l.is_leaf
     GROUP BY a.level, a.x, a.y;
 
-    UPDATE tiles.tile SET gen_level = gen.level_for_height(height, (SELECT r.height FROM tiles.tile r WHERE r.level = 0),
-                                                           v_size / 2 ^ level);
+    UPDATE _tile SET gen_level = gen.level_for_height(height, (SELECT r.height FROM _tile r WHERE r.level = 0),
+                                                      v_size / 2 ^ level);
+    ANALYZE _tile;
 
-    INSERT INTO tiles.building_tile (building_id, level, x, y, group_id, anchor)
-    SELECT m.building_id, g.lvl, g.tx, g.ty, g.group_id, ST_SetSRID(ST_MakePoint(g.ax, g.ay), v_srid)
+    -- into tiles.tile: the vanished go (their blocks, textures and content with them), the changed are updated
+    DELETE FROM tiles.tile t WHERE NOT EXISTS (SELECT 1 FROM _tile n WHERE (n.level, n.x, n.y) = (t.level, t.x, t.y));
+    UPDATE tiles.tile t
+    SET is_leaf = n.is_leaf, n_features = n.n_features, n_triangles = n.n_triangles, cell = n.cell,
+        mesh_region = n.region, content_uri = n.content_uri, height = n.height, gen_level = n.gen_level
+    FROM _tile n
+    WHERE (n.level, n.x, n.y) = (t.level, t.x, t.y)
+      AND (t.is_leaf, t.n_features, t.n_triangles, t.cell, t.mesh_region, t.content_uri, t.height, t.gen_level)
+          IS DISTINCT FROM (n.is_leaf, n.n_features, n.n_triangles, n.cell, n.region, n.content_uri, n.height,
+                            n.gen_level);
+    INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, mesh_region,
+                            geometric_error, content_uri, height, gen_level)
+    SELECT n.level, n.x, n.y, n.is_leaf, n.n_features, n.n_triangles, n.cell, n.region, n.region,
+           CASE WHEN n.is_leaf THEN 0.0 END, n.content_uri, n.height, n.gen_level
+    FROM _tile n
+    WHERE NOT EXISTS (SELECT 1 FROM tiles.tile t WHERE (t.level, t.x, t.y) = (n.level, n.x, n.y))
+    ORDER BY n.level, n.x, n.y;
+
+    CREATE TEMP TABLE _placed ON COMMIT DROP AS
+    SELECT m.building_id, g.lvl::smallint AS level, g.tx AS x, g.ty AS y, g.group_id,
+           ST_SetSRID(ST_MakePoint(g.ax, g.ay), v_srid) AS anchor
     FROM lod.building_mesh m
     JOIN osm.building b ON b.id = m.building_id
     JOIN _grp g ON g.group_id = coalesce(b.parent_id, b.id)
     WHERE m.lod = build_quadtree.lod;
+    ALTER TABLE _placed ADD PRIMARY KEY (building_id);
+    DELETE FROM tiles.building_tile o
+    WHERE NOT EXISTS (SELECT 1 FROM _placed n
+                      WHERE n.building_id = o.building_id
+                        AND (n.level, n.x, n.y, n.group_id, n.anchor) = (o.level, o.x, o.y, o.group_id, o.anchor));
+    INSERT INTO tiles.building_tile (building_id, level, x, y, group_id, anchor)
+    SELECT n.building_id, n.level, n.x, n.y, n.group_id, n.anchor
+    FROM _placed n
+    WHERE NOT EXISTS (SELECT 1 FROM tiles.building_tile o WHERE o.building_id = n.building_id)
+    ORDER BY n.building_id;
 
     -- for the generalize stage's first statements, before autovacuum sees the committed tables
     ANALYZE tiles.tile;

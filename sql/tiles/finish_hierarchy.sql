@@ -3,7 +3,7 @@
 -- (api.buildings_for_tile, exactly what the exporter writes) is listed in tiles.tile_content (for
 -- api.lod_for_view, with each feature's bounding sphere, tiles.feature_sphere) and gives content_features,
 -- content_triangles and content_error_m (the largest error bound of its features and of the blocks it omits)
--- and widens its region to the generalized meshes
+-- and widens its region to the generalized meshes from mesh_region (the LOD meshes' region the tiles stage measured)
 -- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
 -- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
 -- (so it never grows downwards) and its region the union with its children's. It refuses a tile whose content
@@ -28,7 +28,7 @@ BEGIN
     CROSS JOIN LATERAL (SELECT Box3D(f.geom) AS b, ST_SRID(f.geom) AS srid) bx  -- each mesh read once
     LEFT JOIN osm.building o ON f.feature_kind <> 'block' AND o.id = f.building_id;
 
-    TRUNCATE tiles.tile_content;
+    DELETE FROM tiles.tile_content;  -- not TRUNCATE: readers keep the old rows until commit, and never wait
     INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
                                     n_members, n_triangles, error_m, cx, cy, cz, radius)
     SELECT level, x, y, feature_kind, building_id, osm_type, osm_id, lod, gen_level, n_members, n_triangles,
@@ -37,7 +37,8 @@ BEGIN
     ORDER BY level, x, y, feature_kind, building_id;  -- a tile's rows together on disk
 
     CREATE TEMP TABLE _content ON COMMIT DROP AS
-    SELECT t.level, t.x, t.y, t.gen_level, coalesce(c.nf, 0) AS nf, coalesce(c.nt, 0) AS nt,
+    SELECT t.level, t.x, t.y, t.gen_level, coalesce(t.mesh_region, t.region) AS mesh_region,
+           coalesce(c.nf, 0) AS nf, coalesce(c.nt, 0) AS nt,
            greatest(coalesce(c.err, 0), coalesce(om.err, 0)) AS err, c.ext, c.zmin, c.zmax,
            coalesce(CASE WHEN t.gen_level >= 3 THEN c.nf ELSE c.groups + coalesce(om.members, 0) END, 0)
                AS represented,
@@ -71,9 +72,13 @@ BEGIN
     UPDATE tiles.tile t
     SET content_features = c.nf, content_triangles = c.nt, content_error_m = CASE WHEN t.is_leaf THEN 0 ELSE c.err END,
         geometric_error = CASE WHEN t.is_leaf THEN 0 ELSE c.err END,
-        region = ARRAY[least(t.region[1], radians(ST_XMin(c.ext))), least(t.region[2], radians(ST_YMin(c.ext))),
-                       greatest(t.region[3], radians(ST_XMax(c.ext))), greatest(t.region[4], radians(ST_YMax(c.ext))),
-                       least(t.region[5], base_height + c.zmin), greatest(t.region[6], base_height + c.zmax)]
+        -- widened from the meshes' region the tiles stage measured, not from the last run's (it may shrink)
+        region = ARRAY[least(c.mesh_region[1], radians(ST_XMin(c.ext))),
+                       least(c.mesh_region[2], radians(ST_YMin(c.ext))),
+                       greatest(c.mesh_region[3], radians(ST_XMax(c.ext))),
+                       greatest(c.mesh_region[4], radians(ST_YMax(c.ext))),
+                       least(c.mesh_region[5], base_height + c.zmin),
+                       greatest(c.mesh_region[6], base_height + c.zmax)]
     FROM _content c
     WHERE c.level = t.level AND c.x = t.x AND c.y = t.y;
 

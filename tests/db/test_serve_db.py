@@ -591,7 +591,7 @@ def test_database_outage_is_503(outage_url: str, fixtures_city: City, server_url
 
 @pytest.mark.db
 def test_a_stage_lock_is_answered_503_not_waited_for(fixtures_city: City) -> None:
-    """--live reads the stage tables; a stage that holds them (a TRUNCATE, the quadtree's rebuild: until it
+    """--live reads the stage tables; a stage that holds them (a full ingest's or lod's TRUNCATE: until it
     commits) makes a request give up after the reader's lock_timeout and say so, instead of hanging until the
     statement timeout (30 s), which would answer a different 503."""
     with running(reader_url(fixtures_city.url, environ={}), revalidate_s=0.0) as (_, base):

@@ -15,7 +15,7 @@ from pathlib import Path
 import psycopg
 import pytest
 
-from benchmarks.update_bench import TABLES, table_rows
+from benchmarks.update_bench import TABLES, Reader, table_rows
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
@@ -234,3 +234,30 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
         assert "current" in run_etl(inc, st, "--if-stale", env=SMALL).stdout
     before, after = files(tmp_path / "before"), files(tmp_path / "after")
     assert before.pop("tileset.json") != after.pop("tileset.json") and before == after
+
+
+#: CHANGE_1's edits that delete or add no building (a moved node, a tag edit): every table the stages write holds
+#: as many rows after the update as before, or changes its count at one commit
+MODIFY_ONLY = CHANGE_1[:CHANGE_1.index("  <delete>")] + "</osmChange>\n"
+
+
+@pytest.mark.db
+def test_readers_never_wait_nor_see_a_table_half_written(fixtures_city: City, new_db: Callable[[str], str],
+                                                         tmp_path: Path) -> None:
+    """Issue 20's generations for the analysts' tables: while an update runs, a reader counting the rows of
+    every table the stages write (and the root tile's content through api.buildings_for_tile) over and over
+    never waits on a lock for more than 100 ms and finds each table as it was before or as it is after, never
+    emptied or half written (update_bench.Reader)."""
+    url = new_db("update_readers")
+    build(url, fixtures_city.osm, tmp_path / "out")
+    change = tmp_path / "modify.osc"
+    change.write_text(MODIFY_ONLY)
+    with Reader(url) as reader:
+        run_etl(url, "update", "--osc", str(change), env=SMALL)
+    r = reader.report()
+    with psycopg.connect(url) as conn:
+        (changed,) = conn.execute("SELECT count(*) FROM osm.building_change WHERE change = 'modified'").fetchone()
+    assert changed > 0 and r["lock_timeouts"] == 0 and not r["errors"], r
+    # the reader was there while the stages that rewrite whole tables rewrote them
+    assert {"generalize", "textures"} <= set(r["running"]) and r["rounds"] > 10, r
+    assert not r["odd_counts"], (r, reader.before, reader.after)
