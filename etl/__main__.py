@@ -232,13 +232,12 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                 carried.counts = {**last[1], "carried_from": last[0]}
             print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
     else:
-        from .stages import generalize, textures
+        from .stages import generalize
 
-        with connect(url, autocommit=True) as conn:  # before lod and tiles empty them
+        with connect(url, autocommit=True) as conn:  # before generalize replaces them
             batches = generalize.keep_aside(conn)
-            kept = textures.keep_aside(conn)
-        print(f"update: the footprints and meshes of {batches:,} generalize batches and the textures of {kept:,} "
-              "tiles kept aside, to be used again where their input is unchanged", file=sys.stderr)
+        print(f"update: the footprints and meshes of {batches:,} generalize batches kept aside, to be used again "
+              "where their input is unchanged (textures keeps the rows of such tiles in place)", file=sys.stderr)
         from .workers import shared_cluster
 
         # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece)

@@ -109,7 +109,7 @@ class Result:
     seconds: float = 0.0
     ktx2_seconds: float = 0.0
     fingerprint: str | None = None  # of everything read for the tile (tex.tile_input)
-    kept: bool = False  # the tile's input had not changed: its rows are copied back from tex.kept_*
+    kept: bool = False  # the tile's input had not changed: its rows in tex.* stay as they are
     redrawn: bool = False  # kept, but drawn again for its unit's chart cache (its unit's LOD2 tile changed)
 
 
@@ -337,7 +337,7 @@ def _init_worker(url: str, settings: Settings) -> None:
     atexit.register(_WORKER["conn"].close)
 
 
-#: A unit of work: its tiles, the fingerprints of their last textures (kept aside by an update; else None) and
+#: A unit of work: its tiles, the fingerprints of their last textures (in an update; else None) and
 #: the seed of this run's fingerprints.
 Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, str]
 
@@ -345,10 +345,10 @@ Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, str]
 def _do_unit(item: Unit) -> list[Result]:
     """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. When every
     tile's input has the fingerprint its kept textures were made from, nothing is textured: the results say
-    ``kept`` and the main process copies the kept rows back (the same bytes: texturing is a function of the
+    ``kept`` and the main process leaves their rows as they are (the same bytes: texturing is a function of the
     fingerprinted input). Otherwise every tile is textured again but the leaves whose input is unchanged: those
-    are only drawn, for the charts the unit's LOD2 tile reads, and their rows copied back too (encoding is
-    most of a tile's time)."""
+    are only drawn, for the charts the unit's LOD2 tile reads, and their rows kept too (encoding is most of a
+    tile's time)."""
     unit, kept, seed = item
     conn, settings = _WORKER["conn"], _WORKER["settings"]
     rows = [_features(conn, t, _FEATURES) for t in unit]
@@ -409,22 +409,13 @@ def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Sett
     return out
 
 
-def keep_aside(conn: psycopg.Connection) -> int:
-    """Copy the tiles' pages, UVs and failures to tex.kept_* (an update, before the stages above empty them),
-    only where they are what tex.tile_input says the last textures run wrote; returns the tiles kept."""
-    with conn.transaction():
-        conn.execute("TRUNCATE tex.kept_page, tex.kept_feature_uv, tex.kept_failure")
-        for table in ("page", "feature_uv", "failure"):
-            conn.execute(f"INSERT INTO tex.kept_{table} SELECT * FROM tex.{table}")  # noqa: S608 - fixed names
-        return int(conn.execute("SELECT count(*) " + _KEPT_WHOLE).fetchone()[0])  # type: ignore[index]
-
-
-#: tiles of tex.tile_input whose kept rows are all there (a tile the stages above emptied since is not)
+#: tiles of tex.tile_input whose rows are all there as the last textures run wrote them (a full lod run empties
+#: tex.page, tex.feature_uv and tex.failure, not tex.tile_input)
 _KEPT_WHOLE = """FROM tex.tile_input i
     WHERE i.fingerprint IS NOT NULL
-      AND i.n_pages = (SELECT count(*) FROM tex.kept_page k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))
-      AND i.n_uvs = (SELECT count(*) FROM tex.kept_feature_uv k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))
-      AND i.n_failures = (SELECT count(*) FROM tex.kept_failure k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))"""
+      AND i.n_pages = (SELECT count(*) FROM tex.page k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))
+      AND i.n_uvs = (SELECT count(*) FROM tex.feature_uv k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))
+      AND i.n_failures = (SELECT count(*) FROM tex.failure k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))"""
 
 
 def _kept_prints(conn: psycopg.Connection) -> dict[tuple[int, int, int], str]:
@@ -436,9 +427,9 @@ def _kept_prints(conn: psycopg.Connection) -> dict[tuple[int, int, int], str]:
 #: bytes, KTX2 bytes), UVs, failure reasons; three grouped reads instead of queries per tile
 _KEPT_PAGES = ("SELECT level, x, y, array_agg(width * height ORDER BY page_no), array_agg(n_bytes ORDER BY page_no), "
                "array_agg(ktx2_n_bytes ORDER BY page_no), sum(utilization * width * height) "
-               "FROM tex.kept_page GROUP BY 1, 2, 3")
-_KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.kept_feature_uv GROUP BY 1, 2, 3"
-_KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.kept_failure GROUP BY 1, 2, 3"
+               "FROM tex.page GROUP BY 1, 2, 3")
+_KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.feature_uv GROUP BY 1, 2, 3"
+_KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.failure GROUP BY 1, 2, 3"
 
 Key = tuple[int, int, int]
 
@@ -461,19 +452,13 @@ def _fill_kept(res: Result, counts: dict[str, dict[Key, object]]) -> None:
                  for t, b, k in zip(texels, webp, ktx2, strict=True)]
 
 
-def _copy_kept(cur: psycopg.Cursor, keys: list[Key]) -> None:
-    """The kept rows of these tiles back into tex.page, tex.feature_uv and tex.failure: one statement each."""
-    if not keys:
-        return
-    levels, xs, ys = ([k[i] for k in keys] for i in range(3))
-    tiles = "(level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))"
-    cur.execute(f"INSERT INTO tex.page SELECT * FROM tex.kept_page WHERE {tiles}",  # noqa: S608 - fixed text
-                (levels, xs, ys))
-    cur.execute(f"INSERT INTO tex.feature_uv SELECT * FROM tex.kept_feature_uv WHERE {tiles}",  # noqa: S608
-                (levels, xs, ys))
-    cols = ", ".join(_FAIL_COLUMNS)
-    cur.execute(f"INSERT INTO tex.failure ({cols}) SELECT {cols} FROM tex.kept_failure "  # noqa: S608 - fixed names
-                f"WHERE {tiles} ORDER BY failure_id", (levels, xs, ys))
+def _drop_tile(cur: psycopg.Cursor, key: Key) -> None:
+    """An update's tile textured again: its old rows go just before its new ones come (in the same transaction,
+    so a reader sees the old ones until the commit)."""
+    for q in ("DELETE FROM tex.page WHERE (level, x, y) = (%s, %s, %s)",
+              "DELETE FROM tex.feature_uv WHERE (level, x, y) = (%s, %s, %s)",
+              "DELETE FROM tex.failure WHERE (level, x, y) = (%s, %s, %s)"):
+        cur.execute(q, key)
 
 
 def _seed(settings: Settings, code: str) -> str:
@@ -484,8 +469,9 @@ def _seed(settings: Settings, code: str) -> str:
 
 def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
         code: str = "") -> dict[str, object]:
-    """Texture every tile; with ``keep`` (an update, after keep_aside), copy back the textures of the units
-    whose input did not change instead of texturing them again. ``code``: see _seed."""
+    """Texture every tile; with ``keep`` (an update), leave the textures of the units whose input did not change
+    as they are, and replace only the others' rows, instead of texturing every tile again. ``code``: see
+    _seed."""
     t0 = time.perf_counter()
     if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
         raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
@@ -514,13 +500,14 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     ktx2_seconds = 0.0
     redrawn = 0  # kept tiles drawn again for their unit's chart cache
     with conn.transaction(), conn.cursor() as cur:
-        # not TRUNCATE (see generalize.run): readers keep the pages of before until the commit, without waiting;
-        # failure_id numbered from 1 again, as TRUNCATE ... RESTART IDENTITY did (the old rows are this
-        # transaction's deleted ones, so no id collides, even after a rollback)
-        cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure; "
-                    "DELETE FROM tex.tile_input")
-        cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
-        kept_keys: list[Key] = []  # copied back after the loop, in three statements
+        # not TRUNCATE (see generalize.run): readers keep the pages of before until the commit, without waiting
+        cur.execute("DELETE FROM tex.tile_input")
+        if not keep:
+            # failure_id numbered from 1 again, as TRUNCATE ... RESTART IDENTITY did (the old rows are this
+            # transaction's deleted ones, so no id collides, even after a rollback)
+            cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure")
+            cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
+        n_kept = 0  # their rows stay as they are
         inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
         for (unit, _, _), out in zip(work, _map_units(work, url, settings, workers), strict=True):
             if isinstance(out, Lost):
@@ -530,8 +517,10 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                 if res.kept:
                     redrawn += res.redrawn
                     _fill_kept(res, kept_counts)
-                    kept_keys.append((res.tile.level, res.tile.x, res.tile.y))
+                    n_kept += 1
                 else:
+                    if keep:
+                        _drop_tile(cur, (res.tile.level, res.tile.x, res.tile.y))
                     _write(cur, res)
                 inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages),
                                len(res.uvs), len(res.failures)))
@@ -559,8 +548,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                           "panels_mapped"):
                     totals[k] += res.stats.get(k, 0)
                 progress.update(res.features)
-        _copy_kept(cur, kept_keys)
-        n_kept = len(kept_keys)
         if totals["features"] != expected:
             raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
         # every feature of every tile textured or in tex.failure with its reason; checked before commit. A feature
@@ -571,7 +558,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         with cur.copy("COPY tex.tile_input FROM STDIN") as copy:
             for row in inputs:
                 copy.write_row(row)
-        cur.execute("TRUNCATE tex.kept_page, tex.kept_feature_uv, tex.kept_failure")  # used: free the space
         cur.execute("ANALYZE tex.page")
         cur.execute("ANALYZE tex.feature_uv")
     seconds = time.perf_counter() - t0
