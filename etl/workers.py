@@ -12,7 +12,8 @@ What a stage needs beyond a pool, kept from the process pool this replaced:
 * a hung unit loses only itself: each task arms faulthandler's watchdog (a C thread, so it fires inside native
   code holding the GIL too), which prints the worker's Python stacks to its stderr and ends the process after
   ``timeout`` seconds; a task still running ``GRACE_S`` later (its watchdog did not fire) has its worker
-  restarted by its nanny from here;
+  restarted by its nanny from here, and one that returns past ``timeout`` (its watchdog thread got no core in
+  time on a loaded machine) ends its worker as the watchdog would have: the limit decides, not the load;
 * a crashed unit (a signal, an abort in native code) loses only itself;
 * a worker that dies is replaced and its task is run once more on another worker
   (``distributed.scheduler.allowed-failures`` = ``ALLOWED_FAILURES`` on the local cluster), so a worker killed
@@ -90,11 +91,18 @@ def _run_item(fn: Callable[[Any], Any], initializer: Callable[..., None] | None,
         if initializer is not None:
             initializer(*initargs)
         _READY.add(token)
+    t0 = time.monotonic()
     faulthandler.dump_traceback_later(timeout, exit=True)
     try:
-        return fn(item)
+        out = fn(item)
     finally:
         faulthandler.cancel_dump_traceback_later()
+    if time.monotonic() - t0 > timeout:
+        # past the limit, but the watchdog thread did not get a core in time (a loaded machine): the item ends as
+        # the watchdog would have ended it, so the limit decides, not the scheduler (stacks: this one, as it ends)
+        faulthandler.dump_traceback(all_threads=False)
+        os._exit(1)
+    return out
 
 
 # --- in the caller -----------------------------------------------------------------------------------------

@@ -21,6 +21,9 @@ def behave(item: tuple[str, int]) -> int:
     elif kind == "stubborn":  # as if the watchdog could not end it: the parent must
         faulthandler.cancel_dump_traceback_later()
         time.sleep(3600)
+    elif kind == "late":  # as if the watchdog thread got no core before the item returned, past its limit
+        faulthandler.cancel_dump_traceback_later()
+        time.sleep(1.5)
     elif kind == "abort":
         os.abort()
     elif kind == "raise":
@@ -73,6 +76,14 @@ def test_the_parent_kills_a_hung_worker_its_watchdog_did_not_end(monkeypatch: py
     err = capfd.readouterr().err
     assert err.count("workers: item 0 has run") >= 2 and "(still running)" in err
     assert "past the limit: restarting it" in err
+
+
+def test_an_item_that_returns_past_its_limit_is_lost_as_hung() -> None:
+    """The limit decides, not whether the watchdog thread got a core in time on a loaded machine (CI once drew
+    3 of Helsinki's lod batches under a 1 ms limit that way)."""
+    out = list(W.imap_isolated(behave, [("late", 5), ("ok", 1)], workers=1, timeout=1.0))
+    assert isinstance(out[0], W.Lost) and out[0].reason == "hung" and out[1] == 2, out
+    assert not multiprocessing.active_children()
 
 
 def test_an_exception_in_the_items_code_is_raised_with_its_traceback() -> None:
