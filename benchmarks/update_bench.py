@@ -92,12 +92,12 @@ def differences(a_url: str, b_url: str) -> dict[str, int]:
 
 class Reader:
     """An analyst reading while a run writes: a thread that counts the rows of every table of TABLES and the
-    root tile's content (api.buildings_for_tile) over and over, each read giving up after LOCK_TIMEOUT when it
+    root tile's content (api.buildings_for_tile) over and over, each read giving up after LOCK_TIMEOUT_MS when it
     would wait on a lock. ``report()`` after the ``with``: the reads, those that gave up, the stages seen running,
     and per table the counts seen that are neither the count before nor the count after (a table emptied or
     half written while the run ran)."""
 
-    LOCK_TIMEOUT = "100ms"
+    LOCK_TIMEOUT_MS = 100
 
     def __init__(self, url: str) -> None:
         self.url = url
@@ -117,7 +117,7 @@ class Reader:
 
     def _poll(self) -> None:
         with psycopg.connect(self.url, autocommit=True) as conn:
-            conn.execute(sql.SQL("SET lock_timeout = {}").format(sql.Literal(self.LOCK_TIMEOUT)))
+            conn.execute(sql.SQL("SET lock_timeout = {}").format(sql.Literal(f"{self.LOCK_TIMEOUT_MS}ms")))
             while not self._done.is_set():
                 try:
                     self.running.update(s for (s,) in conn.execute(
@@ -352,6 +352,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     last = _last_run(url)
     quiet_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(quiet), "--out", str(out)], env,
                               logs / "update-no-building.log")
+    quiet_s = stage_seconds(url, last)
     # then another 1 % change, the same buildings edited again, with an analyst reading every table meanwhile
     # (not timed: the reader takes a core)
     again = OUT_ROOT / "update" / f"{name}-1pct-again.osc"
@@ -363,7 +364,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
                   logs / "update-read.log")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
             "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
-            "no_building_s": stage_seconds(url, last),
+            "no_building_s": quiet_s,
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
             "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused, "history": history,
             "readers": reader.report(),
@@ -403,7 +404,7 @@ def section(s: dict[str, Any] | None) -> list[str]:
         out += ["", "An analyst meanwhile (`Reader` in benchmarks/update_bench.py): while another such change was "
                 f"applied (not timed), one connection counted the rows of the {rd['tables'] - 1} tables the stages "
                 "write and the root tile's content (api.buildings_for_tile) over and over, each read giving up "
-                f"after {Reader.LOCK_TIMEOUT} on a lock: {rd['rounds']:,} rounds, {rd['lock_timeouts']:,} reads "
+                f"after {Reader.LOCK_TIMEOUT_MS} ms on a lock: {rd['rounds']:,} rounds, {rd['lock_timeouts']:,} reads "
                 "gave up, "
                 + ("no table seen emptied or half written (every count the one before or the one after the "
                    "update)" if not odd else f"tables seen with other counts: {odd}")
