@@ -145,7 +145,7 @@ class Reader:
                if s - {self.before[name], self.after[name]}}
         return {"rounds": self.rounds, "lock_timeouts": sum("LockNotAvailable" in e for e in self.errors),
                 "errors": self.errors[:5], "running": sorted(self.running), "odd_counts": odd,
-                "tables": len(self.queries)}
+                "tables": len(TABLES)}
 
 
 def file_hashes(d: Path) -> dict[str, str]:
@@ -356,9 +356,9 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     # then another 1 % change, the same buildings edited again, with an analyst reading every table meanwhile
     # (not timed: the reader takes a core)
     again = OUT_ROOT / "update" / f"{name}-1pct-again.osc"
-    state = Path(params_osm) if (params_osm := _state_file(url)) else None
-    assert state is not None
-    write_change(state, again)
+    now = _state_file(url)  # the state after the updates above
+    assert now is not None
+    write_change(Path(now), again)
     with Reader(url) as reader:
         run_child([sys.executable, "-m", "etl", "update", "--osc", str(again), "--out", str(out)], env,
                   logs / "update-read.log")
@@ -402,7 +402,7 @@ def section(s: dict[str, Any] | None) -> list[str]:
     if rd := s.get("readers"):
         odd = rd["odd_counts"]
         out += ["", "An analyst meanwhile (`Reader` in benchmarks/update_bench.py): while another such change was "
-                f"applied (not timed), one connection counted the rows of the {rd['tables'] - 1} tables the stages "
+                f"applied (not timed), one connection counted the rows of the {rd['tables']} tables the stages "
                 "write and the root tile's content (api.buildings_for_tile) over and over, each read giving up "
                 f"after {Reader.LOCK_TIMEOUT_MS} ms on a lock: {rd['rounds']:,} rounds, {rd['lock_timeouts']:,} reads "
                 "gave up, "

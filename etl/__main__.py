@@ -234,7 +234,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     else:
         from .stages import generalize
 
-        with connect(url, autocommit=True) as conn:  # before generalize replaces them
+        with connect(url, autocommit=True) as conn:  # before lod (when it runs in full, it empties them)
             batches = generalize.keep_aside(conn)
         print(f"update: the footprints and meshes of {batches:,} generalize batches kept aside, to be used again "
               "where their input is unchanged (textures keeps the rows of such tiles in place)", file=sys.stderr)
