@@ -415,15 +415,16 @@ def section(s: dict[str, Any] | None) -> list[str]:
 
     def batches(step: str) -> str:
         b = g.get(step) or {}
-        return f"{b.get('computed', '?')} of {b.get('computed', 0) + b.get('copied', 0) or '?'}"
+        return f"{b.get('computed', '?')} of {b.get('computed', 0) + b.get('kept', 0) or '?'}"
 
     out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
             "of its one process, applying the change file included. The update: ingest reads the whole OSM state "
             "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
             "alone; landmarks and tiles run over the whole city again; generalize computes the footprint and "
             f"decimation batches and the block tiles whose input changed ({batches('footprints')}, "
-            f"{batches('decimation')} and {batches('blocks')}; the others' rows are copied, and of the block tiles "
-            f"made again the {_n(g.get('blocks_copied'))} blocks whose inputs did not change) and the hierarchy "
+            f"{batches('decimation')} and {batches('blocks')}; the others' rows stay as they are, as do, in the "
+            f"block tiles made again, the {_n(g.get('blocks_kept'))} blocks whose inputs did not change) and the "
+            "hierarchy "
             "again; textures textures the tiles "
             f"whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
             f"{t.get('tiles', '?')}, and draws {t.get('tiles_redrawn', '?')} kept ones again for a chart cache); "

@@ -232,12 +232,6 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                 carried.counts = {**last[1], "carried_from": last[0]}
             print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
     else:
-        from .stages import generalize
-
-        with connect(url, autocommit=True) as conn:  # before lod (when it runs in full, it empties them)
-            batches = generalize.keep_aside(conn)
-        print(f"update: the footprints and meshes of {batches:,} generalize batches kept aside, to be used again "
-              "where their input is unchanged (textures keeps the rows of such tiles in place)", file=sys.stderr)
         from .workers import shared_cluster
 
         # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece)

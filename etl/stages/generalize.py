@@ -32,9 +32,11 @@ Dask tasks (etl/workers.py; settings.gen_workers) while this process reads the n
 A batch is a whole subtree of the tile quadtree (gen.batch_units: the largest holding at most
 gen_batch_features features), so what a batch computes depends on the buildings of one place only. Every run
 records per batch the fingerprint of what it read (its rows, LOD2 meshes, settings and code) and what it counted
-(gen.unit_input); an update (keep_aside, then run with keep) copies back the rows of every batch whose
-fingerprint is the same and computes the others, which gives the rows a full run gives. Blocks the same way, a
-block tile being the unit (block_digests: the buildings below it, hashed up the quadtree).
+(gen.unit_input); an update (run with keep) leaves the rows of every batch whose fingerprint is the same where
+they are, computes the others and replaces their rows, and deletes those of buildings no batch has any more, which
+gives the rows a full run gives while writing only what changed. Blocks the same way, a block tile being the unit
+(block_digests: the buildings below it, hashed up the quadtree), and in a tile made again a block whose cluster
+has the same input digest stays too.
 A batch whose worker hung or died on every attempt loses no building: a footprint batch's buildings are kept as
 mapped (outline unchanged, their LOD2 meshes as the level-2 mesh, error 0; kept_as_mapped), a decimation batch
 keeps its LOD2 meshes, each saying why in its status ("kept_original: generalize hung ...").
@@ -280,11 +282,16 @@ Kept = dict[tuple[str, Unit], tuple[str, int, dict[str, float]]]
 
 @dataclass
 class _Units:
-    """One step's batches: the gen.unit_input rows of this run and the batches whose kept rows are copied."""
+    """One step's batches: the gen.unit_input rows of this run and the batches whose rows stay as they are."""
 
     step: str
     records: list[tuple] = field(default_factory=list)
-    copied: list[tuple[Unit, list[int], tuple[str, int, dict[str, float]]]] = field(default_factory=list)
+    kept: list[tuple[Unit, tuple[str, int, dict[str, float]]]] = field(default_factory=list)
+
+    @property
+    def level(self) -> int:
+        """The gen.building_mesh level the step writes."""
+        return 2 if self.step == "footprints" else 3
 
 
 def _unit_rows(src: psycopg.Cursor, size: int) -> Iterator[tuple[Unit, list[dict[str, Any]]]]:
@@ -294,42 +301,51 @@ def _unit_rows(src: psycopg.Cursor, size: int) -> Iterator[tuple[Unit, list[dict
         yield unit, list(group)
 
 
-def _kept_whole(cur: psycopg.Cursor, step: str, ids: list[int]) -> bool:
-    """Whether gen.kept_* hold every row this batch wrote last time (a stage above may have deleted some)."""
+def _whole(cur: psycopg.Cursor, units: _Units, ids: list[int]) -> bool:
+    """Whether gen.* still hold every row this batch wrote last time (a stage above may have deleted some)."""
     fp, mesh = cur.execute(
-        "SELECT (SELECT count(*) FROM gen.kept_footprint WHERE building_id = ANY(%(ids)s)), "
-        "(SELECT count(*) FROM gen.kept_building_mesh WHERE building_id = ANY(%(ids)s) AND gen_level = %(g)s)",
-        {"ids": ids, "g": 2 if step == "footprints" else 3}).fetchone()  # type: ignore[misc]
-    return mesh == len(ids) and (step != "footprints" or fp == len(ids))
+        "SELECT (SELECT count(*) FROM gen.footprint WHERE building_id = ANY(%(ids)s)), "
+        "(SELECT count(*) FROM gen.building_mesh WHERE building_id = ANY(%(ids)s) AND gen_level = %(g)s)",
+        {"ids": ids, "g": units.level}).fetchone()  # type: ignore[misc]
+    return mesh == len(ids) and (units.step != "footprints" or fp == len(ids))
 
 
 def _reusable(cur: psycopg.Cursor, units: _Units, kept: Kept | None, unit: Unit, print_: str,
               ids: list[int]) -> bool:
-    """True (and the batch noted to be copied) when the last run read exactly this for the batch."""
+    """True (and the batch noted as kept) when the last run read exactly this for the batch and its rows are
+    all there: they stay as they are."""
     old = kept.get((units.step, unit)) if kept is not None else None
-    if old is None or old[0] != print_ or old[1] != len(ids) or not _kept_whole(cur, units.step, ids):
+    if old is None or old[0] != print_ or old[1] != len(ids) or not _whole(cur, units, ids):
         return False
-    units.copied.append((unit, ids, old))
+    units.kept.append((unit, old))
     return True
 
 
-def _copy_back(cur: psycopg.Cursor, units: _Units, stats: dict[str, float]) -> int:
-    """The kept rows of the batches to copy, in one statement per table; their figures as the last run counted
-    them. Returns the rows (buildings or features) copied."""
-    ids = [i for _, b, _ in units.copied for i in b]
-    if ids:
-        level = 2 if units.step == "footprints" else 3
-        if units.step == "footprints":
-            cols = ", ".join(_FOOTPRINT_COLUMNS)
-            cur.execute(f"INSERT INTO gen.footprint ({cols}) SELECT {cols} FROM gen.kept_footprint "  # noqa: S608
-                        "WHERE building_id = ANY(%s)", (ids,))
-        cols = ", ".join(_MESH_COLUMNS)
-        cur.execute(f"INSERT INTO gen.building_mesh ({cols}) SELECT {cols} FROM gen.kept_building_mesh "  # noqa: S608
-                    "WHERE building_id = ANY(%s) AND gen_level = %s", (ids, level))
-    for unit, _, (print_, n, figures) in units.copied:
+def _seen(cur: psycopg.Cursor, ids: list[int]) -> None:
+    """Note a batch's buildings (or features) in _gen_seen (an update: see _drop_unseen)."""
+    with cur.copy("COPY _gen_seen (building_id) FROM STDIN") as copy:
+        for i in ids:
+            copy.write_row((i,))
+
+
+def _drop_unseen(cur: psycopg.Cursor, units: _Units) -> None:
+    """An update: delete the rows of buildings (or features) that no batch of this run has any more (deleted,
+    now a part or a landmark), so the step's rows are what a full run writes; then forget them for the next
+    step."""
+    cur.execute("ANALYZE _gen_seen")
+    if units.step == "footprints":
+        cur.execute("DELETE FROM gen.footprint f WHERE NOT EXISTS (SELECT 1 FROM _gen_seen s "
+                    "WHERE s.building_id = f.building_id)")
+    cur.execute("DELETE FROM gen.building_mesh m WHERE m.gen_level = %s AND NOT EXISTS (SELECT 1 FROM _gen_seen s "
+                "WHERE s.building_id = m.building_id)", (units.level,))
+    cur.execute("TRUNCATE _gen_seen")
+
+
+def _count_kept(units: _Units, stats: dict[str, float]) -> None:
+    """The kept batches' figures (as the last run counted them) into the step's, and their gen.unit_input rows."""
+    for unit, (print_, n, figures) in units.kept:
         _add(stats, figures)
         units.records.append((units.step, *unit, print_, n, Jsonb(figures)))
-    return len(ids)
 
 
 def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
@@ -352,6 +368,8 @@ def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
                 for g, mesh in meshes:
                     f.put(g)
                     f.put(mesh)
+                if kept is not None:
+                    _seen(cur, ids)
                 if _reusable(cur, units, kept, unit, print_ := f.hexdigest(), ids):
                     progress.update(len(rows))
                     continue
@@ -363,16 +381,25 @@ def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
                 out = kept_as_mapped(rows, meshes, tol, srid, f"kept_original: generalize {out.reason} "
                                                               f"(its batch of {len(rows)} buildings: {out.detail})")
                 stats["lost"] += len(rows)
-                print_ = None  # type: ignore[assignment]  # never copied: computed again next time
-            _copy(cur, out)
+                print_ = None  # type: ignore[assignment]  # never kept: computed again next time
+            _copy(cur, out, replace=kept is not None)
             _add(stats, out.stats)
             units.records.append((units.step, *unit, print_, len(rows), Jsonb(out.stats)))
             progress.update(len(rows))
-        _copy_back(cur, units, stats)
+        _count_kept(units, stats)
+        if kept is not None:
+            _drop_unseen(cur, units)
     return stats, units
 
 
-def _copy(cur: psycopg.Cursor, out: _Out) -> None:
+def _copy(cur: psycopg.Cursor, out: _Out, replace: bool = False) -> None:
+    """Write a batch's rows; ``replace`` (an update): first delete the rows its buildings had."""
+    if replace:
+        if out.footprints:
+            cur.execute("DELETE FROM gen.footprint WHERE building_id = ANY(%s)", ([r[0] for r in out.footprints],))
+        if out.meshes:
+            cur.execute("DELETE FROM gen.building_mesh WHERE building_id = ANY(%s) AND gen_level = %s",
+                        ([r[0] for r in out.meshes], out.meshes[0][1]))
     if out.footprints:
         with cur.copy(f"COPY gen.footprint ({', '.join(_FOOTPRINT_COLUMNS)}) FROM STDIN") as copy:
             for row in out.footprints:
@@ -398,7 +425,10 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
             for unit, rows in _unit_rows(src, settings.gen_batch_features):
                 f = Fingerprint(seed)
                 f.rows(rows)
-                if not _reusable(cur, units, kept, unit, print_ := f.hexdigest(), [r["building_id"] for r in rows]):
+                ids = [r["building_id"] for r in rows]
+                if kept is not None:
+                    _seen(cur, ids)
+                if not _reusable(cur, units, kept, unit, print_ := f.hexdigest(), ids):
                     yield (unit, print_, rows), ("decimation", (rows, *args))
 
         for (unit, print_, rows), out in _mapped(items(), settings):
@@ -410,10 +440,12 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
                 out.meshes = [(*m[:-1], detail) for m in out.meshes]
                 stats["lost"] += len(rows)
                 print_ = None  # type: ignore[assignment]
-            _copy(cur, out)
+            _copy(cur, out, replace=kept is not None)
             _add(stats, out.stats)
             units.records.append((units.step, *unit, print_, len(rows), Jsonb(out.stats)))
-        _copy_back(cur, units, stats)
+        _count_kept(units, stats)
+        if kept is not None:
+            _drop_unseen(cur, units)
     return stats, units
 
 
@@ -436,14 +468,14 @@ def block_ids(rows: list[dict[str, Any]]) -> list[int]:
 @dataclass
 class _BlockReuse:
     """The block tiles' fingerprints of this run (block_digests), the last run's (an update: else None), the
-    gen.unit_input rows and copies this run makes (step blocks, a tile per unit), the run's seed (in every
-    block's input_digest) and the blocks copied one at a time from the tiles made again."""
+    gen.unit_input rows this run makes and the tiles it keeps (step blocks, a tile per unit), the run's seed (in
+    every block's input_digest) and the blocks kept one at a time in the tiles made again."""
 
     digests: dict[Unit, str]
     kept: Kept | None
     seed: str
     units: _Units = field(default_factory=lambda: _Units("blocks"))
-    blocks_copied: int = 0
+    blocks_kept: int = 0
 
 
 def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
@@ -468,41 +500,38 @@ def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
 
 
 def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> tuple[list[Unit], list[Unit]]:
-    """(tiles to make, tiles whose kept blocks are copied): a tile is copied when the last run recorded its
-    fingerprint and gen.kept_block holds every block it made."""
+    """(tiles to make, tiles whose blocks stay as they are): a tile is kept when the last run recorded its
+    fingerprint and gen.block still holds every block it made."""
     if reuse.kept is None:
         return tiles, []
     counts = {(int(lv), int(x), int(y)): int(n) for lv, x, y, n in cur.execute(
-        "SELECT level, x, y, count(*) FROM gen.kept_block GROUP BY 1, 2, 3")}
-    copy = []
+        "SELECT level, x, y, count(*) FROM gen.block WHERE (level, x, y) IN "
+        "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[])) GROUP BY 1, 2, 3",
+        ([t[0] for t in tiles], [t[1] for t in tiles], [t[2] for t in tiles]))}
+    keep = []
     for t in tiles:
         old = reuse.kept.get(("blocks", t))
         if old is not None and old[0] == reuse.digests.get(t) and counts.get(t, 0) == old[1]:
-            copy.append(t)
-    copied = set(copy)
-    return [t for t in tiles if t not in copied], copy
+            keep.append(t)
+    kept = set(keep)
+    return [t for t in tiles if t not in kept], keep
 
 
-_KEPT_COLS = [c for c in _BLOCK_COLUMNS if c not in ("omitted", "error_m", "total_error_m")]
-#: kept blocks back into gen.block as they were made (an omission on tile error undone: the hierarchy step
-#: decides it again); the caller adds the WHERE clause
-_COPY_KEPT_BLOCKS = (
-    f"INSERT INTO gen.block ({', '.join(_KEPT_COLS)}, omitted, error_m, total_error_m) "  # noqa: S608 - fixed names
-    f"SELECT {', '.join(_KEPT_COLS)}, omitted AND built_error_m IS NULL, coalesce(built_error_m, error_m), "
-    "coalesce(built_total_error_m, total_error_m) FROM gen.kept_block ")
+def unmake_omissions(cur: psycopg.Cursor) -> int:
+    """An update, before the blocks: every block omitted on its tile's error (tiles.omit_within_error) back as
+    it was made (drawn, its own errors), since the hierarchy step decides that again from the new errors.
+    Returns the blocks changed."""
+    return cur.execute("UPDATE gen.block SET omitted = false, error_m = built_error_m, "
+                       "total_error_m = built_total_error_m, built_error_m = NULL, built_total_error_m = NULL "
+                       "WHERE built_error_m IS NOT NULL").rowcount
 
 
-def _copy_blocks(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
-    """The kept blocks of these tiles back into gen.block as they were made (an omission on tile error undone:
-    the hierarchy step decides it again), with the figures the last run counted for them."""
-    if not tiles:
-        return
-    cur.execute(_COPY_KEPT_BLOCKS + "WHERE (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
-                ([t[0] for t in tiles], [t[1] for t in tiles], [t[2] for t in tiles]))
+def _keep_blocks(reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
+    """The figures the last run counted for the blocks of the kept tiles, which stay in gen.block as made."""
     for t in tiles:
         print_, n, figures = reuse.kept[("blocks", t)]  # type: ignore[index]
         _add(stats, figures)
-        reuse.units.copied.append((t, [], (print_, n, figures)))
+        reuse.units.kept.append((t, (print_, n, figures)))
         reuse.units.records.append(("blocks", *t, print_, n, Jsonb(figures)))
 
 
@@ -547,7 +576,7 @@ def _make_blocks(cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Sett
                             fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
                             float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
                             float(collapse[j]), r["input_digest"]))
-    # the errors as stored (real), so that copied blocks count alike
+    # the errors as stored (real), so that kept blocks count alike
     errs = [float(e) for e in err.astype(np.float32)]
     omits = [bool(o) for o in omitted]
     n_members = sum(len(m) for m in members)
@@ -571,12 +600,12 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             "SELECT level, x, y FROM tiles.tile WHERE CASE WHEN %(g)s::int IS NULL THEN gen_level IN (0, 1) "
             "ELSE gen_level = %(g)s AND level = %(lv)s END ORDER BY level, x, y",
             {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None})]
-        make, copy = _block_tiles(cur, reuse, here)
-        _copy_blocks(cur, reuse, copy, stats)
+        make, keep = _block_tiles(cur, reuse, here)
+        _keep_blocks(reuse, keep, stats)
         lvs, xs, ys = ([t[i] for t in make] for i in range(3))
-        # the kept blocks of the tiles made again: a cluster made of the same inputs is copied, not made
+        # the blocks of the tiles made again: a cluster made of the same inputs keeps its block, not made again
         skip = None if reuse.kept is None or not make else [d for (d,) in cur.execute(
-            "SELECT input_digest FROM gen.kept_block WHERE input_digest IS NOT NULL "
+            "SELECT input_digest FROM gen.block WHERE input_digest IS NOT NULL "
             "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))", (lvs, xs, ys))]
         if coarse is None:
             src.execute("SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[], %s, %s::text[])",
@@ -586,32 +615,44 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                         (*coarse, xs, ys, reuse.seed, skip))
         made: set[Unit] = set()
         # a tile's blocks are one batch (a block depends on its own cluster alone: _make_blocks); the clusters
-        # in skip come back unmade, and their kept blocks are copied
+        # in skip come back unmade, and their blocks stay
         for tile, tile_rows in itertools.groupby(
                 itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
                 key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"]))):
             everything = list(tile_rows)
             rows = [r for r in everything if r["merged"] is not None]
-            same = [r["input_digest"] for r in everything if r["merged"] is None]  # in skip: copied
+            same = [r["input_digest"] for r in everything if r["merged"] is None]  # in skip: kept
+            if reuse.kept is not None:
+                # the tile's other blocks go, and any stale one (of a tile not reached yet) whose id a new block
+                # takes: its smallest member moved here
+                cur.execute("DELETE FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
+                            "AND (input_digest IS NULL OR NOT input_digest = ANY(%s))", (*tile, same))
+                cur.execute("DELETE FROM gen.block WHERE block_id = ANY(%s)", (block_ids(rows),))
             errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
             if same:
-                got = cur.execute(_COPY_KEPT_BLOCKS + "WHERE (level, x, y) = (%s, %s, %s) AND input_digest = ANY(%s) "
-                                  "RETURNING omitted, error_m, n_members", (*tile, same)).fetchall()
+                got = cur.execute("SELECT omitted, error_m, n_members FROM gen.block WHERE (level, x, y) = "
+                                  "(%s, %s, %s) AND input_digest = ANY(%s)", (*tile, same)).fetchall()
                 if len(got) != len(same):
-                    raise RuntimeError(f"tile {tile}: {len(same)} kept blocks to copy, {len(got)} found")
+                    raise RuntimeError(f"tile {tile}: {len(same)} kept blocks, {len(got)} found")
                 omits += [bool(o) for o, _, _ in got]
                 errs += [float(np.float32(e)) for _, e, _ in got]  # a real read as text: its float32 again
                 n_members += sum(int(k) for _, _, k in got)
-                reuse.blocks_copied += len(got)
+                reuse.blocks_kept += len(got)
             figures = {"blocks": len(omits), "omitted": sum(omits), "members": n_members,
                        "max_error_m": max(errs, default=0.0)}
             _add(stats, figures)
             reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), len(omits), Jsonb(figures)))
             made.add(tile)
             progress.update(len(omits))
-        # tiles that made no block (every building below a landmark) have their row too
+        # tiles that made no block (every building below a landmark) have their row too, and none of their old
+        # blocks
         empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
-        reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty)) for t in make if t not in made]
+        gone = [t for t in make if t not in made]
+        reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty)) for t in gone]
+        if gone and reuse.kept is not None:
+            cur.execute("DELETE FROM gen.block WHERE (level, x, y) IN "
+                        "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+                        ([t[0] for t in gone], [t[1] for t in gone], [t[2] for t in gone]))
     return stats
 
 
@@ -644,18 +685,6 @@ def store_boxes(cur: psycopg.Cursor) -> None:
                                                          [t["y"] for t in tiles], boxes.ravel().tolist()))
 
 
-def keep_aside(conn: psycopg.Connection) -> int:
-    """Copy gen.footprint and gen.building_mesh to gen.kept_* (an update, before the stages above change them);
-    returns the batches of the last run that can be copied back where their input is unchanged."""
-    with conn.transaction():
-        conn.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh, gen.kept_block")
-        conn.execute("INSERT INTO gen.kept_footprint SELECT * FROM gen.footprint")
-        conn.execute("INSERT INTO gen.kept_building_mesh SELECT * FROM gen.building_mesh")
-        conn.execute("INSERT INTO gen.kept_block SELECT * FROM gen.block")
-        return int(conn.execute("SELECT count(*) FROM gen.unit_input WHERE fingerprint IS NOT NULL"
-                                ).fetchone()[0])  # type: ignore[index]
-
-
 def _seed(settings: Settings, code: str, srid: int, tol: dict[int, float]) -> str:
     """What every batch fingerprint of this run starts from: the settings, the stage's code as etl/dag.py
     records it (new code never copies old rows), the working CRS and the tolerances."""
@@ -669,8 +698,8 @@ def _kept(conn: psycopg.Connection) -> Kept:
 
 def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
         code: str = "") -> dict[str, object]:
-    """Generalize every tile; with ``keep`` (an update, after keep_aside), copy back the footprints and meshes
-    of the batches whose input did not change instead of computing them again. ``code``: see _seed."""
+    """Generalize every tile; with ``keep`` (an update), the rows of the batches and block tiles whose input did
+    not change stay as they are, and only the others are computed and written again. ``code``: see _seed."""
     t0 = time.perf_counter()
     srid = working_srid(conn)
     if not conn.execute("SELECT EXISTS (SELECT 1 FROM tiles.tile)").fetchone()[0]:  # type: ignore[index]
@@ -687,8 +716,16 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         reader.execute("SET cursor_tuple_fraction = 1.0")
         # not TRUNCATE: its lock would make every reader of these tables wait for the stage (seconds to minutes),
         # and a reader's older snapshot would find them empty; deleted rows stay theirs until the commit
-        cur.execute("DELETE FROM gen.block; DELETE FROM gen.building_mesh; DELETE FROM gen.footprint; "
-                    "DELETE FROM gen.unit_input")
+        if kept is None:
+            cur.execute("DELETE FROM gen.block; DELETE FROM gen.building_mesh; DELETE FROM gen.footprint")
+        else:
+            # an update writes only what changed: the buildings each step has are noted here (_drop_unseen)
+            cur.execute("CREATE TEMP TABLE _gen_seen (building_id bigint) ON COMMIT DROP")
+            # the blocks of tiles no longer in a block band; the others' omissions on tile error are decided again
+            cur.execute("DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
+                        "AND (t.gen_level IS NULL OR t.gen_level > 1)")
+            unmake_omissions(cur)
+        cur.execute("DELETE FROM gen.unit_input")
         step = time.perf_counter()
         fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],
                                    Progress("generalize", "buildings", total=n_groups), seed, kept)
@@ -708,7 +745,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
             for row in fp_units.records + dec_units.records + reuse.units.records:
                 copy.write_row(row)
-        cur.execute("TRUNCATE gen.kept_footprint, gen.kept_building_mesh, gen.kept_block")  # used: free the space
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))
@@ -730,9 +766,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     result: dict[str, object] = {
         **balance.counts(), "buildings": n_groups, "tolerance_m": tol,
         "footprints": fp, "decimation": dec, "blocks": blk,
-        "batches": {u.step: {"computed": len(u.records) - len(u.copied), "copied": len(u.copied)}
+        "batches": {u.step: {"computed": len(u.records) - len(u.kept), "kept": len(u.kept)}
                     for u in (fp_units, dec_units, reuse.units)}
-        | {"blocks_copied": reuse.blocks_copied},  # from the tiles made again, one cluster at a time
+        | {"blocks_kept": reuse.blocks_kept},  # in the tiles made again, one cluster at a time
         "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
@@ -741,9 +777,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         "generalize", balance,
         f"footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, {dec['decimated']:,} LOD2 meshes "
         f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings"
-        + (f"; footprint batches copied {len(fp_units.copied):,} of {len(fp_units.records):,}, decimation "
-           f"{len(dec_units.copied):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.copied):,} of "
-           f"{len(reuse.units.records):,} (and {reuse.blocks_copied:,} blocks of the others)" if keep else ""),
+        + (f"; footprint batches kept {len(fp_units.kept):,} of {len(fp_units.records):,}, decimation "
+           f"{len(dec_units.kept):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.kept):,} of "
+           f"{len(reuse.units.records):,} (and {reuse.blocks_kept:,} blocks of the others)" if keep else ""),
         wall, n_groups,
     )
     return result
