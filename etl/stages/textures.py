@@ -32,6 +32,7 @@ vertex colours in KTX2 exports. Features in = textured + textured in WebP only +
 from __future__ import annotations
 
 import atexit
+import itertools
 import math
 import os
 import time
@@ -45,7 +46,7 @@ import psycopg
 from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
-from core.db import connect
+from core.db import connect, thread_map
 from core.fingerprint import Fingerprint, run_seed
 from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
@@ -224,26 +225,33 @@ def _features(conn: psycopg.Connection, tile: Tile, query: str) -> list[Feature]
         return cur.execute(query, (tile.level, tile.x, tile.y)).fetchall()  # type: ignore[arg-type]
 
 
-def _openings(conn: psycopg.Connection, rows: list[Feature]) -> list[tuple[int, bytes | None, bytes]]:
-    """The LOD3 openings _texture may read for the LOD2 buildings of ``rows`` (all of them: which it reads
-    depends on the unit's chart cache), by building id."""
-    ids = sorted({int(r["building_id"]) for r in rows if r["gen_level"] == 3 and r["feature_kind"] != "block"})
-    if not ids:
-        return []
-    got = conn.execute("SELECT building_id, semantics, mesh FROM tex.opening_meshes(%s)", (ids,)).fetchall()
-    return sorted(((int(b), None if s is None else bytes(s), bytes(m)) for b, s, m in got), key=lambda t: t[0])
-
-
-def fingerprint(seed: str, tile: Tile, rows: list[Feature], openings: list[tuple[int, bytes | None, bytes]]) -> str:
-    """sha256 of what texturing reads for ``tile``: ``seed`` (the stage's settings and code), the tile's band,
-    error and count, its feature rows (every column, in order) and its LOD2 buildings' openings."""
+def tile_fingerprint(seed: str, tile: Tile, settings: Settings, digest: str) -> str:
+    """sha256 of what texturing reads for ``tile``: ``seed`` (the stage's settings and code), the tile's place,
+    band, resolution (its geometric error matters through that alone) and count, and ``digest``, the
+    tex.input_digests md5 of its feature rows (every column, in order) and its LOD2 buildings' openings."""
     f = Fingerprint(seed)
-    f.put((tile.level, tile.x, tile.y, tile.gen_level, tile.geometric_error, tile.is_leaf, tile.features))
-    f.rows(rows)  # type: ignore[arg-type]
-    for o in openings:
-        for v in o:
-            f.put(v)
+    f.put((tile.level, tile.x, tile.y, tile.gen_level, resolution(tile.geometric_error, settings), tile.is_leaf,
+           tile.features))
+    f.put(digest)
     return f.hexdigest()
+
+
+def fingerprints(url: str, tiles: list[Tile], seed: str, settings: Settings,
+                 threads: int) -> tuple[dict[Key, str], dict[Key, int]]:
+    """This run's fingerprint of every tile (tile_fingerprint) and the features it has, the digests computed in
+    the database by ``threads`` connections, each over a share of the tiles in one statement: no mesh is sent
+    here."""
+    shares = [tiles[i::threads] for i in range(threads)]  # tiles come largest first from units(): even shares
+
+    def one(conn: psycopg.Connection, share: list[Tile]) -> list[tuple]:
+        return conn.execute("SELECT level, x, y, digest, n_features FROM tex.input_digests(%s::int[], %s::int[], "
+                            "%s::int[])",
+                            ([t.level for t in share], [t.x for t in share], [t.y for t in share])).fetchall()
+
+    with thread_map(url, one, [s for s in shares if s], threads) as got:
+        digests = {(int(lv), int(x), int(y)): (d, int(n)) for part in got for lv, x, y, d, n in part}
+    return ({(t.level, t.x, t.y): tile_fingerprint(seed, t, settings, digests[(t.level, t.x, t.y)][0]) for t in tiles},
+            {k: n for k, (_, n) in digests.items()})
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
@@ -337,41 +345,30 @@ def _init_worker(url: str, settings: Settings) -> None:
     atexit.register(_WORKER["conn"].close)
 
 
-#: A unit of work: its tiles, the fingerprints of their last textures (in an update; else None) and
-#: the seed of this run's fingerprints.
-Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, str]
+#: A unit of work: its tiles, the fingerprints of their last textures (in an update; else None) and this run's.
+Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, dict[tuple[int, int, int], str]]
 
 
 def _do_unit(item: Unit) -> list[Result]:
-    """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. When every
-    tile's input has the fingerprint its kept textures were made from, nothing is textured: the results say
-    ``kept`` and the main process leaves their rows as they are (the same bytes: texturing is a function of the
-    fingerprinted input). Otherwise every tile is textured again but the leaves whose input is unchanged: those
-    are only drawn, for the charts the unit's LOD2 tile reads, and their rows kept too (encoding is most of a
-    tile's time)."""
-    unit, kept, seed = item
+    """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. In an update
+    (the unit changed: run() keeps a unit whose fingerprints are all the last ones without sending it here) every
+    tile is textured again but the leaves whose input is unchanged: those are only drawn, for the charts the
+    unit's LOD2 tile reads, and their rows kept (encoding is most of a tile's time)."""
+    unit, kept, prints = item
     conn, settings = _WORKER["conn"], _WORKER["settings"]
-    rows = [_features(conn, t, _FEATURES) for t in unit]
-    prints = [fingerprint(seed, t, r, _openings(conn, r)) for t, r in zip(unit, rows, strict=True)]
-    if kept is not None and all(kept.get((t.level, t.x, t.y)) == f for t, f in zip(unit, prints, strict=True)):
-        out = []
-        for t, r, f in zip(unit, rows, prints, strict=True):
-            rho, distance = resolution(t.geometric_error, settings)
-            out.append(Result(t, rho, distance, padding_for(rho, settings), features=len(r), fingerprint=f,
-                              kept=True))
-        return out
     shared = any(t.gen_level == 3 for t in unit)
     cache = X.ChartCache() if shared else None
     results = []
-    for t, r, f in zip(unit, rows, prints, strict=True):
+    for t in unit:
+        f = prints[(t.level, t.x, t.y)]
         store = shared and t.gen_level == 4
         # a leaf as it was is drawn again for the charts the LOD2 tile reads from the cache, not encoded: its
         # pages are the kept ones (a leaf reads no chart of another leaf: a building is in one leaf)
         same = store and kept is not None and kept.get((t.level, t.x, t.y)) == f
-        res = _one_tile(t, conn, settings, cache, store=store, rows=r, encode=not same)
+        res = _one_tile(t, conn, settings, cache, store=store, encode=not same)
         if same:
             rho, distance = resolution(t.geometric_error, settings)
-            res = Result(t, rho, distance, padding_for(rho, settings), features=len(r), seconds=res.seconds,
+            res = Result(t, rho, distance, padding_for(rho, settings), features=res.features, seconds=res.seconds,
                          kept=True, redrawn=True)
         res.fingerprint = f
         results.append(res)
@@ -452,6 +449,14 @@ def _fill_kept(res: Result, counts: dict[str, dict[Key, object]]) -> None:
                  for t, b, k in zip(texels, webp, ktx2, strict=True)]
 
 
+def _kept_result(t: Tile, fingerprint: str, features: int, settings: Settings) -> Result:
+    """A tile of a unit whose input did not change (``features``: as tex.input_digests counted them): its rows
+    stay as the last run wrote them."""
+    rho, distance = resolution(t.geometric_error, settings)
+    return Result(t, rho, distance, padding_for(rho, settings), features=features, fingerprint=fingerprint,
+                  kept=True)
+
+
 def _drop_tile(cur: psycopg.Cursor, key: Key) -> None:
     """An update's tile textured again: its old rows go just before its new ones come (in the same transaction,
     so a reader sees the old ones until the commit)."""
@@ -487,10 +492,17 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     seed = _seed(settings, code)
     kept = _kept_prints(conn) if keep else None
     kept_counts = _kept_counts(conn) if keep else {}
-    work: list[Unit] = [(u, None if kept is None else {(t.level, t.x, t.y): kept[(t.level, t.x, t.y)]
-                                                        for t in u if (t.level, t.x, t.y) in kept}, seed)
-                        for u in units(tiles)]
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
+    prints, counts = fingerprints(url, [t for u in units(tiles) for t in u], seed, settings, workers)
+    work: list[Unit] = []
+    same: list[list[Tile]] = []  # units whose every tile has its last fingerprint: their rows stay as they are
+    for u in units(tiles):
+        now = {(t.level, t.x, t.y): prints[(t.level, t.x, t.y)] for t in u}
+        last = None if kept is None else {k: kept[k] for k in now if k in kept}
+        if last is not None and last == now:
+            same.append(u)
+        else:
+            work.append((u, last, now))
     progress = Progress("textures", "features", total=expected)
     by_band: dict[int, dict[str, float]] = {}
     lost = 0
@@ -509,7 +521,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
             cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
         n_kept = 0  # their rows stay as they are
         inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
-        for (unit, _, _), out in zip(work, _map_units(work, url, settings, workers), strict=True):
+        done = [[_kept_result(t, prints[(t.level, t.x, t.y)], counts[(t.level, t.x, t.y)], settings) for t in u]
+                for u in same]
+        for (unit, _, _), out in itertools.chain(
+                zip(work, _map_units(work, url, settings, workers) if work else iter([]), strict=True),
+                zip([(u, None, None) for u in same], done, strict=True)):
             if isinstance(out, Lost):
                 lost += 1
                 out = _lost(conn, unit, out, settings)

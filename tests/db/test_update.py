@@ -123,6 +123,57 @@ def test_count_change_and_refusals(tmp_path: Path) -> None:
 
 
 @pytest.mark.db
+def test_input_digests_change_with_what_texturing_reads_and_only_there(fixtures_city: City,
+                                                                       new_db: Callable[[str], str],
+                                                                       tmp_path: Path) -> None:
+    """An update textures again only the tiles whose tex.input_digests changed: a colour tag of one of a tile's
+    features and the LOD3 windows of one of its LOD2 buildings (read for the paint, not drawn there) each change
+    that tile's digest, and only the digests of tiles that draw the building."""
+    url = new_db("update_digests")
+    build(url, fixtures_city.osm, tmp_path / "out")
+    with psycopg.connect(url) as conn:
+        _check_input_digests(conn)
+
+
+def _check_input_digests(conn: psycopg.Connection) -> None:
+    tiles = conn.execute("SELECT array_agg(level), array_agg(x), array_agg(y) FROM tiles.tile "
+                         "WHERE content_features > 0").fetchone()
+
+    def digests() -> dict[tuple[int, int, int], str]:
+        return {(lv, x, y): d for lv, x, y, d in conn.execute(
+            "SELECT level, x, y, digest FROM tex.input_digests(%s, %s, %s)", tiles)}
+
+    before = digests()
+    assert digests() == before and len(before) == len(tiles[0])
+    # a LOD2 tile's building whose LOD3 mesh has openings (so texturing reads them), drawn at LOD2 in it
+    lv, x, y, bid = conn.execute(
+        "SELECT t.level, t.x, t.y, f.building_id FROM tiles.tile t "
+        "CROSS JOIN LATERAL tex.tile_features(t.level, t.x, t.y) f "
+        "JOIN lod.building_mesh m ON m.building_id = f.building_id AND m.lod = 3 AND m.n_windows > 0 "
+        "WHERE t.gen_level = 3 AND f.gen_level = 3 AND f.feature_kind <> 'block' "
+        "ORDER BY 1, 2, 3, 4 LIMIT 1").fetchone()
+    # the tiles that draw it (its LOD3 mesh in its leaf): their digests may change too, no other tile's
+    drawing = {(a, b, c) for a, b, c in conn.execute(
+        "SELECT t.level, t.x, t.y FROM tiles.tile t CROSS JOIN LATERAL tex.tile_features(t.level, t.x, t.y) f "
+        "WHERE f.building_id = %s", (bid,))}
+    try:
+        conn.execute("UPDATE lod.building_mesh SET geom = ST_Translate(geom, 0, 0, 0.5) "
+                     "WHERE building_id = %s AND lod = 3", (bid,))
+        after = digests()
+        changed = {k for k in before if after[k] != before[k]}
+        assert (lv, x, y) in changed and changed <= drawing, "the openings are read: covered"
+    finally:
+        conn.rollback()
+    try:
+        conn.execute("UPDATE osm.building SET building_colour = '#123456' WHERE id = %s", (bid,))
+        after = digests()
+        changed = {k for k in before if after[k] != before[k]}
+        assert (lv, x, y) in changed and changed <= drawing, changed
+    finally:
+        conn.rollback()
+
+
+@pytest.mark.db
 def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str], str], tmp_path: Path) -> None:
     base = tmp_path / "base.osm"
     shutil.copyfile(fixtures_city.osm, base)
