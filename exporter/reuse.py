@@ -27,8 +27,10 @@ from .gltf import read_glb
 from .stream import StreamOptions
 from .tileset import TileRecord
 
-_DIGEST = "SELECT digest, n_features FROM api.export_digest(%s, %s, %s, %s, %s)"
-
+#: a share of the tiles in one statement: planned once, where a call per tile was planned per call (Liechtenstein,
+#: 133 tiles: 1.7 s with 2 connections against 2.2 s a call per tile)
+_DIGESTS = ("SELECT t.level, t.x, t.y, d.digest, d.n_features FROM unnest(%s::int[], %s::int[], %s::int[]) "
+            "AS t(level, x, y) CROSS JOIN LATERAL api.export_digest(t.level, t.x, t.y, %s, %s) d")
 
 @dataclass(frozen=True)
 class TileKey:
@@ -50,16 +52,26 @@ def tile_key(seed: str, rec: TileRecord, digest: str) -> str:
 def tile_keys(url: str, tiles: list[TileRecord], seed: str, lod: int | None,
               stream: StreamOptions) -> dict[str, TileKey]:
     """Every tile's key by content URI; the digests are read by threads with a connection each (the SQL runs in
-    separate backends), as the export reads the tiles."""
+    separate backends), each over a share of the tiles in one statement."""
     textures = stream.textures if lod is None else None
+    threads = min(4, os.cpu_count() or 1)
+    by_place = {(r.level, r.x, r.y): r for r in tiles}
+    # largest first, dealt round: even shares
+    order = sorted(tiles, key=lambda r: -(r.content_features or 0))
+    shares = [s for s in (order[i::threads] for i in range(threads)) if s]
 
-    def one(conn: psycopg.Connection, rec: TileRecord) -> tuple[str, TileKey]:
-        digest, n = conn.execute(_DIGEST, (rec.level, rec.x, rec.y, lod, textures)).fetchone()  # type: ignore[misc]
-        assert rec.content_uri is not None
-        return rec.content_uri, TileKey(tile_key(seed, rec, digest), int(n))
+    def one(conn: psycopg.Connection, share: list[TileRecord]) -> list[tuple]:
+        return conn.execute(_DIGESTS, ([r.level for r in share], [r.x for r in share], [r.y for r in share], lod,
+                                       textures)).fetchall()
 
-    with thread_map(url, one, tiles, min(4, os.cpu_count() or 1)) as keys:
-        return dict(keys)
+    keys: dict[str, TileKey] = {}
+    with thread_map(url, one, shares, threads) as got:
+        for part in got:
+            for level, x, y, digest, n in part:
+                rec = by_place[(level, x, y)]
+                assert rec.content_uri is not None
+                keys[rec.content_uri] = TileKey(tile_key(seed, rec, digest), int(n))
+    return keys
 
 
 def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str, bytes]]:
