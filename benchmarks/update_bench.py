@@ -310,24 +310,40 @@ def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out:
     return res
 
 
-def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True) -> dict[str, Any]:
-    name = extract_name(osm)
-    logs = LOG_DIR / name / "update"
-    t0 = time.perf_counter()
-    url = build_pipeline_db(osm, admin_url, db, "update")
+def _full_build(osm: Path, admin_url: str, db: str, logs_sub: str) -> tuple[str, dict[str, str], Path,
+                                                                          dict[str, float]]:
+    """Step 1: ``osm`` through every stage into ``db`` and exported; (url, env, export directory, stage s)."""
+    url = build_pipeline_db(osm, admin_url, db, logs_sub)
     env = {**os.environ, "DATABASE_URL": url}
-    out = OUT_ROOT / "update" / name
-    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
+    out = OUT_ROOT / "update" / extract_name(osm)
+    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env,
+              LOG_DIR / extract_name(osm) / logs_sub / "export.log")
     full = stage_seconds(url, 0)
     full.pop("migrate", None)
-    full_wall = time.perf_counter() - t0
-    history = measure_history(osm, admin_url, db, url, out, verify)
+    return url, env, out, full
+
+
+def _update_one_percent(osm: Path, url: str, env: dict[str, str], out: Path,
+                        logs: Path) -> tuple[dict[str, int], int, float]:
+    """Steps 2 and 3: the 1 % change written and applied; (what it changed, the last run before, wall s)."""
+    name = extract_name(osm)
     change = OUT_ROOT / "update" / f"{name}-1pct.osc"
     made = write_change(osm, change)
     last = _last_run(url)
     log(f"{name}: update with {made['chosen']:,} of {made['building_ways']:,} building ways changed")
     wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
                         logs / "update.log")
+    return made, last, wall
+
+
+def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True) -> dict[str, Any]:
+    name = extract_name(osm)
+    logs = LOG_DIR / name / "update"
+    t0 = time.perf_counter()
+    url, env, out, full = _full_build(osm, admin_url, db, "update")
+    full_wall = time.perf_counter() - t0
+    history = measure_history(osm, admin_url, db, url, out, verify)
+    made, last, wall = _update_one_percent(osm, url, env, out, logs)
     update_s = stage_seconds(url, last)  # now: the no-building update below records the same stages again
     reused = _reused(url, last)
     changed = _changed(url)
@@ -476,19 +492,8 @@ def measure_larger(osm: Path, admin_url: str, db: str = UPDATE_DB + "_larger") -
     """Steps 1 to 3 of the module doc alone (no history, no equivalence check, no second update) on a larger
     city: how the update's share of the full rebuild moves with the city's size."""
     name = extract_name(osm)
-    logs = LOG_DIR / name / "update-larger"
-    url = build_pipeline_db(osm, admin_url, db, "update-larger")
-    env = {**os.environ, "DATABASE_URL": url}
-    out = OUT_ROOT / "update" / name
-    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
-    full = stage_seconds(url, 0)
-    full.pop("migrate", None)
-    change = OUT_ROOT / "update" / f"{name}-1pct.osc"
-    made = write_change(osm, change)
-    last = _last_run(url)
-    log(f"{name}: update with {made['chosen']:,} of {made['building_ways']:,} building ways changed")
-    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
-                        logs / "update.log")
+    url, env, out, full = _full_build(osm, admin_url, db, "update-larger")
+    made, last, wall = _update_one_percent(osm, url, env, out, LOG_DIR / name / "update-larger")
     with psycopg.connect(url) as conn:
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": _changed(url),
