@@ -31,7 +31,9 @@ The footprint and decimation batches are pure work on arrays (footprint_batch, d
 Dask tasks (etl/workers.py; settings.gen_workers) while this process reads the next batch and COPYs the last.
 A batch is a whole subtree of the tile quadtree (gen.batch_units: the largest holding at most
 gen_batch_features features), so what a batch computes depends on the buildings of one place only. Every run
-records per batch the fingerprint of what it read (its rows, LOD2 meshes, settings and code) and what it counted
+records per batch the fingerprint of what it read (its rows, LOD2 meshes, settings and code: an md5 of the rows
+and meshes the database computes for every unit in one statement, gen.footprint_unit_digests and
+gen.decimation_unit_digests, so only the units to compute are read here) and what it counted
 (gen.unit_input); an update (run with keep) leaves the rows of every batch whose fingerprint is the same where
 they are, computes the others and replaces their rows, and deletes those of buildings no batch has any more, which
 gives the rows a full run gives while writing only what changed. Blocks the same way, a block tile being the unit
@@ -301,31 +303,74 @@ def _unit_rows(src: psycopg.Cursor, size: int) -> Iterator[tuple[Unit, list[dict
         yield unit, list(group)
 
 
-def _whole(cur: psycopg.Cursor, units: _Units, ids: list[int]) -> bool:
-    """Whether gen.* still hold every row this batch wrote last time (a stage above may have deleted some)."""
-    fp, mesh = cur.execute(
-        "SELECT (SELECT count(*) FROM gen.footprint WHERE building_id = ANY(%(ids)s)), "
-        "(SELECT count(*) FROM gen.building_mesh WHERE building_id = ANY(%(ids)s) AND gen_level = %(g)s)",
-        {"ids": ids, "g": units.level}).fetchone()  # type: ignore[misc]
-    return mesh == len(ids) and (units.step != "footprints" or fp == len(ids))
+def _whole(cur: psycopg.Cursor, units: _Units, ids: dict[Unit, list[int]]) -> set[Unit]:
+    """The units whose rows of the last run are all still in gen.* (a stage above may have deleted some): one
+    query for all of them."""
+    flat = [(u, i) for u, b in ids.items() for i in b]
+    got = cur.execute(
+        "SELECT t.l, t.x, t.y, count(f.building_id), count(m.building_id) "
+        "FROM unnest(%(l)s::int2[], %(x)s::int4[], %(y)s::int4[], %(i)s::int8[]) AS t(l, x, y, id) "
+        "LEFT JOIN gen.footprint f ON %(fp)s AND f.building_id = t.id "
+        "LEFT JOIN gen.building_mesh m ON m.building_id = t.id AND m.gen_level = %(g)s GROUP BY 1, 2, 3",
+        {"l": [u[0] for u, _ in flat], "x": [u[1] for u, _ in flat], "y": [u[2] for u, _ in flat],
+         "i": [i for _, i in flat], "fp": units.step == "footprints", "g": units.level}).fetchall()
+    fp_needed = units.step == "footprints"
+    return {(int(lv), int(x), int(y)) for lv, x, y, fp, mesh in got
+            if mesh == len(ids[(int(lv), int(x), int(y))])
+            and (not fp_needed or fp == len(ids[(int(lv), int(x), int(y))]))}
 
 
-def _reusable(cur: psycopg.Cursor, units: _Units, kept: Kept | None, unit: Unit, print_: str,
-              ids: list[int]) -> bool:
-    """True (and the batch noted as kept) when the last run read exactly this for the batch and its rows are
-    all there: they stay as they are."""
-    old = kept.get((units.step, unit)) if kept is not None else None
-    if old is None or old[0] != print_ or old[1] != len(ids) or not _whole(cur, units, ids):
-        return False
-    units.kept.append((unit, old))
-    return True
-
-
-def _seen(cur: psycopg.Cursor, ids: list[int]) -> None:
-    """Note a batch's buildings (or features) in _gen_seen (an update: see _drop_unseen)."""
+def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, digests: list[tuple]
+          ) -> tuple[dict[Unit, str], dict[Unit, list[int]]]:
+    """(the fingerprint of every unit to compute, every unit's ids) from the step's gen.*_unit_digests rows
+    (unit, ids, digest). A unit whose fingerprint and row count are the last run's and whose rows are all there
+    is noted in ``units.kept`` instead: its rows stay as they are. In an update every unit's ids are noted in
+    _gen_seen (_drop_unseen)."""
+    prints: dict[Unit, str] = {}
+    ids: dict[Unit, list[int]] = {}
+    for lv, x, y, members, digest in digests:
+        f = Fingerprint(seed)
+        f.put(digest)
+        prints[(int(lv), int(x), int(y))] = f.hexdigest()
+        ids[(int(lv), int(x), int(y))] = [int(i) for i in members]
+    if kept is None:
+        return prints, ids
     with cur.copy("COPY _gen_seen (building_id) FROM STDIN") as copy:
-        for i in ids:
-            copy.write_row((i,))
+        for b in ids.values():
+            for i in b:
+                copy.write_row((i,))
+    same = {u: kept[(units.step, u)] for u, p in prints.items()
+            if (units.step, u) in kept and kept[(units.step, u)][0] == p and kept[(units.step, u)][1] == len(ids[u])}
+    whole = _whole(cur, units, {u: ids[u] for u in same}) if same else set()
+    todo = {}
+    for u, p in prints.items():
+        if u in whole:
+            units.kept.append((u, same[u]))
+        else:
+            todo[u] = p
+    return todo, ids
+
+
+def _todo_rows(src: psycopg.Cursor, todo: dict[Unit, str], ids: dict[Unit, list[int]], key: str,
+               size: int) -> Iterator[tuple[Unit, str, list[dict[str, Any]]]]:
+    """(unit, its fingerprint, its rows) of the units to compute, from a cursor over their input; checked against
+    the ids their digests were made from."""
+    for unit, rows in _unit_rows(src, size):
+        got = [int(r[key]) for r in rows]
+        if unit not in todo or got != ids[unit]:
+            raise RuntimeError(f"generalize: batch unit {unit} read {len(got)} rows, not those of its digest")
+        yield unit, todo[unit], rows
+
+
+_UNITS_FILTER = ("WHERE %(l)s::int2[] IS NULL OR (unit_level, unit_x, unit_y) IN "
+                 "(SELECT * FROM unnest(%(l)s::int2[], %(x)s::int4[], %(y)s::int4[]))")
+
+
+def _filter(todo: dict[Unit, str], kept: Kept | None) -> dict[str, list[int] | None]:
+    """_UNITS_FILTER's parameters: the units to compute (every unit in a full run: no filter)."""
+    if kept is None:
+        return {"l": None, "x": None, "y": None}
+    return {"l": [u[0] for u in todo], "x": [u[1] for u in todo], "y": [u[2] for u in todo]}
 
 
 def _drop_unseen(cur: psycopg.Cursor, units: _Units) -> None:
@@ -354,25 +399,20 @@ def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
              "triangles_in": 0, "triangles_out": 0, "lost": 0}
     units = _Units("footprints")
     with reader.cursor(name="gen_groups", row_factory=dict_row) as src, conn.cursor() as cur:
+        todo, ids = _plan(cur, units, kept, seed, cur.execute(
+            "SELECT unit_level, unit_x, unit_y, group_ids, digest FROM gen.footprint_unit_digests(%s, %s)",
+            (PIN_DISTANCE, settings.gen_batch_features)).fetchall())
+        progress.update(sum(len(ids[u]) for u, _ in units.kept))
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.footprint_input(%s, %s)", (PIN_DISTANCE, settings.gen_batch_features))
+        src.execute("SELECT * FROM gen.footprint_input(%(pin)s, %(batch)s) " + _UNITS_FILTER,
+                    {"pin": PIN_DISTANCE, "batch": settings.gen_batch_features, **_filter(todo, kept)})
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]], list[tuple[int, bytes]]],
                                       tuple[str, tuple]]]:
-            for unit, rows in _unit_rows(src, settings.gen_batch_features):
+            for unit, print_, rows in _todo_rows(src, todo, ids, "group_id", settings.gen_batch_features):
                 # measured against what the band replaces: the LOD2 meshes of the building and its parts
-                ids = [r["group_id"] for r in rows]
-                meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)", (ids,)).fetchall()
-                f = Fingerprint(seed)
-                f.rows(rows)
-                for g, mesh in meshes:
-                    f.put(g)
-                    f.put(mesh)
-                if kept is not None:
-                    _seen(cur, ids)
-                if _reusable(cur, units, kept, unit, print_ := f.hexdigest(), ids):
-                    progress.update(len(rows))
-                    continue
+                meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)",
+                                     (ids[unit],)).fetchall()
                 yield (unit, print_, rows, meshes), ("footprints", (rows, meshes, tol, settings.gen_max_area_change,
                                                                     srid))
 
@@ -416,20 +456,18 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
     stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0, "lost": 0}
     units = _Units("decimation")
     with reader.cursor(name="gen_features", row_factory=dict_row) as src, conn.cursor() as cur:
+        todo, ids = _plan(cur, units, kept, seed, cur.execute(
+            "SELECT unit_level, unit_x, unit_y, building_ids, digest FROM gen.decimation_unit_digests(%s, %s)",
+            (settings.gen_decimate_min_triangles, settings.gen_batch_features)).fetchall())
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.decimation_input(%s, %s)",
-                    (settings.gen_decimate_min_triangles, settings.gen_batch_features))
+        src.execute("SELECT * FROM gen.decimation_input(%(min)s, %(batch)s) " + _UNITS_FILTER,
+                    {"min": settings.gen_decimate_min_triangles, "batch": settings.gen_batch_features,
+                     **_filter(todo, kept)})
         args = (tol, settings.gen_decimate_reduction, settings.gen_decimate_min_triangles, srid)
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]]], tuple[str, tuple]]]:
-            for unit, rows in _unit_rows(src, settings.gen_batch_features):
-                f = Fingerprint(seed)
-                f.rows(rows)
-                ids = [r["building_id"] for r in rows]
-                if kept is not None:
-                    _seen(cur, ids)
-                if not _reusable(cur, units, kept, unit, print_ := f.hexdigest(), ids):
-                    yield (unit, print_, rows), ("decimation", (rows, *args))
+            for unit, print_, rows in _todo_rows(src, todo, ids, "building_id", settings.gen_batch_features):
+                yield (unit, print_, rows), ("decimation", (rows, *args))
 
         for (unit, print_, rows), out in _mapped(items(), settings):
             if isinstance(out, Lost):

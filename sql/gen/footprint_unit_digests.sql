@@ -1,0 +1,33 @@
+-- gen.footprint_unit_digests(pin_m, batch) -> per batch unit of the footprint step, its buildings and an md5 of
+-- everything it reads
+-- Every column of its gen.footprint_input rows in id order and the LOD2 meshes its errors are measured against
+-- (gen.group_lod2_meshes, in their order): the generalize stage's fingerprint of the batch (gen.unit_input)
+-- hashes this digest with its settings and code. Computed here for every unit in one statement, so an update
+-- reads the rows and meshes of the units whose fingerprint changed alone, instead of every building's.
+--   pin_m, batch  as gen.footprint_input
+-- Example: SELECT unit_level, unit_x, unit_y, cardinality(group_ids), digest FROM gen.footprint_unit_digests(0.05, 500);
+CREATE OR REPLACE FUNCTION gen.footprint_unit_digests(pin_m double precision, batch integer)
+RETURNS TABLE (
+    unit_level smallint,
+    unit_x     integer,
+    unit_y     integer,
+    group_ids  bigint[],
+    digest     text
+)
+LANGUAGE sql STABLE PARALLEL SAFE
+AS $$
+    SELECT u.unit_level, u.unit_x, u.unit_y, u.ids, concat_ws('/', u.digest, m.digest)
+    FROM (
+        SELECT f.unit_level, f.unit_x, f.unit_y, array_agg(f.group_id ORDER BY f.group_id) AS ids,
+               md5(string_agg(md5(ROW(f.*)::text), '' ORDER BY f.group_id)) AS digest
+        FROM gen.footprint_input($1, $2) f
+        GROUP BY 1, 2, 3
+    ) u
+    CROSS JOIN LATERAL (
+        SELECT md5(string_agg(concat_ws('/', g.group_id, md5(g.mesh)), '' ORDER BY g.ord)) AS digest
+        FROM gen.group_lod2_meshes(u.ids) WITH ORDINALITY AS g(group_id, mesh, ord)
+    ) m
+    ORDER BY 1, 2, 3
+$$;
+COMMENT ON FUNCTION gen.footprint_unit_digests(double precision, integer) IS
+    'Per batch unit of the footprint step: its buildings (group_ids) and an md5 of every column of its gen.footprint_input rows and of their LOD2 meshes (gen.group_lod2_meshes). Example: SELECT count(*) FROM gen.footprint_unit_digests(0.05, 500);';
