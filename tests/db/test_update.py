@@ -123,16 +123,44 @@ def test_count_change_and_refusals(tmp_path: Path) -> None:
 
 
 @pytest.mark.db
-def test_input_digests_change_with_what_texturing_reads_and_only_there(fixtures_city: City,
-                                                                       new_db: Callable[[str], str],
-                                                                       tmp_path: Path) -> None:
+def test_input_digests_change_with_what_is_read_and_only_there(fixtures_city: City, new_db: Callable[[str], str],
+                                                                tmp_path: Path) -> None:
     """An update textures again only the tiles whose tex.input_digests changed: a colour tag of one of a tile's
     features and the LOD3 windows of one of its LOD2 buildings (read for the paint, not drawn there) each change
-    that tile's digest, and only the digests of tiles that draw the building."""
+    that tile's digest, and only the digests of tiles that draw the building. Generalize likewise computes
+    again only the batches whose gen.*_unit_digests changed: a LOD2 mesh that moves (its footprint input the
+    same) changes its batch's digests, and no other batch's."""
     url = new_db("update_digests")
     build(url, fixtures_city.osm, tmp_path / "out")
     with psycopg.connect(url) as conn:
         _check_input_digests(conn)
+        _check_unit_digests(conn)
+
+
+def _check_unit_digests(conn: psycopg.Connection) -> None:
+    queries = {"footprints": "SELECT unit_level, unit_x, unit_y, group_ids, digest "
+                             "FROM gen.footprint_unit_digests(0.05, 8)",
+               "decimation": "SELECT unit_level, unit_x, unit_y, building_ids, digest "
+                             "FROM gen.decimation_unit_digests(0, 8)"}  # every mesh decimated: all read
+
+    def digests() -> dict[tuple[str, int, int, int], tuple[list[int], str]]:
+        return {(step, lv, x, y): (ids, d) for step, q in queries.items() for lv, x, y, ids, d in conn.execute(q)}
+
+    before = digests()
+    assert digests() == before and len({k[1:] for k in before}) > 2, "more than one batch unit"
+    (bid,) = conn.execute("SELECT building_id FROM lod.building_mesh WHERE lod = 2 ORDER BY building_id LIMIT 1"
+                          ).fetchone()
+    try:
+        conn.execute("UPDATE lod.building_mesh SET geom = ST_Translate(geom, 0.25, 0, 0) "
+                     "WHERE building_id = %s AND lod = 2", (bid,))
+        after = digests()
+        changed = {k for k in before if after[k][1] != before[k][1]}
+        (group,) = conn.execute("SELECT coalesce(parent_id, id) FROM osm.building WHERE id = %s", (bid,)).fetchone()
+        # its feature's decimation batch, its building's footprint batch (measured against its LOD2 meshes)
+        holding = {k for k, (ids, _) in before.items() if (bid if k[0] == "decimation" else group) in ids}
+        assert changed == holding and {k[0] for k in changed} == {"footprints", "decimation"}, (changed, holding)
+    finally:
+        conn.rollback()
 
 
 def _check_input_digests(conn: psycopg.Connection) -> None:
