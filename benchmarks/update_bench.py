@@ -290,16 +290,10 @@ def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out:
     change = OUT_ROOT / "update" / f"{name}-since-{day}.osc"
     made = split(osm, HISTORY_BEFORE, base, change)
     log(f"{name}: as it was on {day}, then updated with what mappers created since ({made})")
-    url = build_pipeline_db(base, admin_url, db + "_history", "update-history")
-    env = {**os.environ, "DATABASE_URL": url}
-    out = OUT_ROOT / "update" / f"{name}-history"
     logs = LOG_DIR / name / "update-history"
-    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
-    full = stage_seconds(url, 0)
-    full.pop("migrate", None)
-    last = _last_run(url)
-    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
-                        logs / "update.log")
+    out = OUT_ROOT / "update" / f"{name}-history"
+    url, env, full = _full_build(base, admin_url, db + "_history", "update-history", out, logs)
+    last, wall = _apply(change, url, env, out, logs)
     res: dict[str, Any] = {"before": day, "created": made, "changed": _changed(url), "full_s": full,
                            "full_total_s": round(sum(full.values()), 1), "update_wall_s": round(wall, 1),
                            "update_s": stage_seconds(url, last), "reused": _reused(url, last)}
@@ -310,17 +304,23 @@ def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out:
     return res
 
 
-def _full_build(osm: Path, admin_url: str, db: str, logs_sub: str) -> tuple[str, dict[str, str], Path,
-                                                                          dict[str, float]]:
-    """Step 1: ``osm`` through every stage into ``db`` and exported; (url, env, export directory, stage s)."""
+def _full_build(osm: Path, admin_url: str, db: str, logs_sub: str, out: Path,
+                logs: Path) -> tuple[str, dict[str, str], dict[str, float]]:
+    """``osm`` through every stage into ``db`` and exported to ``out``; (url, env, each stage's s)."""
     url = build_pipeline_db(osm, admin_url, db, logs_sub)
     env = {**os.environ, "DATABASE_URL": url}
-    out = OUT_ROOT / "update" / extract_name(osm)
-    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env,
-              LOG_DIR / extract_name(osm) / logs_sub / "export.log")
+    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
     full = stage_seconds(url, 0)
     full.pop("migrate", None)
-    return url, env, out, full
+    return url, env, full
+
+
+def _apply(change: Path, url: str, env: dict[str, str], out: Path, logs: Path) -> tuple[int, float]:
+    """``python -m etl update`` of ``change`` with the export to ``out``; (the last run before it, wall s)."""
+    last = _last_run(url)
+    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
+                        logs / "update.log")
+    return last, wall
 
 
 def _update_one_percent(osm: Path, url: str, env: dict[str, str], out: Path,
@@ -329,18 +329,16 @@ def _update_one_percent(osm: Path, url: str, env: dict[str, str], out: Path,
     name = extract_name(osm)
     change = OUT_ROOT / "update" / f"{name}-1pct.osc"
     made = write_change(osm, change)
-    last = _last_run(url)
     log(f"{name}: update with {made['chosen']:,} of {made['building_ways']:,} building ways changed")
-    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
-                        logs / "update.log")
-    return made, last, wall
+    return (made, *_apply(change, url, env, out, logs))
 
 
 def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True) -> dict[str, Any]:
     name = extract_name(osm)
     logs = LOG_DIR / name / "update"
     t0 = time.perf_counter()
-    url, env, out, full = _full_build(osm, admin_url, db, "update")
+    out = OUT_ROOT / "update" / name
+    url, env, full = _full_build(osm, admin_url, db, "update", out, logs)
     full_wall = time.perf_counter() - t0
     history = measure_history(osm, admin_url, db, url, out, verify)
     made, last, wall = _update_one_percent(osm, url, env, out, logs)
@@ -492,8 +490,10 @@ def measure_larger(osm: Path, admin_url: str, db: str = UPDATE_DB + "_larger") -
     """Steps 1 to 3 of the module doc alone (no history, no equivalence check, no second update) on a larger
     city: how the update's share of the full rebuild moves with the city's size."""
     name = extract_name(osm)
-    url, env, out, full = _full_build(osm, admin_url, db, "update-larger")
-    made, last, wall = _update_one_percent(osm, url, env, out, LOG_DIR / name / "update-larger")
+    logs = LOG_DIR / name / "update-larger"
+    out = OUT_ROOT / "update" / name
+    url, env, full = _full_build(osm, admin_url, db, "update-larger", out, logs)
+    made, last, wall = _update_one_percent(osm, url, env, out, logs)
     with psycopg.connect(url) as conn:
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": _changed(url),

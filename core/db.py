@@ -39,6 +39,12 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
+def shares(items: list[T], n: int) -> list[list[T]]:
+    """``items`` dealt round into at most ``n`` non-empty shares: even ones when the items come largest first
+    (one statement per share and connection, with thread_map)."""
+    return [s for s in (items[i::n] for i in range(n)) if s]
+
+
 @contextlib.contextmanager
 def thread_map(url: str, fn: Callable[[psycopg.Connection, T], R], items: Iterable[T],
                workers: int) -> Iterator[Iterator[R]]:

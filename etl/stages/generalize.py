@@ -307,17 +307,20 @@ def _whole(cur: psycopg.Cursor, units: _Units, ids: dict[Unit, list[int]]) -> se
     """The units whose rows of the last run are all still in gen.* (a stage above may have deleted some): one
     query for all of them."""
     flat = [(u, i) for u, b in ids.items() for i in b]
+    footprints = units.step == "footprints"  # the decimation step writes meshes only
     got = cur.execute(
         "SELECT t.l, t.x, t.y, count(f.building_id), count(m.building_id) "
         "FROM unnest(%(l)s::int2[], %(x)s::int4[], %(y)s::int4[], %(i)s::int8[]) AS t(l, x, y, id) "
         "LEFT JOIN gen.footprint f ON %(fp)s AND f.building_id = t.id "
         "LEFT JOIN gen.building_mesh m ON m.building_id = t.id AND m.gen_level = %(g)s GROUP BY 1, 2, 3",
         {"l": [u[0] for u, _ in flat], "x": [u[1] for u, _ in flat], "y": [u[2] for u, _ in flat],
-         "i": [i for _, i in flat], "fp": units.step == "footprints", "g": units.level}).fetchall()
-    fp_needed = units.step == "footprints"
-    return {(int(lv), int(x), int(y)) for lv, x, y, fp, mesh in got
-            if mesh == len(ids[(int(lv), int(x), int(y))])
-            and (not fp_needed or fp == len(ids[(int(lv), int(x), int(y))]))}
+         "i": [i for _, i in flat], "fp": footprints, "g": units.level}).fetchall()
+    whole = set()
+    for lv, x, y, fp, mesh in got:
+        u = (int(lv), int(x), int(y))
+        if mesh == len(ids[u]) and (not footprints or fp == len(ids[u])):
+            whole.add(u)
+    return whole
 
 
 def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, digests: list[tuple]
@@ -339,8 +342,8 @@ def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, dige
         for b in ids.values():
             for i in b:
                 copy.write_row((i,))
-    same = {u: kept[(units.step, u)] for u, p in prints.items()
-            if (units.step, u) in kept and kept[(units.step, u)][0] == p and kept[(units.step, u)][1] == len(ids[u])}
+    last = {u: kept.get((units.step, u)) for u in prints}
+    same = {u: old for u, old in last.items() if old is not None and old[0] == prints[u] and old[1] == len(ids[u])}
     whole = _whole(cur, units, {u: ids[u] for u in same}) if same else set()
     todo = {}
     for u, p in prints.items():
@@ -625,9 +628,9 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             coarse: tuple[int, int] | None = None) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
     ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already).
-    Every tile is recorded in ``reuse`` with its fingerprint; in an update the tiles whose fingerprint is the
-    last run's get their kept blocks back instead, and in the others the clusters whose input digest a kept
-    block has."""
+    Every tile is recorded in ``reuse`` with its fingerprint; in an update the blocks of the tiles whose
+    fingerprint is the last run's stay as they are, and so do, in the others, the blocks whose cluster has the
+    same input digest; a tile's other blocks are replaced."""
     stats = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
     # reads the footprints this transaction wrote, so on the writing connection (another one would read the
     # rows of before), a batch at a time between the COPYs

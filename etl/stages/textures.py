@@ -38,7 +38,7 @@ import os
 import time
 import traceback
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -46,7 +46,7 @@ import psycopg
 from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
-from core.db import connect, thread_map
+from core.db import connect, shares, thread_map
 from core.fingerprint import Fingerprint, run_seed
 from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
@@ -241,14 +241,12 @@ def fingerprints(url: str, tiles: list[Tile], seed: str, settings: Settings,
     """This run's fingerprint of every tile (tile_fingerprint) and the features it has, the digests computed in
     the database by ``threads`` connections, each over a share of the tiles in one statement: no mesh is sent
     here."""
-    shares = [tiles[i::threads] for i in range(threads)]  # tiles come largest first from units(): even shares
-
     def one(conn: psycopg.Connection, share: list[Tile]) -> list[tuple]:
         return conn.execute("SELECT level, x, y, digest, n_features FROM tex.input_digests(%s::int[], %s::int[], "
                             "%s::int[])",
                             ([t.level for t in share], [t.x for t in share], [t.y for t in share])).fetchall()
 
-    with thread_map(url, one, [s for s in shares if s], threads) as got:
+    with thread_map(url, one, shares(tiles, threads), threads) as got:  # largest first, from units()
         digests = {(int(lv), int(x), int(y)): (d, int(n)) for part in got for lv, x, y, d, n in part}
     return ({(t.level, t.x, t.y): tile_fingerprint(seed, t, settings, digests[(t.level, t.x, t.y)][0]) for t in tiles},
             {k: n for k, (_, n) in digests.items()})
@@ -367,9 +365,7 @@ def _do_unit(item: Unit) -> list[Result]:
         same = store and kept is not None and kept.get((t.level, t.x, t.y)) == f
         res = _one_tile(t, conn, settings, cache, store=store, encode=not same)
         if same:
-            rho, distance = resolution(t.geometric_error, settings)
-            res = Result(t, rho, distance, padding_for(rho, settings), features=res.features, seconds=res.seconds,
-                         kept=True, redrawn=True)
+            res = replace(_kept_result(t, f, res.features, settings), seconds=res.seconds, redrawn=True)
         res.fingerprint = f
         results.append(res)
     return results
@@ -493,10 +489,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     kept = _kept_prints(conn) if keep else None
     kept_counts = _kept_counts(conn) if keep else {}
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
-    prints, counts = fingerprints(url, [t for u in units(tiles) for t in u], seed, settings, workers)
+    all_units = units(tiles)
+    prints, counts = fingerprints(url, [t for u in all_units for t in u], seed, settings, workers)
     work: list[Unit] = []
     same: list[list[Tile]] = []  # units whose every tile has its last fingerprint: their rows stay as they are
-    for u in units(tiles):
+    for u in all_units:
         now = {(t.level, t.x, t.y): prints[(t.level, t.x, t.y)] for t in u}
         last = None if kept is None else {k: kept[k] for k in now if k in kept}
         if last is not None and last == now:
