@@ -69,7 +69,7 @@ import shapely
 from psycopg.rows import dict_row
 from psycopg.types.json import Jsonb
 
-from core.db import connect, working_srid
+from core.db import analyze, connect, working_srid
 from core.fingerprint import Fingerprint, run_seed
 from core.geodesy import region_box
 from core.progress import Balance, Progress, summary
@@ -369,11 +369,13 @@ _UNITS_FILTER = ("WHERE %(l)s::int2[] IS NULL OR (unit_level, unit_x, unit_y) IN
                  "(SELECT * FROM unnest(%(l)s::int2[], %(x)s::int4[], %(y)s::int4[]))")
 
 
-def _filter(todo: dict[Unit, str], kept: Kept | None) -> dict[str, list[int] | None]:
-    """_UNITS_FILTER's parameters: the units to compute (every unit in a full run: no filter)."""
+def _filter(todo: dict[Unit, str], ids: dict[Unit, list[int]], kept: Kept | None) -> dict[str, list[int] | None]:
+    """The parameters of a step's input function (``ids``: its buildings, so that it reads only those) and of
+    _UNITS_FILTER: the units to compute (every unit in a full run: no filter)."""
     if kept is None:
-        return {"l": None, "x": None, "y": None}
-    return {"l": [u[0] for u in todo], "x": [u[1] for u in todo], "y": [u[2] for u in todo]}
+        return {"l": None, "x": None, "y": None, "ids": None}
+    return {"l": [u[0] for u in todo], "x": [u[1] for u in todo], "y": [u[2] for u in todo],
+            "ids": [i for u in todo for i in ids[u]]}
 
 
 def _drop_unseen(cur: psycopg.Cursor, units: _Units) -> None:
@@ -387,6 +389,12 @@ def _drop_unseen(cur: psycopg.Cursor, units: _Units) -> None:
     cur.execute("DELETE FROM gen.building_mesh m WHERE m.gen_level = %s AND NOT EXISTS (SELECT 1 FROM _gen_seen s "
                 "WHERE s.building_id = m.building_id)", (units.level,))
     cur.execute("TRUNCATE _gen_seen")
+
+
+def _written(units: _Units) -> int:
+    """The rows the step wrote: those of its batches computed (not kept), for core.db.analyze."""
+    kept = {u for u, _ in units.kept}
+    return sum(int(r[5]) for r in units.records if tuple(r[1:4]) not in kept)
 
 
 def _count_kept(units: _Units, stats: dict[str, float]) -> None:
@@ -407,8 +415,8 @@ def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
             (PIN_DISTANCE, settings.gen_batch_features)).fetchall())
         progress.update(sum(len(ids[u]) for u, _ in units.kept))
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.footprint_input(%(pin)s, %(batch)s) " + _UNITS_FILTER,
-                    {"pin": PIN_DISTANCE, "batch": settings.gen_batch_features, **_filter(todo, kept)})
+        src.execute("SELECT * FROM gen.footprint_input(%(pin)s, %(batch)s, %(ids)s::int8[]) " + _UNITS_FILTER,
+                    {"pin": PIN_DISTANCE, "batch": settings.gen_batch_features, **_filter(todo, ids, kept)})
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]], list[tuple[int, bytes]]],
                                       tuple[str, tuple]]]:
@@ -463,9 +471,9 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
             "SELECT unit_level, unit_x, unit_y, building_ids, digest FROM gen.decimation_unit_digests(%s, %s)",
             (settings.gen_decimate_min_triangles, settings.gen_batch_features)).fetchall())
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.decimation_input(%(min)s, %(batch)s) " + _UNITS_FILTER,
+        src.execute("SELECT * FROM gen.decimation_input(%(min)s, %(batch)s, %(ids)s::int8[]) " + _UNITS_FILTER,
                     {"min": settings.gen_decimate_min_triangles, "batch": settings.gen_batch_features,
-                     **_filter(todo, kept)})
+                     **_filter(todo, ids, kept)})
         args = (tol, settings.gen_decimate_reduction, settings.gen_decimate_min_triangles, srid)
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]]], tuple[str, tuple]]]:
@@ -517,6 +525,7 @@ class _BlockReuse:
     seed: str
     units: _Units = field(default_factory=lambda: _Units("blocks"))
     blocks_kept: int = 0
+    written: int = 0  # blocks made (written) so far
 
 
 def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
@@ -670,6 +679,7 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
                             "AND (input_digest IS NULL OR NOT input_digest = ANY(%s))", (*tile, same))
                 cur.execute("DELETE FROM gen.block WHERE block_id = ANY(%s)", (block_ids(rows),))
             errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
+            reuse.written += len(rows)
             if same:
                 got = cur.execute("SELECT omitted, error_m, n_members FROM gen.block WHERE (level, x, y) = "
                                   "(%s, %s, %s) AND input_digest = ANY(%s)", (*tile, same)).fetchall()
@@ -709,7 +719,8 @@ def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, reuse
     out: dict[int, int] = {}
     omitted: dict[int, int] = {}
     for g, lv in pairs:
-        conn.execute("ANALYZE gen.block")  # the level below was just written (see run)
+        with conn.cursor() as cur:  # the level below was just written (see run)
+            analyze(cur, "gen.block", reuse.written if reuse.kept is not None else None)
         st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), reuse, (g, lv))
         out[g] = out.get(g, 0) + int(st["blocks"])
         omitted[g] = omitted.get(g, 0) + int(st["omitted"])
@@ -778,8 +789,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         # the blocks join the footprints and meshes just written: without statistics the planner takes the
         # tables for what they held before (empty after a full lod) and scans them once per member (minutes at
         # 100k buildings)
-        cur.execute("ANALYZE gen.footprint")
-        cur.execute("ANALYZE gen.building_mesh")
+        n_fp, n_dec = _written(fp_units), _written(dec_units)
+        analyze(cur, "gen.footprint", n_fp if keep else None)
+        analyze(cur, "gen.building_mesh", n_fp + n_dec if keep else None)
         reuse = _BlockReuse(block_digests(conn, seed), kept, seed=seed)
         blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse)
         blk.update(coarse_blocks(conn, settings, srid, reuse))
@@ -800,9 +812,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id AND m.gen_level = 2
             """).fetchone()  # type: ignore[misc]
         balance = Balance("buildings", int(n_groups), {"simplified": simplified, "left as mapped": as_mapped})
-        cur.execute("ANALYZE gen.footprint")
-        cur.execute("ANALYZE gen.building_mesh")
-        cur.execute("ANALYZE gen.block")
+        analyze(cur, "gen.footprint", n_fp if keep else None)
+        analyze(cur, "gen.building_mesh", n_fp + n_dec if keep else None)
+        analyze(cur, "gen.block", reuse.written if keep else None)
     wall = time.perf_counter() - t0
     result: dict[str, object] = {
         **balance.counts(), "buildings": n_groups, "tolerance_m": tol,

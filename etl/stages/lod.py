@@ -35,7 +35,7 @@ import psycopg
 import shapely
 from psycopg.rows import dict_row
 
-from core.db import connect, working_srid
+from core.db import analyze, connect, working_srid
 from core.progress import Balance, Progress, summary
 from core.semantics import N_SEMANTICS, SEM_ROOF, SEM_WALL
 from core.settings import Settings
@@ -538,7 +538,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, changed: bool = 
                 writer.join()
             if failure:
                 raise failure[0]
-        cur.execute("ANALYZE lod.building_mesh")
+        analyze(cur, "lod.building_mesh", counts["meshes"] if changed else None)
     balance = Balance("buildings and parts", total,
                       {"drawn": counts["buildings"], "outlines drawn by their parts": hidden}, counts["rejected"])
     wall = time.perf_counter() - t0

@@ -46,7 +46,7 @@ import psycopg
 from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
-from core.db import connect, shares, thread_map
+from core.db import analyze, connect, shares, thread_map
 from core.fingerprint import Fingerprint, run_seed
 from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
@@ -517,6 +517,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
             cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure")
             cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
         n_kept = 0  # their rows stay as they are
+        written = {"tex.page": 0, "tex.feature_uv": 0}
         inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
         done = [[_kept_result(t, prints[(t.level, t.x, t.y)], counts[(t.level, t.x, t.y)], settings) for t in u]
                 for u in same]
@@ -535,6 +536,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                     if keep:
                         _drop_tile(cur, (res.tile.level, res.tile.x, res.tile.y))
                     _write(cur, res)
+                    written["tex.page"] += len(res.pages)
+                    written["tex.feature_uv"] += len(res.uvs)
                 inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages),
                                len(res.uvs), len(res.failures)))
                 page_texels = sum(p[6] * p[7] for p in res.pages)
@@ -571,8 +574,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         with cur.copy("COPY tex.tile_input FROM STDIN") as copy:
             for row in inputs:
                 copy.write_row(row)
-        cur.execute("ANALYZE tex.page")
-        cur.execute("ANALYZE tex.feature_uv")
+        for table, n in written.items():
+            analyze(cur, table, n if keep else None)
     seconds = time.perf_counter() - t0
     buildings = sum(t.features for t in tiles if t.is_leaf)
     util = totals["content_texels"] / totals["page_texels"] if totals["page_texels"] else 0.0

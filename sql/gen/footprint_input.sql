@@ -1,4 +1,4 @@
--- gen.footprint_input(pin_m, batch) -> one row per building (an outline with its parts), by batch unit, then id
+-- gen.footprint_input(pin_m, batch, ids DEFAULT NULL) -> one row per building (an outline with its parts), by batch unit, then id
 -- What the generalize stage simplifies at level 2: every building of the tile quadtree (tiles.building_tile
 -- group_id) with its outline, the area-weighted height of its LOD2 meshes (the tallest one's where they have
 -- no area), the lowest bottom, its LOD2 triangles, whether LOD3 put openings on it, and the boundaries of
@@ -6,11 +6,13 @@
 -- into (gen.batch_units: the rows of one unit are one batch).
 --   pin_m  distance (m) within which a neighbour's boundary pins vertices (etl.geom.simplify.PIN_DISTANCE)
 --   batch  settings.gen_batch_features (gen.batch_units)
+--   ids    only these buildings (group ids; NULL: all): an update reads only the batches it computes again,
+--          without aggregating every building's meshes first
 -- Streamed by a server-side cursor: LANGUAGE sql, STABLE and not STRICT, so the planner inlines it into the
 -- caller's query and it plans as that query would; a non-inlined set-returning function would be
 -- materialized whole before its first row.
 -- Example: SELECT group_id, top, bottom, n_triangles_in, openings FROM gen.footprint_input(0.1, 2000) LIMIT 5;
-CREATE OR REPLACE FUNCTION gen.footprint_input(pin_m double precision, batch integer)
+CREATE OR REPLACE FUNCTION gen.footprint_input(pin_m double precision, batch integer, ids bigint[] DEFAULT NULL)
 RETURNS TABLE (
     group_id       bigint,
     footprint      bytea,
@@ -37,6 +39,7 @@ AS $$
                bool_or(m.n_windows + m.n_doors > 0) FILTER (WHERE m.lod = 3) AS openings
         FROM tiles.building_tile bt
         JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod IN (2, 3)
+        WHERE $3 IS NULL OR bt.group_id = ANY($3)
         GROUP BY bt.group_id, bt.level, bt.x, bt.y
     ) s
     JOIN osm.building o ON o.id = s.group_id
@@ -50,5 +53,5 @@ AS $$
     ) nb ON true
     ORDER BY u.unit_level, u.unit_x, u.unit_y, o.id
 $$;
-COMMENT ON FUNCTION gen.footprint_input(double precision, integer) IS
-    'Buildings (outline + parts) for the level-2 footprints: outline (WKB), area-weighted LOD2 height, bottom, LOD2 triangles, LOD3 openings, neighbours'' boundaries within pin_m (WKB), batch unit (gen.batch_units); by unit, then id. Example: SELECT * FROM gen.footprint_input(0.1, 2000) LIMIT 5;';
+COMMENT ON FUNCTION gen.footprint_input(double precision, integer, bigint[]) IS
+    'Buildings (outline + parts) for the level-2 footprints: outline (WKB), area-weighted LOD2 height, bottom, LOD2 triangles, LOD3 openings, neighbours'' boundaries within pin_m (WKB), batch unit (gen.batch_units); by unit, then id; only the buildings ids if given. Example: SELECT * FROM gen.footprint_input(0.1, 2000) LIMIT 5;';

@@ -16,6 +16,7 @@ import psycopg
 import pytest
 
 from benchmarks.update_bench import TABLES, Reader, table_rows
+from core.db import analyze
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
@@ -322,6 +323,24 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
         assert "current" in run_etl(inc, st, "--if-stale", env=SMALL).stdout
     before, after = files(tmp_path / "before"), files(tmp_path / "after")
     assert before.pop("tileset.json") != after.pop("tileset.json") and before == after
+
+
+@pytest.mark.db
+def test_a_small_write_leaves_the_statistics_to_autovacuum(new_db: Callable[[str], str]) -> None:
+    """core.db.analyze, which every stage of an update calls for the tables it wrote: an update of a few rows
+    skips the ANALYZE (0.1 to 0.4 s a table of meshes), a larger write and a full run (written None) do not."""
+    with psycopg.connect(new_db("update_analyze"), autocommit=True) as conn, conn.cursor() as cur:
+        cur.execute("CREATE TABLE public.t AS SELECT g AS id FROM generate_series(1, 1000) g")
+
+        def counted() -> float:
+            return cur.execute("SELECT reltuples FROM pg_class WHERE oid = 'public.t'::regclass").fetchone()[0]
+
+        assert analyze(cur, "public.t", 1) and counted() == 1000, "no statistics yet: it runs whatever was written"
+        cur.execute("INSERT INTO public.t SELECT generate_series(1001, 1050)")
+        assert not analyze(cur, "public.t", 50) and counted() == 1000, "5 % written: the statistics stand"
+        assert analyze(cur, "public.t", 100) and counted() == 1050
+        cur.execute("INSERT INTO public.t SELECT generate_series(1051, 1060)")
+        assert analyze(cur, "public.t") and counted() == 1060, "a full run always analyzes"
 
 
 #: CHANGE_1's edits that delete or add no building (a moved node, a tag edit): every table the stages write holds
