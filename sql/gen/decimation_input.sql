@@ -1,5 +1,5 @@
--- gen.decimation_input(min_triangles, batch, ids DEFAULT NULL) -> one row per feature (building or part) of the tile quadtree, by
--- batch unit, then id
+-- gen.decimation_input(min_triangles, batch, ids DEFAULT NULL) -> one row per feature (building or part) of
+-- the tile quadtree, by batch unit, then id
 -- What the generalize stage decimates at level 3: each feature's LOD2 mesh (WKB) and semantics when it has at
 -- least min_triangles triangles (NULL otherwise: it is used as it is), its triangle count and heights, and
 -- whether its LOD3 mesh has openings (the LOD2-to-LOD3 step of its error bound), and the unit of the batches

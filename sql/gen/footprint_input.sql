@@ -1,4 +1,5 @@
--- gen.footprint_input(pin_m, batch, ids DEFAULT NULL) -> one row per building (an outline with its parts), by batch unit, then id
+-- gen.footprint_input(pin_m, batch, ids DEFAULT NULL) -> one row per building (an outline with its parts), by
+-- batch unit, then id
 -- What the generalize stage simplifies at level 2: every building of the tile quadtree (tiles.building_tile
 -- group_id) with its outline, the area-weighted height of its LOD2 meshes (the tallest one's where they have
 -- no area), the lowest bottom, its LOD2 triangles, whether LOD3 put openings on it, and the boundaries of
