@@ -365,17 +365,10 @@ def _todo_rows(src: psycopg.Cursor, todo: dict[Unit, str], ids: dict[Unit, list[
         yield unit, todo[unit], rows
 
 
-_UNITS_FILTER = ("WHERE %(l)s::int2[] IS NULL OR (unit_level, unit_x, unit_y) IN "
-                 "(SELECT * FROM unnest(%(l)s::int2[], %(x)s::int4[], %(y)s::int4[]))")
-
-
-def _filter(todo: dict[Unit, str], ids: dict[Unit, list[int]], kept: Kept | None) -> dict[str, list[int] | None]:
-    """The parameters of a step's input function (``ids``: its buildings, so that it reads only those) and of
-    _UNITS_FILTER: the units to compute (every unit in a full run: no filter)."""
-    if kept is None:
-        return {"l": None, "x": None, "y": None, "ids": None}
-    return {"l": [u[0] for u in todo], "x": [u[1] for u in todo], "y": [u[2] for u in todo],
-            "ids": [i for u in todo for i in ids[u]]}
+def _todo_ids(todo: dict[Unit, str], ids: dict[Unit, list[int]], kept: Kept | None) -> list[int] | None:
+    """The buildings of the units to compute, for a step's input function to read only those (None in a full
+    run: every unit is computed)."""
+    return None if kept is None else [i for u in todo for i in ids[u]]
 
 
 def _drop_unseen(cur: psycopg.Cursor, units: _Units) -> None:
@@ -415,8 +408,8 @@ def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
             (PIN_DISTANCE, settings.gen_batch_features)).fetchall())
         progress.update(sum(len(ids[u]) for u, _ in units.kept))
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.footprint_input(%(pin)s, %(batch)s, %(ids)s::int8[]) " + _UNITS_FILTER,
-                    {"pin": PIN_DISTANCE, "batch": settings.gen_batch_features, **_filter(todo, ids, kept)})
+        src.execute("SELECT * FROM gen.footprint_input(%s, %s, %s::int8[])",
+                    (PIN_DISTANCE, settings.gen_batch_features, _todo_ids(todo, ids, kept)))
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]], list[tuple[int, bytes]]],
                                       tuple[str, tuple]]]:
@@ -471,9 +464,8 @@ def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: 
             "SELECT unit_level, unit_x, unit_y, building_ids, digest FROM gen.decimation_unit_digests(%s, %s)",
             (settings.gen_decimate_min_triangles, settings.gen_batch_features)).fetchall())
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.decimation_input(%(min)s, %(batch)s, %(ids)s::int8[]) " + _UNITS_FILTER,
-                    {"min": settings.gen_decimate_min_triangles, "batch": settings.gen_batch_features,
-                     **_filter(todo, ids, kept)})
+        src.execute("SELECT * FROM gen.decimation_input(%s, %s, %s::int8[])",
+                    (settings.gen_decimate_min_triangles, settings.gen_batch_features, _todo_ids(todo, ids, kept)))
         args = (tol, settings.gen_decimate_reduction, settings.gen_decimate_min_triangles, srid)
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]]], tuple[str, tuple]]]:
@@ -812,8 +804,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id AND m.gen_level = 2
             """).fetchone()  # type: ignore[misc]
         balance = Balance("buildings", int(n_groups), {"simplified": simplified, "left as mapped": as_mapped})
-        analyze(cur, "gen.footprint", n_fp if keep else None)
-        analyze(cur, "gen.building_mesh", n_fp + n_dec if keep else None)
+        # gen.footprint and gen.building_mesh were analyzed once written, before the blocks
         analyze(cur, "gen.block", reuse.written if keep else None)
     wall = time.perf_counter() - t0
     result: dict[str, object] = {
