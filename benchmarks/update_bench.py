@@ -62,9 +62,9 @@ STAGES = (*PIPELINE, "export")
 #: (identity columns, numbered by insertion order and never exported, and timestamps left out; meta.dataset's
 #: source file and sha256 name the file each read)
 TABLES = ["osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member", "meta.dataset",
-          "meta.diagnostic", "lod.building_mesh", "lm.building", "tiles.tile", "tiles.building_tile", "tiles.grid",
-          "tiles.tile_content", "gen.footprint", "gen.building_mesh", "gen.block", "gen.unit_input", "tex.page",
-          "tex.feature_uv", "tex.failure", "tex.tile_input"]
+          "meta.diagnostic", "lod.building_mesh", "lm.building", "lm.exaggeration", "tiles.tile",
+          "tiles.building_tile", "tiles.grid", "tiles.tile_content", "gen.footprint", "gen.building_mesh", "gen.block",
+          "gen.unit_input", "tex.page", "tex.feature_uv", "tex.failure", "tex.tile_input"]
 IGNORED = {"osm.reject": {"reject_id"}, "meta.diagnostic": {"diagnostic_id"}, "tex.failure": {"failure_id"},
            "meta.dataset": {"source_file", "source_sha256"}}
 

@@ -11,7 +11,9 @@ Runs after lod (it measures the LOD2 meshes) and before tiles/generalize (landma
 3. lm.building gets every measure, the score, rank and level (COPY); the highest levels holding at most
    lm_max_fraction of the buildings are the landmarks, flagged osm.building.protected;
 4. each landmark gets its predefined exaggeration intervals (lm_min_screen_px, lm_scale_step, lm_max_scale;
-   etl.geom.landmarks.exaggeration_intervals), which api.landmark_scale and api.landmark_exaggeration read.
+   etl.geom.landmarks.exaggeration_intervals), which api.landmark_scale and api.landmark_exaggeration read;
+5. lm.exaggeration gets each building's part in the exaggeration (lm.fill_exaggeration: lm.exaggeration_role
+   of the landmarks and the buildings within their reach), which the exporter writes into every feature.
 
 The hierarchy needs every point at once, so the stage holds a few float arrays per building (~100 bytes each,
 100 MB at 1M buildings), never the geometries, and never the neighbour pairs of the whole city: those are summed
@@ -141,11 +143,15 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         scored = cur.execute("SELECT count(*) FROM lm.building").fetchone()[0]  # type: ignore[index]
         balance = Balance("drawn buildings", int(drawn), {"scored": int(scored)})
         cur.execute("ANALYZE lm.building")
+        # each building's part in the exaggeration, stored once here: the exporter read it per feature per tile
+        cur.execute("CALL lm.fill_exaggeration()")
+        roles = cur.execute("SELECT count(*) FROM lm.exaggeration").fetchone()[0]  # type: ignore[index]
+        cur.execute("ANALYZE lm.exaggeration")
     top = ids[np.argsort(rank)[:10]].tolist()
     seconds = time.perf_counter() - t0
     n_lm = int(is_landmark.sum())
     summary("landmarks", balance, f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
             f"(level >= {min_level})", seconds, n)
     return {**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)), "landmark_min_level": min_level,
-            "landmarks": n_lm, "top10": top, "weights": w, "seconds": round(seconds, 3),
-            "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}
+            "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top, "weights": w,
+            "seconds": round(seconds, 3), "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}

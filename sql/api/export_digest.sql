@@ -39,7 +39,7 @@ AS $$
         FROM api.buildings_for_tile($1, $2, $3, $4) WITH ORDINALITY f
         LEFT JOIN osm.building o ON f.kind <> 'block' AND o.id = f.building_id
         LEFT JOIN lm.building l ON l.building_id = coalesce(o.parent_id, o.id)
-        LEFT JOIN LATERAL lm.exaggeration_role(l.building_id) x ON true
+        LEFT JOIN lm.exaggeration x ON x.building_id = l.building_id
         LEFT JOIN osm.building lo ON lo.id = x.landmark_id
     ) r
 $$;

@@ -3,10 +3,11 @@
 -- api.buildings_for_tile's features (with single_lod, a single-LOD tileset's) with their meshes lifted by
 -- base_height and transformed to ECEF (EPSG:4978, z = height above the ellipsoid) as WKB, their landmark
 -- level (lm.building.level: local, where the city-wide rank changes in every tile with any edit), and the
--- landmark exaggeration metadata of lm.exaggeration_role (role 1 a landmark, 2 a building its scaled
--- footprint would cover, 0 neither; intervals, footprint circle, gap, and the landmark's and the building's
--- ground centres in ECEF as WKB points). Blocks have no level and no role. Rows in
--- api.buildings_for_tile's order; the columns up to semantics are api.feature's (migrations/0020).
+-- landmark exaggeration metadata of lm.exaggeration_role, as the landmarks stage stored it in lm.exaggeration
+-- (role 1 a landmark, 2 a building its scaled footprint would cover, 0 neither; intervals, footprint circle,
+-- gap, and the landmark's and the building's ground centres in ECEF as WKB points). Blocks have no level and
+-- no role. Rows in api.buildings_for_tile's order; the columns up to semantics are api.feature's
+-- (migrations/0020).
 --   level, x, y  the tile
 --   single_lod   1, 2 or 3: every building of a leaf at that LOD (NULL: the tile's band)
 --   base_height  metres added to every z (settings.base_height_m)
@@ -62,7 +63,7 @@ AS $$
     FROM api.buildings_for_tile($1, $2, $3, $4) f
     LEFT JOIN osm.building o ON f.kind <> 'block' AND o.id = f.building_id
     LEFT JOIN lm.building l ON l.building_id = coalesce(o.parent_id, o.id)
-    LEFT JOIN LATERAL lm.exaggeration_role(l.building_id) x ON true
+    LEFT JOIN lm.exaggeration x ON x.building_id = l.building_id
     LEFT JOIN osm.building lo ON lo.id = x.landmark_id
 $$;
 COMMENT ON FUNCTION api.export_features(integer, integer, integer, integer, double precision) IS

@@ -162,6 +162,23 @@ def test_each_landmark_has_its_predefined_exaggeration_intervals(city, conn_of) 
     assert max(max(r[3]) for r in rows if r[4]) == pytest.approx(s.lm_max_scale)
 
 
+def test_the_stored_exaggeration_roles_are_the_rule_for_every_building(city, conn_of) -> None:
+    """lm.exaggeration, which the exporter reads, holds lm.exaggeration_role of every building that has one
+    (the stage calls it only for the buildings within a landmark's reach): no building is missing or extra."""
+    conn = conn_of(city("helsinki").url)
+    want = conn.execute("""SELECT b.building_id, x.* FROM lm.building b
+                           CROSS JOIN LATERAL lm.exaggeration_role(b.building_id) x ORDER BY 1""").fetchall()
+    got = conn.execute("SELECT * FROM lm.exaggeration ORDER BY building_id").fetchall()
+    assert got == want
+    roles = [r[1] for r in got]
+    assert roles.count(1) == conn.execute(
+        "SELECT count(*) FROM lm.building WHERE is_landmark AND cardinality(scale_factors) > 0").fetchone()[0]
+    assert roles.count(2) > 0
+    (counted,) = conn.execute("""SELECT (counts->>'exaggeration_roles')::int FROM meta.pipeline_run
+                                 WHERE stage = 'landmarks' AND status = 'ok' ORDER BY run_id DESC LIMIT 1""").fetchone()
+    assert counted == len(got)
+
+
 def test_landmark_scale_follows_the_intervals(city, conn_of) -> None:
     conn = conn_of(city("helsinki").url)
     lms = conn.execute("""SELECT building_id, scale_distances_m, scale_factors FROM lm.building
