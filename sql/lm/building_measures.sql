@@ -54,7 +54,8 @@ AS $$
     FROM osm.building b
     JOIN g ON g.gid = b.id
     JOIN f ON f.gid = b.id
-    CROSS JOIN LATERAL (SELECT ST_PointOnSurface(b.geom_local) AS p) c
+    -- OFFSET 0: computed once, not substituted into each of its three uses (0.35 s against 0.21 s on Liechtenstein)
+    CROSS JOIN LATERAL (SELECT ST_PointOnSurface(b.geom_local) AS p OFFSET 0) c
     ORDER BY b.id
 $$;
 COMMENT ON FUNCTION lm.building_measures(text[], text[]) IS
