@@ -33,7 +33,8 @@ def test_each_stage_is_its_module_closure_its_sql_and_its_settings() -> None:
                     "exporter/server/app.py"} & code.python.keys()
         assert "pg_port" not in code.settings
     assert "sql/lod/outline_remainder.sql" in lod.sql
-    # named in Python (api.buildings_for_tile) and through its SQL (tiles.lod2_features, lm.exaggeration_role)
+    # named in Python (api.buildings_for_tile) and through its SQL (tiles.lod2_features; the landmarks stage reaches
+    # lm.exaggeration_role through lm.fill_exaggeration)
     assert {"sql/api/buildings_for_tile.sql", "sql/tiles/lod2_features.sql"} <= set(export.sql)
     assert {"sql/lm/fill_exaggeration.sql", "sql/lm/exaggeration_role.sql"} <= set(stage_code("landmarks").sql)
     assert "sql/tiles/build_quadtree.sql" in tiles.sql and "sql/tiles/finish_hierarchy.sql" not in tiles.sql
