@@ -9,13 +9,23 @@ stand in the earlier state as they are now. A node created after ``before`` stay
 kept way uses it (the way was modified to use it; its earlier node list is unknown).
 
 ``python -m benchmarks.history EXTRACT --before 2022-05-07 --base A.osm.pbf --change A-to-B.osc`` writes both.
+
+A *history* file (every version of every object, deleted ones with visible="false", as the API's
+``/history`` calls and .osh files give them) holds more: the area as it stood at any moment (each object's last
+version stamped by then, unless that version deletes it; states()) and the real change between two moments,
+with its creations, modifications and deletions (changes()).
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime as dt
+import hashlib
+import io
+import os
 import sys
+import urllib.request
+import zipfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -109,6 +119,118 @@ def split(osm: Path, before: dt.datetime, base: Path, change: Path) -> dict[str,
                                  '<osmChange version="0.6" generator="citylod benchmarks.history">', "<create>",
                                  *s.lines, "</create>", "</osmChange>", ""]))
     return {"nodes": len(nodes), "ways": len(scan.new_ways), "relations": len(scan.new_relations)}
+
+
+#: A real history file: every version (2007-2016) of an associatedStreet relation in Oakland, California (Broadway,
+#: relation 4017808) and of its members and their nodes, buildings among them; OpenStreetMap data (ODbL), test data
+#: of the Go module github.com/paulmach/osm, fetched from the Go module proxy (fetch_history), never committed here
+HISTORY_MODULE = "github.com/paulmach/osm/@v/v0.8.0.zip"
+HISTORY_MODULE_SHA256 = "20c840390b139a0f21db4900cd29e08d92b9268ecc7bdc57d739dddb465b6c36"
+HISTORY_MEMBER = "github.com/paulmach/osm@v0.8.0/annotate/testdata/relation_4017808.osm"
+HISTORY_SHA256 = "0e8c0e4afac3de4711a79f248c4e12f9f797ba8e45bcf141b0413dcee72aa0ee"
+
+
+def fetch_history(dest: Path) -> Path:
+    """HISTORY_MEMBER, unzipped to ``dest`` from the module zip (11 MB) the Go module proxy serves (the first one
+    of $GOPROXY, else proxy.golang.org); both sha256s are pinned, so a changed upstream file is noticed."""
+    if dest.exists() and hashlib.sha256(dest.read_bytes()).hexdigest() == HISTORY_SHA256:
+        return dest
+    proxies = [p for p in os.environ.get("GOPROXY", "").replace("|", ",").split(",") if p.startswith("http")]
+    url = f"{(proxies or ['https://proxy.golang.org'])[0].rstrip('/')}/{HISTORY_MODULE}"
+    with urllib.request.urlopen(url, timeout=120) as r:  # noqa: S310 -- a pinned https URL
+        data = r.read()
+    if hashlib.sha256(data).hexdigest() != HISTORY_MODULE_SHA256:
+        raise RuntimeError(f"{url} does not have the pinned sha256 {HISTORY_MODULE_SHA256}")
+    member = zipfile.ZipFile(io.BytesIO(data)).read(HISTORY_MEMBER)
+    if hashlib.sha256(member).hexdigest() != HISTORY_SHA256:
+        raise RuntimeError(f"{HISTORY_MEMBER} in {url} does not have the pinned sha256 {HISTORY_SHA256}")
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    part = dest.with_name(dest.name + ".part")
+    part.write_bytes(member)
+    part.replace(dest)
+    return dest
+
+
+#: An object of a history file: (type "n"|"w"|"r", id) -> its versions as (version, timestamp, visible, XML)
+History = dict[tuple[str, int], list[tuple[int, dt.datetime, bool, str]]]
+_KINDS = {"n": "node", "w": "way", "r": "relation"}
+
+
+def _xml(o: osmium.osm.OSMObject, kind: str) -> str:
+    """``o`` as an OSM XML element (its id, version, timestamp, and location, node list or members)."""
+    head = f'<{_KINDS[kind]} id="{o.id}" version="{o.version}" timestamp="{_ts(o)}"'
+    if kind == "n":
+        return f'{head} lat="{o.location.lat:.7f}" lon="{o.location.lon:.7f}">{_tags(o.tags)}</node>'
+    if kind == "w":
+        return head + ">" + "".join(f'<nd ref="{r.ref}"/>' for r in o.nodes) + _tags(o.tags) + "</way>"
+    return (head + ">" + "".join(f'<member type="{_KINDS[m.type]}" ref="{m.ref}" role={quoteattr(m.role)}/>'
+                                 for m in o.members) + _tags(o.tags) + "</relation>")
+
+
+def read_history(path: Path) -> History:
+    """Every version of every object of the history file ``path`` (in any order), sorted by version."""
+    out: History = {}
+    for o in osmium.FileProcessor(str(path)):
+        kind = "n" if o.is_node() else "w" if o.is_way() else "r"
+        out.setdefault((kind, o.id), []).append((o.version, o.timestamp, o.visible, _xml(o, kind) if o.visible
+                                                 else ""))
+    for versions in out.values():
+        versions.sort()
+    return out
+
+
+def _at(versions: list[tuple[int, dt.datetime, bool, str]], when: dt.datetime) -> tuple[int, bool, str] | None:
+    """The version in force at ``when``: (version, visible, XML), None before the object existed."""
+    last = None
+    for v, ts, visible, xml in versions:
+        if ts <= when:
+            last = (v, visible, xml)
+    return last
+
+
+def _order(key: tuple[str, int]) -> tuple[int, int]:
+    return ("nwr".index(key[0]), key[1])
+
+
+def states(history: History, when: dt.datetime, out: Path) -> int:
+    """Writes ``out`` (OSM XML, objects sorted by type and id): the area as it stood at ``when``; returns how
+    many objects it holds."""
+    rows = []
+    for key in sorted(history, key=_order):
+        now = _at(history[key], when)
+        if now is not None and now[1]:
+            rows.append(now[2])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
+                               '<osm version="0.6" generator="citylod benchmarks.history">', *rows, "</osm>", ""]))
+    return len(rows)
+
+
+def changes(history: History, start: dt.datetime, end: dt.datetime, out: Path) -> dict[str, dict[str, int]]:
+    """Writes ``out``, the osmChange document that brings the area from ``start`` to ``end``: an object that
+    appeared is created, one whose version changed is modified (to the version in force at ``end``), one that
+    disappeared is deleted (by the version that deleted it). Returns the counts by action and type."""
+    acts: dict[str, list[str]] = {"create": [], "modify": [], "delete": []}
+    for key in sorted(history, key=_order):
+        a, b = _at(history[key], start), _at(history[key], end)
+        was = a is not None and a[1]
+        now = b is not None and b[1]
+        if now and not was:
+            acts["create"].append(b[2])  # type: ignore[index]
+        elif now and was and a[0] != b[0]:  # type: ignore[index]
+            acts["modify"].append(b[2])  # type: ignore[index]
+        elif was and not now:
+            kind, oid = key
+            ts = next(t for v, t, _, _ in history[key] if v == b[0])  # type: ignore[index]
+            acts["delete"].append(f'<{_KINDS[kind]} id="{oid}" version="{b[0]}" '  # type: ignore[index]
+                                  f'timestamp="{ts.strftime("%Y-%m-%dT%H:%M:%SZ")}"/>')
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
+                               '<osmChange version="0.6" generator="citylod benchmarks.history">',
+                               *(f"<{a}>\n" + "\n".join(rows) + f"\n</{a}>" for a, rows in acts.items() if rows),
+                               "</osmChange>", ""]))
+    return {a: {_KINDS[k]: sum(1 for r in rows if r.startswith(f"<{_KINDS[k]} ")) for k in _KINDS}
+            for a, rows in acts.items()}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,11 +1,17 @@
-"""`python -m etl update` with a real change: Helsinki (the demo extract) as it was on 2018-11-01, as far as the
-extract's own history tells (benchmarks/history.py: every object at version 1 stamped after that day left out),
-brought to the extract by the change file of the buildings, parts and other objects mappers created since.
-Updated, it must equal a full rebuild from the real extract: every table, every glb and subtree."""
+"""`python -m etl update` with real changes, updated it must equal a full rebuild: every table, every glb and subtree.
+
+* Helsinki (the demo extract) as it was on 2018-11-01, as far as the extract's own history tells
+  (benchmarks/history.py: every object at version 1 stamped after that day left out), brought to the extract by
+  the change file of the buildings, parts and other objects mappers created since: creations only.
+* A small area of Oakland (a street relation, its members and their nodes) as it stood on three days, from a
+  file of its full history (benchmarks.history.fetch_history): two real change files between them, with the
+  nodes mappers moved and deleted, the buildings they retagged and redrew, a way that became a building and
+  buildings drawn new."""
 
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,8 +19,9 @@ import osmium
 import psycopg
 import pytest
 
-from benchmarks.history import split
+from benchmarks.history import changes, fetch_history, read_history, split, states
 from benchmarks.update_bench import differences, tileset_differences
+from core.settings import REPO
 from etl.stages.update import apply_changes
 from tests.conftest import helsinki, run_etl
 from tests.db.test_update import PIPELINE
@@ -83,4 +90,55 @@ def test_real_creations_update_equals_a_full_rebuild(new_db: Callable[[str], str
 
     assert differences(inc, full) == {}, "every table, row for row"
     # every glb and subtree byte for byte, tileset.json but for its tilesetVersion (the sha256 of the file read)
+    assert tileset_differences(tmp_path / "inc", tmp_path / "full") == []
+
+
+#: the Oakland history's three days: every change of its buildings falls between them
+DAYS = [dt.datetime(2014, 10, 1, tzinfo=dt.UTC), dt.datetime(2015, 6, 1, tzinfo=dt.UTC),
+        dt.datetime(2016, 12, 31, tzinfo=dt.UTC)]
+
+
+def buildings(osm: Path) -> dict[int, tuple]:
+    """The building ways of ``osm``: id -> (version, node ids, tags)."""
+    return {o.id: (o.version, tuple(n.ref for n in o.nodes), dict(o.tags)) for o in osmium.FileProcessor(str(osm))
+            if o.is_way() and "building" in o.tags}
+
+
+@pytest.mark.db
+def test_real_edits_and_deletions_update_equals_a_full_rebuild(new_db: Callable[[str], str], tmp_path: Path) -> None:
+    history = read_history(fetch_history(REPO / "data" / "oakland-relation-4017808-history.osm"))
+    days = [tmp_path / f"oakland-{d.date()}.osm" for d in DAYS]
+    for d, out in zip(DAYS, days, strict=True):
+        states(history, d, out)
+    osc = [tmp_path / f"oakland-{a.date()}-to-{b.date()}.osc" for a, b in itertools.pairwise(DAYS)]
+    made = [changes(history, a, b, out) for (a, b), out in zip(itertools.pairwise(DAYS), osc, strict=True)]
+    # real edits of every kind: nodes moved and deleted, ways redrawn and drawn new, the relation's members changed
+    for m in made:
+        assert m["modify"]["node"] and m["delete"]["node"] and m["modify"]["way"] and m["create"]["way"], m
+        assert m["modify"]["relation"] == 1, m
+    merged = tmp_path / "merged.osm.pbf"
+    apply_changes(days[0], osc, merged)
+    assert objects(merged) == objects(days[2]), "the changes bring the first day's state to the last day's"
+    first, middle, last = (buildings(d) for d in days)
+    assert set(first) < set(middle) == set(last), "buildings drawn new in the first step"
+    grew = [i for i in first if i in last and (first[i][1] != last[i][1] or first[i][2] != last[i][2])]
+    assert grew, "a building of the first day retagged or redrawn"
+    became = [i for i in last if i not in first and any(k == ("w", i) for k in history)
+              and history[("w", i)][0][1] < DAYS[0]]
+    assert became, "a way of the first day that became a building"
+
+    inc = new_db("oakland_inc")
+    build(inc, days[0], tmp_path / "inc")
+    seen = []
+    for change in osc:
+        run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SETTINGS)
+        with psycopg.connect(inc) as conn:
+            seen.append(dict(conn.execute("SELECT id, change FROM osm.building_change").fetchall()))
+    full = new_db("oakland_full")
+    build(full, days[2], tmp_path / "full")
+    # what each update saw: buildings added (new, and the way retagged a building) then, and buildings modified
+    assert "added" in seen[0].values() and all("modified" in s.values() for s in seen), seen
+    with psycopg.connect(inc) as conn:
+        assert [r[0] for r in conn.execute("SELECT seq FROM meta.osm_change ORDER BY seq")] == [1, 2]
+    assert differences(inc, full) == {}, "every table, row for row"
     assert tileset_differences(tmp_path / "inc", tmp_path / "full") == []
