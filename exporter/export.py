@@ -586,6 +586,8 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
             "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
             "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
             "glb_copied": len(same), "glb_built": len(tiles) - len(same),
+            # what building those glbs handled: an update's share of the export's work
+            "features_built": n_features - sum(keys[p].n_features for p in same),
             "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "directory": str(out), **published}

@@ -508,6 +508,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                             "flat", "sheets", "scaled", "panels_mapped"), 0)
     ktx2_seconds = 0.0
     redrawn = 0  # kept tiles drawn again for their unit's chart cache
+    textured_again = 0  # features of the tiles textured (not kept): an update's share of the stage's work
     with conn.transaction(), conn.cursor() as cur:
         # not TRUNCATE (see generalize.run): readers keep the pages of before until the commit, without waiting
         cur.execute("DELETE FROM tex.tile_input")
@@ -533,6 +534,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                     _fill_kept(res, kept_counts)
                     n_kept += 1
                 else:
+                    textured_again += res.features
                     if keep:
                         _drop_tile(cur, (res.tile.level, res.tile.x, res.tile.y))
                     _write(cur, res)
@@ -597,7 +599,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         buildings,
     )
     return {**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
-            "tiles_redrawn": redrawn, "units_lost": lost,
+            "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
             "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}
