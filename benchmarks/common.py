@@ -144,6 +144,11 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def cpu() -> str:
+    """The CPU model and core count, for a section measured apart from make bench's machine block."""
+    return f"{_cpu_model()}, {os.cpu_count()} cores"
+
+
 def _ram_gib() -> str:
     try:
         for line in Path("/proc/meminfo").read_text().splitlines():
@@ -262,7 +267,7 @@ def section_bench(argv: list[str] | None, prog: str, doc: str, default_osm: Path
     cluster.ensure()
     admin_url = cluster.database_url("postgres")
     try:
-        figures = measure(a.osm.resolve(), admin_url)
+        figures = {**measure(a.osm.resolve(), admin_url), "machine": cpu()}
     finally:
         if not a.keep:
             drop_db(admin_url, db)

@@ -398,7 +398,8 @@ def section(s: dict[str, Any] | None) -> list[str]:
            f"{s['extract']}: a change file for {c['chosen']:,} of its {c['building_ways']:,} building ways (1 %, "
            f"the ones nearest the centre of the data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes "
            f"moved by 0.5 m) applied with `python -m etl update --osc … --out …` to the database the full "
-           f"pipeline built. Command: `python -m benchmarks.update_bench --write BENCHMARKS.md`. Target: the "
+           f"pipeline built. Command: `python -m benchmarks.update_bench --write BENCHMARKS.md`"
+           + (f" (machine: {s['machine']})" if s.get("machine") else "") + ". Target: the "
            f"update ≤ 5 % of the full rebuild. Measured: {s['update_wall_s']:.1f} s against "
            f"{s['full_total_s']:.1f} s, {100 * ratio:.0f} %. osm.building_change: "
            + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + ".", ""]
@@ -535,7 +536,8 @@ def section_larger(s: dict[str, Any] | None) -> list[str]:
            f"data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes moved by 0.5 m) and applied the "
            "same way, without the history, the equivalence check and the second update. Command: "
            "`python -m benchmarks.update_bench --larger --osm build/bench/scale/liechtenstein_2022-07-24-x6.osm.pbf "
-           "--write BENCHMARKS.md` (the file: `python -m benchmarks.replicate "
+           "--write BENCHMARKS.md`" + (f" (machine: {s['machine']})" if s.get("machine") else "")
+           + " (the file: `python -m benchmarks.replicate "
            "../shared/data/osm/liechtenstein_2022-07-24.osm.pbf 6 …`, as the scale bench makes it). Measured: "
            f"{s['update_wall_s']:.1f} s against {s['full_total_s']:.1f} s, "
            f"{100 * s['update_wall_s'] / s['full_total_s']:.0f} % (target on the benchmark extract: ≤ 5 %); "
