@@ -13,7 +13,9 @@ kept way uses it (the way was modified to use it; its earlier node list is unkno
 A *history* file (every version of every object, deleted ones with visible="false", as the API's
 ``/history`` calls and .osh files give them) holds more: the area as it stood at any moment (each object's last
 version stamped by then, unless that version deletes it; states()) and the real change between two moments,
-with its creations, modifications and deletions (changes()).
+with its creations, modifications and deletions (changes()): ``python -m benchmarks.history HISTORY.osh --history
+--before 2014-10-01 --to 2016-12-31 --base A.osm --change A-to-B.osc`` (an .osh of an area: ``osmium extract
+--with-history`` of a history planet).
 """
 
 from __future__ import annotations
@@ -235,12 +237,24 @@ def changes(history: History, start: dt.datetime, end: dt.datetime, out: Path) -
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.history", description=__doc__.split("\n\n")[0])
-    p.add_argument("osm", type=Path)
-    p.add_argument("--before", required=True, type=dt.date.fromisoformat, help="YYYY-MM-DD (UTC midnight)")
-    p.add_argument("--base", required=True, type=Path)
-    p.add_argument("--change", required=True, type=Path)
+    p.add_argument("osm", type=Path, help="an extract with metadata, or with --history a history file")
+    p.add_argument("--before", type=dt.date.fromisoformat, help="YYYY-MM-DD (UTC midnight): the extract before it")
+    p.add_argument("--base", required=True, type=Path, help="the earlier state (an .osm file with --history)")
+    p.add_argument("--change", required=True, type=Path, help="the change from it to the extract or --to")
+    p.add_argument("--history", action="store_true",
+                   help="OSM is a history file: --base is the state at --before, --change the change to --to")
+    p.add_argument("--to", type=dt.date.fromisoformat, help="with --history: YYYY-MM-DD (UTC midnight)")
     a = p.parse_args(argv)
-    made = split(a.osm, dt.datetime.combine(a.before, dt.time(), dt.UTC), a.base, a.change)
+    if a.before is None or a.history and a.to is None:
+        p.error("--before is required, and --to with --history")
+    start = dt.datetime.combine(a.before, dt.time(), dt.UTC)
+    if a.history:
+        h = read_history(a.osm)
+        n = states(h, start, a.base)
+        made = changes(h, start, dt.datetime.combine(a.to, dt.time(), dt.UTC), a.change)
+        print(f"{a.base}: {n:,} objects of {a.osm} on {a.before}; {a.change} to {a.to}: {made}")
+        return 0
+    made = split(a.osm, start, a.base, a.change)
     print(f"{a.base}: {a.osm} before {a.before}; {a.change} creates {made}")
     return 0
 
