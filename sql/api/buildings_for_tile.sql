@@ -39,7 +39,7 @@ BEGIN
                m.height, m.min_height, b.levels, m.roof_shape,
                b.building_colour, coalesce(b.roof_colour, p.roof_colour),
                coalesce(b.building_material, p.building_material), b.roof_material,
-               m.lod, 4::smallint, 1, 0::real, m.n_triangles, m.roof_height, m.semantics, m.geom
+               m.lod, 4::smallint, 1, 0::real, m.n_triangles, m.roof_height, m.semantics, m.geom, m.mesh_md5
         FROM tiles.building_tiles_below($1, $2, $3) bt
         JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = coalesce($4, 3)
         JOIN osm.building b ON b.id = bt.building_id
@@ -62,7 +62,7 @@ BEGIN
         SELECT 'building', b.id, b.osm_type::text, b.osm_id, b.kind, b.osm_type::text, b.osm_id,
                b.name, b.building, g.height, g.min_height, b.levels, 'flat',
                b.building_colour, b.roof_colour, b.building_material, b.roof_material,
-               1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom
+               1::smallint, 2::smallint, 1, g.total_error_m, g.n_triangles, 0::real, g.semantics, g.geom, g.mesh_md5
         FROM s
         JOIN gen.building_mesh g ON g.building_id = s.group_id AND g.gen_level = 2
         JOIN osm.building b ON b.id = s.group_id
@@ -74,7 +74,8 @@ BEGIN
         -- block bands: the tile's aggregated blocks, but for those too small for the band (selection)
         SELECT 'block', k.block_id, 'B', k.block_id, 'block', 'B', k.block_id,
                NULL, NULL, k.height, 0::real, NULL, 'flat', NULL, NULL, NULL, NULL,
-               0::smallint, k.gen_level, k.n_members, k.total_error_m, k.n_triangles, 0::real, k.semantics, k.geom
+               0::smallint, k.gen_level, k.n_members, k.total_error_m, k.n_triangles, 0::real, k.semantics, k.geom,
+               k.mesh_md5
         FROM gen.block k
         WHERE t.gen_level <= 1 AND k.level = t.level AND k.x = t.x AND k.y = t.y AND NOT k.omitted
         ORDER BY 1, 2;

@@ -4,6 +4,7 @@
 -- (pub.file.input_digest) and copies an unchanged tile's glb instead of building it again, so an update
 -- re-exports only the tiles whose content changed. Every column of api.export_features is hashed under its own
 -- name (tests/db/test_export_reuse.py checks that none is missing), geometries as their EWKB in the working CRS
+-- (the mesh through the md5 of it stored with the mesh, api.feature.mesh_md5, migrations/0041)
 -- (the ECEF transform and base_height are the exporter's and go into its side of the fingerprint): about half
 -- the cost of api.export_features itself (Liechtenstein, every tile, one connection: 4.0 s against 7.5 s). n_features: the rows api.export_features returns.
 --   level, x, y  the tile
@@ -31,7 +32,7 @@ AS $$
         SELECT f.ordinality AS ord, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.kind, f.building_osm_type,
                f.building_osm_id, f.name, f.building, f.height, f.min_height, f.levels, f.roof_shape,
                f.building_colour, f.roof_colour, f.building_material, f.roof_material, f.lod, f.gen_level,
-               f.n_members, f.error_m, md5(f.semantics) AS semantics, md5(ST_AsEWKB(f.geom)) AS ecef_wkb,
+               f.n_members, f.error_m, md5(f.semantics) AS semantics, f.mesh_md5 AS ecef_wkb,
                l.level AS lm_level, x.role AS lm_role, lo.osm_id AS lm_landmark_osm_id,
                x.scale_from_m AS lm_scale_from_m, x.scale_step AS lm_scale_step, x.max_scale AS lm_max_scale,
                x.landmark_radius_m AS lm_radius_m, x.gap_m AS lm_gap_m,

@@ -1,7 +1,7 @@
 -- gen.footprint_unit_digests(pin_m, batch) -> per batch unit of the footprint step, its buildings and an md5 of
 -- everything it reads
 -- Every column of its gen.footprint_input rows in id order and the LOD2 meshes its errors are measured against
--- (gen.group_lod2_meshes, in their order): the generalize stage's fingerprint of the batch (gen.unit_input)
+-- (gen.group_lod2_meshes, in their order, through the md5 stored with each, migrations/0041): the generalize stage's fingerprint of the batch (gen.unit_input)
 -- hashes this digest with its settings and code. Computed here for every unit in one statement, so an update
 -- reads the rows and meshes of the units whose fingerprint changed alone, instead of every building's.
 --   pin_m, batch  as gen.footprint_input
@@ -24,8 +24,8 @@ AS $$
         GROUP BY 1, 2, 3
     ) u
     CROSS JOIN LATERAL (
-        SELECT md5(string_agg(concat_ws('/', g.group_id, md5(g.mesh)), '' ORDER BY g.ord)) AS digest
-        FROM gen.group_lod2_meshes(u.ids) WITH ORDINALITY AS g(group_id, mesh, ord)
+        SELECT md5(string_agg(concat_ws('/', g.group_id, g.mesh_md5), '' ORDER BY g.ord)) AS digest
+        FROM gen.group_lod2_meshes(u.ids) WITH ORDINALITY AS g(group_id, mesh, mesh_md5, ord)
     ) m
     ORDER BY 1, 2, 3
 $$;

@@ -1,6 +1,6 @@
 -- tex.input_digests(levels, xs, ys) -> per listed tile, an md5 of everything the textures stage reads for it
--- Every column of its tex.tile_features rows in their order (the mesh and semantics bytes through their own
--- md5) and the tex.opening_meshes of its LOD2 buildings (the LOD3 windows and doors texturing paints onto their
+-- Every column of its tex.tile_features rows in their order (the semantics bytes through their md5, the mesh
+-- through the md5 stored with it, migrations/0041) and the tex.opening_meshes of its LOD2 buildings (the LOD3 windows and doors texturing paints onto their
 -- walls), with the feature count. The stage's fingerprint of a tile (tex.tile_input.fingerprint) hashes this
 -- digest with its settings, code, band and resolution: computed here for all tiles in one statement, without
 -- sending a mesh to the client, so an update sends only the units whose fingerprint changed to its workers.
@@ -23,16 +23,17 @@ AS $$
                md5(string_agg(concat_ws('/', md5(ROW(r.feature_kind, r.building_id, r.osm_type, r.osm_id, r.levels,
                                                       r.building_colour, r.roof_colour, r.building_material,
                                                       r.roof_material, r.gen_level, r.n_triangles)::text),
-                                        coalesce(md5(r.semantics), '-'), coalesce(md5(r.mesh), '-')),
+                                        coalesce(md5(r.semantics), '-'), coalesce(r.mesh_md5, '-')),
                               '' ORDER BY r.ord)) AS digest,
                array_agg(r.building_id) FILTER (WHERE r.gen_level = 3 AND r.feature_kind <> 'block') AS lod2
         FROM tex.tile_features(t.level, t.x, t.y) WITH ORDINALITY AS r(feature_kind, building_id, osm_type, osm_id,
                                                                       levels, building_colour, roof_colour,
                                                                       building_material, roof_material, gen_level,
-                                                                      n_triangles, semantics, mesh, ord)
+                                                                      n_triangles, semantics, mesh, mesh_md5,
+                                                                      ord)
     ) f
     CROSS JOIN LATERAL (
-        SELECT md5(string_agg(concat_ws('/', m.building_id, coalesce(md5(m.semantics), '-'), md5(m.mesh)), ''
+        SELECT md5(string_agg(concat_ws('/', m.building_id, coalesce(md5(m.semantics), '-'), m.mesh_md5), ''
                               ORDER BY m.building_id)) AS digest
         FROM tex.opening_meshes(f.lod2) m
     ) o

@@ -18,7 +18,7 @@ AS $$
            coalesce(b.building_material, p.building_material), b.roof_material,
            2::smallint, 3::smallint, 1, d.total_error_m,
            coalesce(d.n_triangles, m.n_triangles), m.roof_height, coalesce(d.semantics, m.semantics),
-           coalesce(d.geom, m.geom)
+           coalesce(d.geom, m.geom), coalesce(d.mesh_md5, m.mesh_md5)  -- NULL together with d.geom
     FROM tiles.building_tiles_below($1, $2, $3) bt
     JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 2
     JOIN gen.building_mesh d ON d.building_id = bt.building_id AND d.gen_level = 3

@@ -37,6 +37,7 @@ FEATURE_COLUMNS = [
     ("building_colour", "text"), ("roof_colour", "text"), ("building_material", "text"), ("roof_material", "text"),
     ("lod", "smallint"), ("gen_level", "smallint"), ("n_members", "integer"), ("error_m", "real"),
     ("n_triangles", "integer"), ("roof_height", "real"), ("semantics", "bytea"), ("geom", "geometry"),
+    ("mesh_md5", "text"),
 ]
 
 
@@ -81,7 +82,7 @@ def test_the_feature_row_is_one_type_with_the_public_columns(conn) -> None:
     assert args == "level integer, x integer, y integer, single_lod integer DEFAULT NULL::integer"
     # what the exporter writes starts with the feature's properties
     export = _columns(conn, "SELECT * FROM api.export_features(0, 0, 0)")
-    assert export[:22] == [c for c in FEATURE_COLUMNS if c[0] not in ("n_triangles", "roof_height", "geom")]
+    assert export[:22] == [c for c in FEATURE_COLUMNS if c[0] not in ("n_triangles", "roof_height", "geom", "mesh_md5")]
 
 
 def test_set_boxes_refuses_arrays_that_do_not_match(conn) -> None:
