@@ -71,6 +71,20 @@ class _Scan(osmium.SimpleHandler):
             self.new_relations.add(r.id)
 
 
+_KINDS = {"n": "node", "w": "way", "r": "relation"}
+
+
+def _xml(o: osmium.osm.OSMObject, kind: str) -> str:
+    """``o`` as an OSM XML element (its id, version, timestamp, and location, node list or members)."""
+    head = f'<{_KINDS[kind]} id="{o.id}" version="{o.version}" timestamp="{_ts(o)}"'
+    if kind == "n":
+        return f'{head} lat="{o.location.lat:.7f}" lon="{o.location.lon:.7f}">{_tags(o.tags)}</node>'
+    if kind == "w":
+        return head + ">" + "".join(f'<nd ref="{r.ref}"/>' for r in o.nodes) + _tags(o.tags) + "</way>"
+    return (head + ">" + "".join(f'<member type="{_KINDS[m.type]}" ref="{m.ref}" role={quoteattr(m.role)}/>'
+                                 for m in o.members) + _tags(o.tags) + "</relation>")
+
+
 class _Split(osmium.SimpleHandler):
     """Writes the kept objects to ``writer`` and the created ones as osmChange XML lines."""
 
@@ -83,24 +97,19 @@ class _Split(osmium.SimpleHandler):
         if n.id not in self.nodes:
             self.writer.add_node(n)
             return
-        self.lines.append(f'<node id="{n.id}" version="1" timestamp="{_ts(n)}" lat="{n.location.lat:.7f}" '
-                          f'lon="{n.location.lon:.7f}">{_tags(n.tags)}</node>')
+        self.lines.append(_xml(n, "n"))  # created: version 1
 
     def way(self, w: osmium.osm.Way) -> None:
         if w.id not in self.ways:
             self.writer.add_way(w)
             return
-        self.lines.append(f'<way id="{w.id}" version="1" timestamp="{_ts(w)}">'
-                          + "".join(f'<nd ref="{r.ref}"/>' for r in w.nodes) + _tags(w.tags) + "</way>")
+        self.lines.append(_xml(w, "w"))
 
     def relation(self, r: osmium.osm.Relation) -> None:
         if r.id not in self.relations:
             self.writer.add_relation(r)
             return
-        kinds = {"n": "node", "w": "way", "r": "relation"}
-        self.lines.append(f'<relation id="{r.id}" version="1" timestamp="{_ts(r)}">'
-                          + "".join(f'<member type="{kinds[m.type]}" ref="{m.ref}" role={quoteattr(m.role)}/>'
-                                    for m in r.members) + _tags(r.tags) + "</relation>")
+        self.lines.append(_xml(r, "r"))
 
 
 def split(osm: Path, before: dt.datetime, base: Path, change: Path) -> dict[str, int]:
@@ -153,20 +162,10 @@ def fetch_history(dest: Path) -> Path:
     return dest
 
 
-#: An object of a history file: (type "n"|"w"|"r", id) -> its versions as (version, timestamp, visible, XML)
-History = dict[tuple[str, int], list[tuple[int, dt.datetime, bool, str]]]
-_KINDS = {"n": "node", "w": "way", "r": "relation"}
-
-
-def _xml(o: osmium.osm.OSMObject, kind: str) -> str:
-    """``o`` as an OSM XML element (its id, version, timestamp, and location, node list or members)."""
-    head = f'<{_KINDS[kind]} id="{o.id}" version="{o.version}" timestamp="{_ts(o)}"'
-    if kind == "n":
-        return f'{head} lat="{o.location.lat:.7f}" lon="{o.location.lon:.7f}">{_tags(o.tags)}</node>'
-    if kind == "w":
-        return head + ">" + "".join(f'<nd ref="{r.ref}"/>' for r in o.nodes) + _tags(o.tags) + "</way>"
-    return (head + ">" + "".join(f'<member type="{_KINDS[m.type]}" ref="{m.ref}" role={quoteattr(m.role)}/>'
-                                 for m in o.members) + _tags(o.tags) + "</relation>")
+#: One version of an object: (version, timestamp, visible, XML)
+Version = tuple[int, dt.datetime, bool, str]
+#: An object of a history file: (type "n"|"w"|"r", id) -> its versions, by version
+History = dict[tuple[str, int], list[Version]]
 
 
 def read_history(path: Path) -> History:
@@ -181,13 +180,9 @@ def read_history(path: Path) -> History:
     return out
 
 
-def _at(versions: list[tuple[int, dt.datetime, bool, str]], when: dt.datetime) -> tuple[int, bool, str] | None:
-    """The version in force at ``when``: (version, visible, XML), None before the object existed."""
-    last = None
-    for v, ts, visible, xml in versions:
-        if ts <= when:
-            last = (v, visible, xml)
-    return last
+def _at(versions: list[Version], when: dt.datetime) -> Version | None:
+    """The version in force at ``when``, None before the object existed."""
+    return next((v for v in reversed(versions) if v[1] <= when), None)
 
 
 def _order(key: tuple[str, int]) -> tuple[int, int]:
@@ -200,8 +195,8 @@ def states(history: History, when: dt.datetime, out: Path) -> int:
     rows = []
     for key in sorted(history, key=_order):
         now = _at(history[key], when)
-        if now is not None and now[1]:
-            rows.append(now[2])
+        if now is not None and now[2]:
+            rows.append(now[3])
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
                                '<osm version="0.6" generator="citylod benchmarks.history">', *rows, "</osm>", ""]))
@@ -215,17 +210,16 @@ def changes(history: History, start: dt.datetime, end: dt.datetime, out: Path) -
     acts: dict[str, list[str]] = {"create": [], "modify": [], "delete": []}
     for key in sorted(history, key=_order):
         a, b = _at(history[key], start), _at(history[key], end)
-        was = a is not None and a[1]
-        now = b is not None and b[1]
+        was = a is not None and a[2]
+        now = b is not None and b[2]
         if now and not was:
-            acts["create"].append(b[2])  # type: ignore[index]
+            acts["create"].append(b[3])  # type: ignore[index]
         elif now and was and a[0] != b[0]:  # type: ignore[index]
-            acts["modify"].append(b[2])  # type: ignore[index]
-        elif was and not now:
+            acts["modify"].append(b[3])  # type: ignore[index]
+        elif was and not now:  # b is the version that deleted it
             kind, oid = key
-            ts = next(t for v, t, _, _ in history[key] if v == b[0])  # type: ignore[index]
             acts["delete"].append(f'<{_KINDS[kind]} id="{oid}" version="{b[0]}" '  # type: ignore[index]
-                                  f'timestamp="{ts.strftime("%Y-%m-%dT%H:%M:%SZ")}"/>')
+                                  f'timestamp="{b[1].strftime("%Y-%m-%dT%H:%M:%SZ")}"/>')  # type: ignore[index]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
                                '<osmChange version="0.6" generator="citylod benchmarks.history">',

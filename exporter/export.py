@@ -550,6 +550,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     n_features, n_triangles, n_bytes, n_fallback = _export_tiles(
         url, [r for r in tiles if r.content_uri not in same], partial, settings.base_height_m, settings, progress,
         lod, stream, root_region)
+    features_built = n_features
     if same:
         t, b = copy_unchanged(url, same, out, partial)
         n_features += sum(keys[p].n_features for p in same)  # as api.export_features counts them now
@@ -587,7 +588,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
             "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
             "glb_copied": len(same), "glb_built": len(tiles) - len(same),
             # what building those glbs handled: an update's share of the export's work
-            "features_built": n_features - sum(keys[p].n_features for p in same),
+            "features_built": features_built,
             "triangles": n_triangles, "bytes": n_bytes,
             "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
             "seconds": round(seconds, 3), "directory": str(out), **published}

@@ -1,7 +1,7 @@
 -- tex.input_digests(levels, xs, ys) -> per listed tile, an md5 of everything the textures stage reads for it
 -- Every column of its tex.tile_features rows in their order (the semantics bytes through their md5, the mesh
--- through the md5 stored with it, migrations/0041) and the tex.opening_meshes of its LOD2 buildings (the LOD3 windows and doors texturing paints onto their
--- walls), with the feature count. The stage's fingerprint of a tile (tex.tile_input.fingerprint) hashes this
+-- through the md5 stored with it, migrations/0041) and the tex.opening_meshes of its LOD2 buildings (the LOD3
+-- windows and doors texturing paints onto their walls), with the feature count. The stage's fingerprint of a tile (tex.tile_input.fingerprint) hashes this
 -- digest with its settings, code, band and resolution: computed here for all tiles in one statement, without
 -- sending a mesh to the client, so an update sends only the units whose fingerprint changed to its workers.
 --   levels, xs, ys  the tiles, as three arrays of the same length
