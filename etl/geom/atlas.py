@@ -50,6 +50,8 @@ import numpy as np
 
 from core.camera import pixels_per_metre
 
+from . import xatlas_run
+
 PAGE_SIZE = 512  # the thesis' choice (4.3.1: "W = H = 512 is the most appropriate choice")
 MAX_PAGE_SIZE = 4096
 PACKERS = ("shelf", "xatlas")
@@ -325,8 +327,6 @@ def _xatlas(slots: np.ndarray, page_size: int, brute_force: bool) -> tuple[np.nd
     uv[:, :, 1] += ((i // cols) * cell)[:, None]
     base = 4 * np.arange(k, dtype=np.uint32)[:, None]
     idx = np.concatenate([base + np.array([0, 1, 2], np.uint32), base + np.array([0, 2, 3], np.uint32)], axis=1)
-    atlas = xatlas.Atlas()
-    atlas.add_uv_mesh(np.ascontiguousarray(uv.reshape(-1, 2)), np.ascontiguousarray(idx.reshape(-1, 3)))
     po = xatlas.PackOptions()
     po.resolution = page_size
     po.texels_per_unit = 1.0
@@ -336,13 +336,19 @@ def _xatlas(slots: np.ndarray, page_size: int, brute_force: bool) -> tuple[np.nd
     po.rotate_charts = False  # a rotated chart would need rotated texels and UVs
     po.rotate_charts_to_axis = False
     po.bruteForce = brute_force
-    atlas.generate(pack_options=po)
-    if atlas.width > page_size or atlas.height > page_size:
-        raise RuntimeError(f"xatlas made a {atlas.width}x{atlas.height} page for page_size {page_size}")
-    vmap, _, out_uv = atlas.get_mesh(0)
-    at, _ = atlas.get_mesh_vertex_assignment(0)
+
+    def read(atlas: xatlas.Atlas) -> tuple:
+        if atlas.width > page_size or atlas.height > page_size:
+            raise RuntimeError(f"xatlas made a {atlas.width}x{atlas.height} page for page_size {page_size}")
+        vmap, _, out_uv = atlas.get_mesh(0)
+        return vmap, out_uv, atlas.get_mesh_vertex_assignment(0)[0], atlas.width, atlas.height
+
+    vmap, out_uv, at, width, height = xatlas_run.generate(
+        lambda atlas: atlas.add_uv_mesh(np.ascontiguousarray(uv.reshape(-1, 2)),
+                                        np.ascontiguousarray(idx.reshape(-1, 3))),
+        read, pack_options=po)
     req = vmap.astype(np.int64) // 4
-    px = out_uv.astype(np.float64) * np.array([atlas.width, atlas.height])
+    px = out_uv.astype(np.float64) * np.array([width, height])
     lo = np.full((k, 2), np.inf)
     hi = np.full((k, 2), -np.inf)
     np.minimum.at(lo, req, px)

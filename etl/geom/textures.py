@@ -36,6 +36,7 @@ import numpy as np
 from core.semantics import SEM_DOOR, SEM_WINDOW
 
 from ..tags import ParseError, parse_colour
+from . import xatlas_run
 from .atlas import linear_to_srgb, srgb_to_linear, texels
 from .facade import FacadeParams, door_walls, facades
 
@@ -637,19 +638,21 @@ def chart_uvs(vertices: np.ndarray, faces: np.ndarray, texels_per_metre: float =
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     centre = v.mean(axis=0) if len(v) else np.zeros(3)  # float32 inside xatlas: keep coordinates small
-    atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray((v - centre).astype(np.float32)), np.ascontiguousarray(f.astype(np.uint32)))
     po = xatlas.PackOptions()
     po.texels_per_unit = float(texels_per_metre)
     po.padding = int(padding)
     po.resolution = 0  # one sheet, as large as the charts need; the atlas packer bounds the pages
     po.bilinear = True
-    atlas.generate(chart_options=xatlas.ChartOptions(), pack_options=po)
-    if atlas.atlas_count != 1:
-        raise RuntimeError(f"xatlas made {atlas.atlas_count} sheets, expected 1")
-    vmap, idx, uv = atlas.get_mesh(0)
-    _, vchart = atlas.get_mesh_vertex_assignment(0)
-    w, h = atlas.width, atlas.height
+
+    def read(atlas: xatlas.Atlas) -> tuple:
+        if atlas.atlas_count != 1:
+            raise RuntimeError(f"xatlas made {atlas.atlas_count} sheets, expected 1")
+        return (*atlas.get_mesh(0), atlas.get_mesh_vertex_assignment(0)[1], atlas.width, atlas.height)
+
+    vmap, idx, uv, vchart, w, h = xatlas_run.generate(
+        lambda atlas: atlas.add_mesh(np.ascontiguousarray((v - centre).astype(np.float32)),
+                                     np.ascontiguousarray(f.astype(np.uint32))),
+        read, chart_options=xatlas.ChartOptions(), pack_options=po)
     local = uv.astype(np.float64)
     return XatlasCharts(vertex=vmap.astype(np.int64), faces=idx.astype(np.int64), local=local,
                         uv_m=local * np.array([w, h]) / texels_per_metre,

@@ -569,7 +569,8 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
 
     # triangle -> request and chart-local coordinates ([0, 1], y down)
     def to_local(uv: np.ndarray, size: np.ndarray) -> np.ndarray:
-        return np.stack([uv[..., 0] / size[:, None, 0], 1 - uv[..., 1] / size[:, None, 1]], axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero-extent chart's NaNs are zeroed below
+            return np.stack([uv[..., 0] / size[:, None, 0], 1 - uv[..., 1] / size[:, None, 1]], axis=-1)
 
     if nw:
         w_uv = wc.uv + np.stack([u_off[wc.chart], np.zeros(len(iw))], axis=-1)[:, None, :]
