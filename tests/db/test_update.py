@@ -17,6 +17,7 @@ import pytest
 
 from benchmarks.update_bench import TABLES, Reader, table_rows
 from core.db import analyze
+from etl.stages import update
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
@@ -123,6 +124,17 @@ def test_count_change_and_refusals(tmp_path: Path) -> None:
         count_change(broken)
 
 
+def test_only_a_state_file_the_database_left_is_dropped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(update, "STATE_DIR", tmp_path / "osm")
+    base, old, new = tmp_path / "base.osm.pbf", update.state_path("a" * 64), update.state_path("b" * 64)
+    for p in (base, old, new):
+        p.parent.mkdir(exist_ok=True)
+        p.write_bytes(b"x")
+    assert not update.drop_previous_state(base, new) and base.exists(), "the base file is the user's"
+    assert not update.drop_previous_state(new, new) and new.exists()
+    assert update.drop_previous_state(old, new) and not old.exists() and new.exists()
+
+
 @pytest.mark.db
 def test_input_digests_change_with_what_is_read_and_only_there(fixtures_city: City, new_db: Callable[[str], str],
                                                                 tmp_path: Path) -> None:
@@ -219,12 +231,18 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     build(inc, base, tmp_path / "inc")
     versions = "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL " \
                "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
+    last_state = "SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1"
     for seq, change in ((1, c1), (2, c2)):
         with psycopg.connect(inc) as conn:
             before = {(t, k): v for t, k, v in conn.execute(versions)}
+            left = conn.execute(last_state).fetchone()
         run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SMALL)
         with psycopg.connect(inc) as conn:
             after = {(t, k): v for t, k, v in conn.execute(versions)}
+            # the state file the update left is removed (one copy of the city per change file would fill the
+            # disk of a service following minutely diffs); the base file and the new state stay
+            assert state_path(conn.execute(last_state).fetchone()[0]).is_file() and base.is_file()
+            assert left is None or not state_path(left[0]).exists(), seq
             # the rows of the batches the change missed stay where they are (the same row versions), the others
             # are written anew: an update writes what changed, not the whole table again
             same = sum(after[k] == v for k, v in before.items() if k in after)
