@@ -210,7 +210,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                             (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
 
         run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
-    up.drop_previous_state(previous, state)  # the chain now ends at ``state``
+    up.drop_previous_state(chain, state)  # the chain now ends at ``state``
     with connect(url, autocommit=True) as conn:
         same_srid = conn.execute("SELECT srid FROM meta.dataset").fetchone() == (srid,)
     if not any(run.counts["changed"].values()) and same_srid:  # type: ignore[union-attr]

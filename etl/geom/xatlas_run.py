@@ -7,7 +7,7 @@ checked its wake-up flag, but is not yet waiting, misses that notification and w
 returns, and it holds the GIL (xatlas 0.0.11, the jpcy/xatlas TaskScheduler it builds). Seen as a texturing
 unit stuck in ``xatlas::Destroy`` until its watchdog ended the worker (491 s lost in a scale bench run; likely
 too the test that once took 600 s, the unit time-out, longer than usual); four loops of small atlases on a busy
-2-core machine hung after 668 to 93,557 atlases (tests/unit/test_xatlas_run.py).
+2-core machine hung after 668 to 93,557 atlases (loops like tests/unit/test_xatlas_run.py's).
 
 After ``generate()`` has returned every task has finished, so a worker thread the kernel reports as sleeping
 is waiting on its condition variable (the only place it sleeps), registered there, and the notification will

@@ -129,15 +129,18 @@ def apply_changes(previous: Path, changes: Iterable[Path], out: Path) -> None:
     tmp.replace(out)
 
 
-def drop_previous_state(previous: Path, current: Path) -> bool:
-    """Remove ``previous``, the state file the database just left, once the update's ingest has committed the
-    new chain: a service following minutely changes would otherwise keep a whole copy of the city per change
-    file. Never the base file (it is the user's, not a state file) nor ``current``; another database that was
-    at that state makes it again from its base file and changes when it next needs it (ensure_state)."""
-    if previous.parent.resolve() != STATE_DIR.resolve() or not previous.name.startswith("state-") \
-            or previous.resolve() == current.resolve():
+def drop_previous_state(chain: Chain, current: Path) -> bool:
+    """Remove the state file of ``chain``, the one the database just left, once the update's ingest has committed
+    the new chain ending at ``current``: a service following minutely changes would otherwise keep a whole copy of
+    the city per change file. Never the base file (a chain without changes: its state is the user's file, even a
+    state file another database was built from); another database still at that state makes it again from its
+    base file and changes when it next needs it (ensure_state)."""
+    if not chain.changes:
         return False
-    previous.unlink(missing_ok=True)
+    left = state_path(chain.state_sha256)
+    if left.resolve() == current.resolve():
+        return False
+    left.unlink(missing_ok=True)
     return True
 
 

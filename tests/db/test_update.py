@@ -126,13 +126,17 @@ def test_count_change_and_refusals(tmp_path: Path) -> None:
 
 def test_only_a_state_file_the_database_left_is_dropped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(update, "STATE_DIR", tmp_path / "osm")
-    base, old, new = tmp_path / "base.osm.pbf", update.state_path("a" * 64), update.state_path("b" * 64)
+    # a base file that is itself a state file (another database's, in build/osm/) is still the user's
+    base, old, new = update.state_path("c" * 64), update.state_path("a" * 64), update.state_path("b" * 64)
     for p in (base, old, new):
         p.parent.mkdir(exist_ok=True)
         p.write_bytes(b"x")
-    assert not update.drop_previous_state(base, new) and base.exists(), "the base file is the user's"
-    assert not update.drop_previous_state(new, new) and new.exists()
-    assert update.drop_previous_state(old, new) and not old.exists() and new.exists()
+    at_base = update.Chain(base, "c" * 64)
+    assert not update.drop_previous_state(at_base, new) and base.exists(), "the base file is the user's"
+    at_new = update.Chain(base, "c" * 64, [update.Change(1, tmp_path / "c1.osc", "d" * 64, "b" * 64)])
+    assert not update.drop_previous_state(at_new, new) and new.exists()
+    at_old = update.Chain(base, "c" * 64, [update.Change(1, tmp_path / "c1.osc", "d" * 64, "a" * 64)])
+    assert update.drop_previous_state(at_old, new) and not old.exists() and new.exists() and base.exists()
 
 
 @pytest.mark.db
