@@ -467,8 +467,9 @@ def _floor(s: dict[str, Any]) -> list[str]:
     floor = f["textures"] * share_t + f["export"] * share_e
     share = floor / s["full_total_s"]
     if share > 0.05:
-        then = ("the target needs pages that survive a change of their tile (a layout that keeps unchanged charts "
-                "in place), not a faster pass over the city.")
+        then = ("the target needs less work than making those tiles again (pages that survive a change of their tile "
+                "would keep about half of those pages: ARCHITECTURE.md, Updates, step 8), not a faster pass over "
+                "the city.")
     else:
         u = s["update_s"]
         passes = ", ".join(f"{st} {u[st]:.1f} s" for st in ("ingest", "landmarks", "tiles") if st in u)
