@@ -1,14 +1,17 @@
 -- tiles.finish_hierarchy(base_height)
 -- Completes the tile hierarchy once the generalize stage has filled gen.*: for every tile, its own content
--- (api.buildings_for_tile, exactly what the exporter writes) is listed in tiles.tile_content (for
--- api.lod_for_view, with each feature's bounding sphere, tiles.feature_sphere) and gives content_features,
--- content_triangles and content_error_m (the largest error bound of its features and of the blocks it omits)
--- and widens its region to the generalized meshes from mesh_region (the LOD meshes' region the tiles stage measured)
--- (simplified outlines and blocks may reach past the meshes they replace); then, leaves up to the root, each
--- inner tile's geometric error becomes the larger of its content error and its children's geometric errors
--- (so it never grows downwards) and its region the union with its children's. It refuses a tile whose content
--- does not stand for the buildings below it (blocks, drawn or omitted, through their members): as many
--- features as below it in the LOD2/LOD3 bands, as many buildings (outlines with their parts) in the others.
+-- (api.buildings_for_tile, exactly what the exporter writes) gives content_features, content_triangles and
+-- content_error_m (the largest error bound of its features and of the blocks it omits) and widens its region to
+-- the generalized meshes from mesh_region (the LOD meshes' region the tiles stage measured) (simplified outlines
+-- and blocks may reach past the meshes they replace); then, leaves up to the root, each inner tile's geometric
+-- error becomes the larger of its content error and its children's geometric errors (so it never grows
+-- downwards) and its region the union with its children's. Then the blocks within their tile's error are
+-- omitted (tiles.omit_within_error), and what is left is each tile's content in tiles.tile_content (for
+-- api.lod_for_view, with each feature's bounding sphere, tiles.feature_sphere). Only the rows that differ are
+-- written: an update keeps the rows its change does not reach, where rewriting the table wrote every row of the
+-- city (and every omitted block's twice). It refuses a tile whose content does not stand for the buildings
+-- below it (blocks, drawn or omitted, through their members): as many features as below it in the LOD2/LOD3
+-- bands, as many buildings (outlines with their parts) in the others.
 -- Example: CALL tiles.finish_hierarchy(0);
 CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision)
 LANGUAGE plpgsql
@@ -16,6 +19,7 @@ AS $$
 DECLARE
     v_level integer;
     v_bad text;
+    v_omitted bigint;
 BEGIN
     CREATE TEMP TABLE _feature ON COMMIT DROP AS
     SELECT level, x, y, feature_kind, building_id, osm_type, osm_id, lod, gen_level, n_members, n_triangles, error_m,
@@ -34,14 +38,6 @@ BEGIN
         -- against 0.86 s for this statement on Liechtenstein)
         OFFSET 0
     ) s;
-
-    DELETE FROM tiles.tile_content;  -- not TRUNCATE: readers keep the old rows until commit, and never wait
-    INSERT INTO tiles.tile_content (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level,
-                                    n_members, n_triangles, error_m, cx, cy, cz, radius)
-    SELECT level, x, y, feature_kind, building_id, osm_type, osm_id, lod, gen_level, n_members, n_triangles,
-           error_m, sphere[1], sphere[2], sphere[3], sphere[4]
-    FROM _feature
-    ORDER BY level, x, y, feature_kind, building_id;  -- a tile's rows together on disk
 
     CREATE TEMP TABLE _content ON COMMIT DROP AS
     SELECT t.level, t.x, t.y, t.gen_level, coalesce(t.mesh_region, t.region) AS mesh_region,
@@ -103,7 +99,27 @@ BEGIN
         ) k
         WHERE p.level = v_level AND p.x = k.px AND p.y = k.py;
     END LOOP;
+
+    CALL tiles.omit_within_error(NULL, v_omitted);
+
+    -- the content rows as the table types them (EXCEPT compares them as stored)
+    CREATE TEMP TABLE _row (LIKE tiles.tile_content) ON COMMIT DROP;
+    INSERT INTO _row (level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level, n_members,
+                      n_triangles, error_m, cx, cy, cz, radius)
+    SELECT f.level, f.x, f.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod, f.gen_level, f.n_members,
+           f.n_triangles, f.error_m, f.sphere[1], f.sphere[2], f.sphere[3], f.sphere[4]
+    FROM _feature f
+    WHERE NOT EXISTS (SELECT FROM gen.block k
+                      WHERE f.feature_kind = 'block' AND k.block_id = f.building_id AND k.omitted);
+    -- not TRUNCATE and rewrite: readers keep the old rows until commit, never wait, and only what differs is
+    -- written
+    DELETE FROM tiles.tile_content c
+    USING (SELECT * FROM tiles.tile_content EXCEPT SELECT * FROM _row) d
+    WHERE (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (d.level, d.x, d.y, d.feature_kind, d.feature_id);
+    INSERT INTO tiles.tile_content
+    SELECT * FROM (SELECT * FROM _row EXCEPT SELECT * FROM tiles.tile_content) n
+    ORDER BY level, x, y, feature_kind, feature_id;  -- a tile's rows together on disk
 END
 $$;
 COMMENT ON PROCEDURE tiles.finish_hierarchy(double precision) IS
-    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile from the generalized content, and checks each tile stands for every building below it. Run by the generalize stage.';
+    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile from the generalized content, checks each tile stands for every building below it, omits the blocks within their tile''s error (tiles.omit_within_error) and writes the rows of tiles.tile_content that differ. Run by the generalize stage. Example: CALL tiles.finish_hierarchy(0);';

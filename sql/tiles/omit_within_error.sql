@@ -28,9 +28,10 @@ BEGIN
     UPDATE tiles.tile t
     SET content_features = t.content_features - s.n, content_triangles = t.content_triangles - s.tri,
         content_error_m = greatest(t.content_error_m, s.err)
-    FROM (SELECT c.level, c.x, c.y, count(*) AS n, sum(c.n_triangles) AS tri, max(o.total) AS err
-          FROM _omit o JOIN tiles.tile_content c
-            ON (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (o.level, o.x, o.y, 'block', o.block_id)
+    -- every drawn block is in its tile's content counts (tiles.finish_hierarchy), whether or not its
+    -- tiles.tile_content row is written yet
+    FROM (SELECT o.level, o.x, o.y, count(*) AS n, sum(k.n_triangles) AS tri, max(o.total) AS err
+          FROM _omit o JOIN gen.block k ON k.block_id = o.block_id
           GROUP BY 1, 2, 3) s
     WHERE (t.level, t.x, t.y) = (s.level, s.x, s.y);
 

@@ -235,10 +235,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     build(inc, base, tmp_path / "inc")
     versions = "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL " \
                "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
+    content = "SELECT (level, x, y, feature_kind, feature_id)::text, xmin::text FROM tiles.tile_content"
     last_state = "SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1"
     for seq, change in ((1, c1), (2, c2)):
         with psycopg.connect(inc) as conn:
             before = {(t, k): v for t, k, v in conn.execute(versions)}
+            before_content = dict(conn.execute(content).fetchall())
             left = conn.execute(last_state).fetchone()
         run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SMALL)
         with psycopg.connect(inc) as conn:
@@ -251,6 +253,10 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             # are written anew: an update writes what changed, not the whole table again
             same = sum(after[k] == v for k, v in before.items() if k in after)
             assert 0 < same < len(after), (seq, same, len(after))
+            # so do the tiles' content rows the change did not reach (the hierarchy writes the rows that differ)
+            after_content = dict(conn.execute(content).fetchall())
+            same = sum(after_content.get(k) == v for k, v in before_content.items())
+            assert 0 < same < len(after_content), (seq, same, len(after_content))
             changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
             assert changed == EXPECTED_CHANGES[seq], f"change {seq}: only what it touched is replaced"
             (tex,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' "
