@@ -559,15 +559,6 @@ def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> 
     return [t for t in tiles if t not in kept], keep
 
 
-def unmake_omissions(cur: psycopg.Cursor) -> int:
-    """An update, before the blocks: every block omitted on its tile's error (tiles.omit_within_error) back as
-    it was made (drawn, its own errors), since the hierarchy step decides that again from the new errors.
-    Returns the blocks changed."""
-    return cur.execute("UPDATE gen.block SET omitted = false, error_m = built_error_m, "
-                       "total_error_m = built_total_error_m, built_error_m = NULL, built_total_error_m = NULL "
-                       "WHERE built_error_m IS NOT NULL").rowcount
-
-
 def _keep_blocks(reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
     """The figures the last run counted for the blocks of the kept tiles, which stay in gen.block as made."""
     for t in tiles:
@@ -673,8 +664,10 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
             reuse.written += len(rows)
             if same:
-                got = cur.execute("SELECT omitted, error_m, n_members FROM gen.block WHERE (level, x, y) = "
-                                  "(%s, %s, %s) AND input_digest = ANY(%s)", (*tile, same)).fetchall()
+                # as made: omitted for its band alone, its own error (not the omission on tile error's)
+                got = cur.execute("SELECT omitted AND built_error_m IS NULL, coalesce(built_error_m, error_m), "
+                                  "n_members FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
+                                  "AND input_digest = ANY(%s)", (*tile, same)).fetchall()
                 if len(got) != len(same):
                     raise RuntimeError(f"tile {tile}: {len(same)} kept blocks, {len(got)} found")
                 omits += [bool(o) for o, _, _ in got]
@@ -765,10 +758,12 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         else:
             # an update writes only what changed: the buildings each step has are noted here (_drop_unseen)
             cur.execute("CREATE TEMP TABLE _gen_seen (building_id bigint) ON COMMIT DROP")
-            # the blocks of tiles no longer in a block band; the others' omissions on tile error are decided again
+            # the blocks of tiles no longer in a block band. The others' omissions on tile error stay as the last
+            # run left them: what reads a block until the hierarchy decides them again reads it as made
+            # (built_error_m, built_total_error_m), and tiles.omit_within_error writes the blocks whose omission
+            # changed (an update wrote every such block twice, back as made and omitted again)
             cur.execute("DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
                         "AND (t.gen_level IS NULL OR t.gen_level > 1)")
-            unmake_omissions(cur)
         cur.execute("DELETE FROM gen.unit_input")
         step = time.perf_counter()
         fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],

@@ -11,7 +11,7 @@
 --   tile_level  the tiles' level (the top tiles of a large city share band -4, so a band runs level by level)
 --   xs, ys      the tiles to make (NULL: all of them)
 --   seed, skip  as gen.block_clusters: input_digest is md5 of seed, the tile and its band, and per input in
---               member order a child block's input_digest, footprint, height and error bound, or a finer
+--               member order a child block's input_digest, footprint, height and error bound as made, or a finer
 --               building's id, footprint, height and error bound (a child block's digest stands for its
 --               members, whose footprints and heights give the block's height); a cluster in skip has only
 --               its tile, n_in and input_digest (members NULL too)
@@ -46,9 +46,12 @@ AS $$
                                AND c.y BETWEEN 2 * t.y AND 2 * t.y + 1
     ), m AS (
         SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, k.members, k.footprint AS geom,
-               k.height::float8 AS height, k.total_error_m,
-               ROW(k.input_digest, md5(ST_AsEWKB(k.footprint)), k.height, k.total_error_m)::text AS input
+               k.height::float8 AS height, e.total_error_m,
+               ROW(k.input_digest, md5(ST_AsEWKB(k.footprint)), k.height, e.total_error_m)::text AS input
         FROM ch JOIN gen.block k ON k.level = ch.cl AND k.x = ch.cx AND k.y = ch.cy
+        -- the child's error as made: an update finds it omitted on its tile's error by the last run
+        -- (tiles.omit_within_error), which the hierarchy decides again once the blocks are made
+        CROSS JOIN LATERAL (SELECT coalesce(k.built_total_error_m, k.total_error_m) AS total_error_m) e
         WHERE ch.cg <= 1
         UNION ALL
         SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, ARRAY[f.building_id], f.geom, g.height, g.total_error_m,

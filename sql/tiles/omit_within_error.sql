@@ -6,24 +6,40 @@
 -- a coarse tile seen from kilometres away stops drawing thousands of blocks a few pixels big (a block band's
 -- largest errors come from towers flattened into blocks, tens of metres; most blocks are a few houses).
 -- Landmarks are never in blocks, so they stay. The block keeps its row (the coarser bands have merged it
--- already) with the omission's error; its row in tiles.tile_content goes, and the tile's content counts and
--- content error follow. Tiles up to max_level (NULL: all).
+-- already) with the omission's error and its errors as made beside (built_error_m, built_total_error_m); its
+-- row in tiles.tile_content goes, and the tile's content counts and content error follow. Decided from the
+-- errors as made, so a block the last run omitted is omitted again or put back as made: only the blocks whose
+-- omission changes are written (an update wrote each omitted block twice, back as made and omitted again:
+-- 24,460 rows on the benchmark extract). The tiles' content counts are those of their blocks as made, as
+-- tiles.finish_hierarchy, which calls it, counts them. Tiles up to max_level (NULL: all).
 -- Example: CALL tiles.omit_within_error(NULL, NULL);
 CREATE OR REPLACE PROCEDURE tiles.omit_within_error(max_level integer, INOUT n_omitted bigint DEFAULT NULL)
 LANGUAGE plpgsql
 AS $$
 BEGIN
+    -- the blocks drawn as made (not omitted for their band) within their tile's error, from their errors as made
+    -- (an update finds the last run's omissions still there: tiles.finish_hierarchy)
     CREATE TEMP TABLE _omit ON COMMIT DROP AS
-    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total
+    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total, k.built_error_m IS NOT NULL AS already
     FROM gen.block k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
     -- the bound on the distance to LOD3 once omitted: the omission plus the members' own errors
-    CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
-    WHERE NOT k.omitted AND b.total <= t.geometric_error AND (max_level IS NULL OR t.level <= max_level);
+    CROSS JOIN LATERAL (SELECT k.collapse_m + (coalesce(k.built_total_error_m, k.total_error_m)
+                                               - coalesce(k.built_error_m, k.error_m)) AS total) b
+    WHERE NOT (k.omitted AND k.built_error_m IS NULL) AND b.total <= t.geometric_error
+      AND (max_level IS NULL OR t.level <= max_level);
 
-    -- the errors as made kept beside: an update copies the block as it was made (etl/stages/generalize.py)
+    -- only the blocks whose omission changes are written. Back as made: those no longer within the error
+    UPDATE gen.block k SET omitted = false, error_m = k.built_error_m, total_error_m = k.built_total_error_m,
+                           built_error_m = NULL, built_total_error_m = NULL
+    FROM tiles.tile t
+    WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) AND k.built_error_m IS NOT NULL
+      AND (max_level IS NULL OR t.level <= max_level)
+      AND NOT EXISTS (SELECT FROM _omit o WHERE o.block_id = k.block_id);
+    -- omitted, the errors as made kept beside: an update copies the block as it was made
+    -- (etl/stages/generalize.py); one omitted already has these values from the same row
     UPDATE gen.block k SET omitted = true, error_m = o.collapse_m, total_error_m = o.total,
                            built_error_m = k.error_m, built_total_error_m = k.total_error_m
-    FROM _omit o WHERE k.block_id = o.block_id;
+    FROM _omit o WHERE k.block_id = o.block_id AND NOT o.already;
 
     UPDATE tiles.tile t
     SET content_features = t.content_features - s.n, content_triangles = t.content_triangles - s.tri,
@@ -43,4 +59,4 @@ BEGIN
 END
 $$;
 COMMENT ON PROCEDURE tiles.omit_within_error(integer, bigint) IS
-    'Omits every drawn block whose omission error (gen.block.collapse_m) is within its tile''s geometric error, in tiles up to max_level (NULL: all), and updates tiles.tile_content and the tiles'' content counts; returns how many. Run by the generalize stage after tiles.finish_hierarchy. Example: CALL tiles.omit_within_error(NULL, NULL);';
+    'Omits every block drawn as made whose omission error (gen.block.collapse_m) is within its tile''s geometric error, in tiles up to max_level (NULL: all), puts back as made those omitted no more, and updates tiles.tile_content and the tiles'' content counts (those of the blocks as made); returns how many are omitted. Called by tiles.finish_hierarchy. Example: CALL tiles.omit_within_error(NULL, NULL);';

@@ -236,11 +236,14 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     versions = "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL " \
                "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
     content = "SELECT (level, x, y, feature_kind, feature_id)::text, xmin::text FROM tiles.tile_content"
+    # a block's row (all but its version) and version, and whether it is omitted on its tile's error
+    blocks = "SELECT block_id, md5(k::text), xmin::text, built_error_m IS NOT NULL FROM gen.block k"
     last_state = "SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1"
     for seq, change in ((1, c1), (2, c2)):
         with psycopg.connect(inc) as conn:
             before = {(t, k): v for t, k, v in conn.execute(versions)}
             before_content = dict(conn.execute(content).fetchall())
+            before_blocks = {b: rest for b, *rest in conn.execute(blocks)}
             left = conn.execute(last_state).fetchone()
         run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SMALL)
         with psycopg.connect(inc) as conn:
@@ -257,6 +260,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             after_content = dict(conn.execute(content).fetchall())
             same = sum(after_content.get(k) == v for k, v in before_content.items())
             assert 0 < same < len(after_content), (seq, same, len(after_content))
+            # a block whose row did not change keeps its version, those omitted on their tile's error too (the
+            # omissions are decided again, and only the blocks whose omission changes are written)
+            after_blocks = {b: rest for b, *rest in conn.execute(blocks)}
+            unchanged = [b for b, (row, _, _) in before_blocks.items() if after_blocks.get(b, [None])[0] == row]
+            assert all(after_blocks[b][1] == before_blocks[b][1] for b in unchanged), seq
+            assert sum(before_blocks[b][2] for b in unchanged) > 0, "blocks omitted on tile error, unchanged"
             changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
             assert changed == EXPECTED_CHANGES[seq], f"change {seq}: only what it touched is replaced"
             (tex,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' "
