@@ -19,6 +19,7 @@ the section "## Updates at scale".
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import hashlib
 import json
@@ -294,8 +295,8 @@ def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out:
     log(f"{name}: as it was on {day}, then updated with what mappers created since ({made})")
     logs = LOG_DIR / name / "update-history"
     out = OUT_ROOT / "update" / f"{name}-history"
-    url, env, full = _full_build(base, admin_url, db + "_history", "update-history", out, logs)
-    last, wall = _apply(change, url, env, out, logs)
+    url, env, full, _ = _full_build(base, admin_url, db + "_history", "update-history", out, logs)
+    last, wall, _ = _apply(change, url, env, out, logs)
     res: dict[str, Any] = {"before": day, "created": made, "changed": _changed(url), "full_s": full,
                            "full_total_s": round(sum(full.values()), 1), "update_wall_s": round(wall, 1),
                            "update_s": stage_seconds(url, last), "reused": _reused(url, last)}
@@ -306,28 +307,48 @@ def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out:
     return res
 
 
+def _wal_mark(url: str) -> str:
+    """The cluster's WAL position after a checkpoint (when the role may ask for one): what follows writes each
+    page it changes whole once, as the first change after any checkpoint does."""
+    with psycopg.connect(url, autocommit=True) as conn:
+        with contextlib.suppress(psycopg.Error):  # a role that may not ask for one measures from where it is
+            conn.execute("CHECKPOINT")
+        return str(conn.execute("SELECT pg_current_wal_lsn()::text").fetchone()[0])  # type: ignore[index]
+
+
+def _wal_since(url: str, mark: str) -> int:
+    """Bytes of WAL the cluster wrote since ``mark`` (the bench runs alone: they are the command's)."""
+    with psycopg.connect(url) as conn:
+        return int(conn.execute("SELECT pg_wal_lsn_diff(pg_current_wal_lsn(), %s::pg_lsn)",
+                                (mark,)).fetchone()[0])  # type: ignore[index]
+
+
 def _full_build(osm: Path, admin_url: str, db: str, logs_sub: str, out: Path,
-                logs: Path) -> tuple[str, dict[str, str], dict[str, float]]:
-    """``osm`` through every stage into ``db`` and exported to ``out``; (url, env, each stage's s)."""
+                logs: Path) -> tuple[str, dict[str, str], dict[str, float], int]:
+    """``osm`` through every stage into ``db`` and exported to ``out``; (url, env, each stage's s, WAL bytes)."""
+    mark = _wal_mark(admin_url)
     url = build_pipeline_db(osm, admin_url, db, logs_sub)
     env = {**os.environ, "DATABASE_URL": url}
     run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], env, logs / "export.log")
     full = stage_seconds(url, 0)
     full.pop("migrate", None)
-    return url, env, full
+    return url, env, full, _wal_since(url, mark)
 
 
-def _apply(change: Path, url: str, env: dict[str, str], out: Path, logs: Path) -> tuple[int, float]:
-    """``python -m etl update`` of ``change`` with the export to ``out``; (the last run before it, wall s)."""
+def _apply(change: Path, url: str, env: dict[str, str], out: Path, logs: Path) -> tuple[int, float, int]:
+    """``python -m etl update`` of ``change`` with the export to ``out``; (the last run before it, wall s, WAL
+    bytes)."""
     last = _last_run(url)
+    mark = _wal_mark(url)
     wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
                         logs / "update.log")
-    return last, wall
+    return last, wall, _wal_since(url, mark)
 
 
 def _update_one_percent(osm: Path, url: str, env: dict[str, str], out: Path,
-                        logs: Path) -> tuple[dict[str, int], int, float]:
-    """Steps 2 and 3: the 1 % change written and applied; (what it changed, the last run before, wall s)."""
+                        logs: Path) -> tuple[dict[str, int], int, float, int]:
+    """Steps 2 and 3: the 1 % change written and applied; (what it changed, the last run before, wall s, WAL
+    bytes)."""
     name = extract_name(osm)
     change = OUT_ROOT / "update" / f"{name}-1pct.osc"
     made = write_change(osm, change)
@@ -340,10 +361,10 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     logs = LOG_DIR / name / "update"
     t0 = time.perf_counter()
     out = OUT_ROOT / "update" / name
-    url, env, full = _full_build(osm, admin_url, db, "update", out, logs)
+    url, env, full, full_wal = _full_build(osm, admin_url, db, "update", out, logs)
     full_wall = time.perf_counter() - t0
     history = measure_history(osm, admin_url, db, url, out, verify)
-    made, last, wall = _update_one_percent(osm, url, env, out, logs)
+    made, last, wall, wal = _update_one_percent(osm, url, env, out, logs)
     update_s = stage_seconds(url, last)  # now: the no-building update below records the same stages again
     reused = _reused(url, last)
     changed = _changed(url)
@@ -385,6 +406,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
             "no_building_s": quiet_s,
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
             "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused, "history": history,
+            "full_wal_bytes": full_wal, "update_wal_bytes": wal,
             "readers": reader.report(),
             "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
 
@@ -402,7 +424,7 @@ def section(s: dict[str, Any] | None) -> list[str]:
            + (f" (machine: {s['machine']})" if s.get("machine") else "") + ". Target: the "
            f"update ≤ 5 % of the full rebuild. Measured: {s['update_wall_s']:.1f} s against "
            f"{s['full_total_s']:.1f} s, {100 * ratio:.0f} %. osm.building_change: "
-           + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + ".", ""]
+           + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + "." + _wal(s), ""]
     out += markdown_table(["stage", "full rebuild s", "update s"],
                           [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
     v = s.get("verified")
@@ -528,13 +550,23 @@ def measure_larger(osm: Path, admin_url: str, db: str = UPDATE_DB + "_larger") -
     name = extract_name(osm)
     logs = LOG_DIR / name / "update-larger"
     out = OUT_ROOT / "update" / name
-    url, env, full = _full_build(osm, admin_url, db, "update-larger", out, logs)
-    made, last, wall = _update_one_percent(osm, url, env, out, logs)
+    url, env, full, full_wal = _full_build(osm, admin_url, db, "update-larger", out, logs)
+    made, last, wall, wal = _update_one_percent(osm, url, env, out, logs)
     with psycopg.connect(url) as conn:
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": _changed(url),
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "update_wall_s": round(wall, 1),
-            "update_s": stage_seconds(url, last), "reused": _reused(url, last)}
+            "update_s": stage_seconds(url, last), "reused": _reused(url, last), "full_wal_bytes": full_wal,
+            "update_wal_bytes": wal}
+
+
+def _wal(s: dict[str, Any]) -> str:
+    """The WAL sentence, when the figures are there."""
+    if not (s.get("update_wal_bytes") and s.get("full_wal_bytes")):
+        return ""
+    u, f = s["update_wal_bytes"], s["full_wal_bytes"]
+    return (f" WAL written (each from a checkpoint, so every page's first change is written whole): the update "
+            f"{u / 1e6:.0f} MB, the full rebuild {f / 1e6:.0f} MB ({100 * u / f:.0f} %).")
 
 
 def section_larger(s: dict[str, Any] | None) -> list[str]:
@@ -554,7 +586,7 @@ def section_larger(s: dict[str, Any] | None) -> list[str]:
            f"{s['update_wall_s']:.1f} s against {s['full_total_s']:.1f} s, "
            f"{100 * s['update_wall_s'] / s['full_total_s']:.0f} % (target on the benchmark extract: ≤ 5 %); "
            f"textures made {(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of {t.get('tiles', '?')} "
-           f"tiles again, the export built {e.get('glb_built', '?')} of {e.get('glb', '?')} glbs.", ""]
+           f"tiles again, the export built {e.get('glb_built', '?')} of {e.get('glb', '?')} glbs." + _wal(s), ""]
     out += markdown_table(["stage", "full rebuild s", "update s"],
                           [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
     return out + [""] + _floor(s)
