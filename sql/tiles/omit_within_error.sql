@@ -10,8 +10,9 @@
 -- row in tiles.tile_content goes, and the tile's content counts and content error follow. Decided from the
 -- errors as made, so a block the last run omitted is omitted again or put back as made: only the blocks whose
 -- omission changes are written (an update wrote each omitted block twice, back as made and omitted again:
--- 24,460 rows on the benchmark extract). The tiles' content counts are those of their blocks as made, as
--- tiles.finish_hierarchy, which calls it, counts them. Tiles up to max_level (NULL: all).
+-- 24,454 row versions in the 1 % update of the benchmark extract). The tiles' content counts are those of
+-- their blocks as made, as tiles.finish_hierarchy, which calls it, counts them. Tiles up to max_level (NULL:
+-- all).
 -- Example: CALL tiles.omit_within_error(NULL, NULL);
 CREATE OR REPLACE PROCEDURE tiles.omit_within_error(max_level integer, INOUT n_omitted bigint DEFAULT NULL)
 LANGUAGE plpgsql
