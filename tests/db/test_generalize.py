@@ -184,6 +184,24 @@ def test_blocks_too_small_for_their_band_are_omitted_with_their_error(deep, conn
     assert merged > 0
 
 
+def test_tile_content_lists_what_each_tile_draws(deep, conn_of) -> None:
+    # tiles.finish_hierarchy lists the blocks from gen.block as made, decides the omissions on tile error, and
+    # the rest from api.buildings_for_tile: what it stores must be what the exporter writes, tile by tile
+    conn = conn_of(deep[0])
+    only_drawn, only_listed, listed, blocks = conn.execute(
+        """WITH f AS (SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.osm_type, f.osm_id, f.lod,
+                             f.gen_level, f.n_members, f.n_triangles, f.error_m
+                      FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f),
+                c AS (SELECT level, x, y, feature_kind, feature_id, osm_type, osm_id, lod, gen_level, n_members,
+                             n_triangles, error_m FROM tiles.tile_content)
+           SELECT (SELECT count(*) FROM (SELECT * FROM f EXCEPT SELECT * FROM c) a),
+                  (SELECT count(*) FROM (SELECT * FROM c EXCEPT SELECT * FROM f) b),
+                  (SELECT count(*) FROM c), (SELECT count(*) FROM c WHERE feature_kind = 'block')""").fetchone()
+    assert (only_drawn, only_listed) == (0, 0) and listed > blocks > 0
+    omitted = conn.execute("SELECT count(*) FROM gen.block WHERE built_error_m IS NOT NULL").fetchone()[0]
+    assert omitted > 0, "no block omitted on its tile's error: the case is not covered"
+
+
 def test_footprints_are_valid_close_and_smaller(deep, conn_of) -> None:
     conn = conn_of(deep[0])
     row = conn.execute(
