@@ -665,9 +665,8 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             reuse.written += len(rows)
             if same:
                 # as made: omitted for its band alone, its own error (not the omission on tile error's)
-                got = cur.execute("SELECT omitted AND built_error_m IS NULL, coalesce(built_error_m, error_m), "
-                                  "n_members FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
-                                  "AND input_digest = ANY(%s)", (*tile, same)).fetchall()
+                got = cur.execute("SELECT omitted, error_m, n_members FROM gen.block_as_made WHERE (level, x, y) = "
+                                  "(%s, %s, %s) AND input_digest = ANY(%s)", (*tile, same)).fetchall()
                 if len(got) != len(same):
                     raise RuntimeError(f"tile {tile}: {len(same)} kept blocks, {len(got)} found")
                 omits += [bool(o) for o, _, _ in got]
@@ -760,7 +759,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
             cur.execute("CREATE TEMP TABLE _gen_seen (building_id bigint) ON COMMIT DROP")
             # the blocks of tiles no longer in a block band. The others' omissions on tile error stay as the last
             # run left them: what reads a block until the hierarchy decides them again reads it as made
-            # (built_error_m, built_total_error_m), and tiles.omit_within_error writes the blocks whose omission
+            # (gen.block_as_made), and tiles.omit_within_error writes the blocks whose omission
             # changed (an update wrote every such block twice, back as made and omitted again)
             cur.execute("DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
                         "AND (t.gen_level IS NULL OR t.gen_level > 1)")
@@ -789,7 +788,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         step = time.perf_counter()
         cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
         blk["omitted_within_tile_error"] = cur.execute(
-            "SELECT count(*) FROM gen.block WHERE built_error_m IS NOT NULL").fetchone()[0]  # type: ignore[index]
+            "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error").fetchone()[0]  # type: ignore[index]
         store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()

@@ -46,12 +46,11 @@ AS $$
                                AND c.y BETWEEN 2 * t.y AND 2 * t.y + 1
     ), m AS (
         SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, k.members, k.footprint AS geom,
-               k.height::float8 AS height, e.total_error_m,
-               ROW(k.input_digest, md5(ST_AsEWKB(k.footprint)), k.height, e.total_error_m)::text AS input
-        FROM ch JOIN gen.block k ON k.level = ch.cl AND k.x = ch.cx AND k.y = ch.cy
+               k.height::float8 AS height, k.total_error_m,
+               ROW(k.input_digest, md5(ST_AsEWKB(k.footprint)), k.height, k.total_error_m)::text AS input
         -- the child's error as made: an update finds it omitted on its tile's error by the last run
         -- (tiles.omit_within_error), which the hierarchy decides again once the blocks are made
-        CROSS JOIN LATERAL (SELECT coalesce(k.built_total_error_m, k.total_error_m) AS total_error_m) e
+        FROM ch JOIN gen.block_as_made k ON k.level = ch.cl AND k.x = ch.cx AND k.y = ch.cy
         WHERE ch.cg <= 1
         UNION ALL
         SELECT ch.level, ch.x, ch.y, ch.gen_level, ch.d, ARRAY[f.building_id], f.geom, g.height, g.total_error_m,

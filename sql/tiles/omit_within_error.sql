@@ -5,14 +5,13 @@
 -- that error is omitted as well. The tile's geometric error stays true, so no camera refines differently, and
 -- a coarse tile seen from kilometres away stops drawing thousands of blocks a few pixels big (a block band's
 -- largest errors come from towers flattened into blocks, tens of metres; most blocks are a few houses).
--- Landmarks are never in blocks, so they stay. The block keeps its row (the coarser bands have merged it
--- already) with the omission's error and its errors as made beside (built_error_m, built_total_error_m); its
--- row in tiles.tile_content goes, and the tile's content counts and content error follow. Decided from the
--- errors as made, so a block the last run omitted is omitted again or put back as made: only the blocks whose
--- omission changes are written (an update wrote each omitted block twice, back as made and omitted again:
--- 24,454 row versions in the 1 % update of the benchmark extract). The tiles' content counts are those of
--- their blocks as made, as tiles.finish_hierarchy, which calls it, counts them. Tiles up to max_level (NULL:
--- all).
+-- Landmarks are never in blocks, so they stay. The block keeps its row (the coarser bands have merged it already)
+-- with the omission's error and its errors as made beside (built_error_m, built_total_error_m); its row in
+-- tiles.tile_content goes, and the tile's content counts and content error follow. Decided from the errors as made
+-- (gen.block_as_made), so a block the last run omitted is omitted again or put back as made: only the blocks whose
+-- omission changes are written (an update wrote each omitted block twice, back as made and omitted again: 24,454 row
+-- versions in the 1 % update of the benchmark extract). The tiles' content counts are those of their blocks as made,
+-- as tiles.finish_hierarchy, which calls it, counts them. Tiles up to max_level (NULL: all).
 -- Example: CALL tiles.omit_within_error(NULL, NULL);
 CREATE OR REPLACE PROCEDURE tiles.omit_within_error(max_level integer, INOUT n_omitted bigint DEFAULT NULL)
 LANGUAGE plpgsql
@@ -21,13 +20,11 @@ BEGIN
     -- the blocks drawn as made (not omitted for their band) within their tile's error, from their errors as made
     -- (an update finds the last run's omissions still there: tiles.finish_hierarchy)
     CREATE TEMP TABLE _omit ON COMMIT DROP AS
-    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total, k.built_error_m IS NOT NULL AS already
-    FROM gen.block k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
+    SELECT k.block_id, k.level, k.x, k.y, k.collapse_m, b.total, k.omitted_on_error AS already
+    FROM gen.block_as_made k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
     -- the bound on the distance to LOD3 once omitted: the omission plus the members' own errors
-    CROSS JOIN LATERAL (SELECT k.collapse_m + (coalesce(k.built_total_error_m, k.total_error_m)
-                                               - coalesce(k.built_error_m, k.error_m)) AS total) b
-    WHERE NOT (k.omitted AND k.built_error_m IS NULL) AND b.total <= t.geometric_error
-      AND (max_level IS NULL OR t.level <= max_level);
+    CROSS JOIN LATERAL (SELECT k.collapse_m + (k.total_error_m - k.error_m) AS total) b
+    WHERE NOT k.omitted AND b.total <= t.geometric_error AND (max_level IS NULL OR t.level <= max_level);
 
     -- only the blocks whose omission changes are written. Back as made: those no longer within the error
     UPDATE gen.block k SET omitted = false, error_m = k.built_error_m, total_error_m = k.built_total_error_m,
