@@ -199,45 +199,46 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
         # just what the update changed, or be carried over
         current = {st for st in below if dag.verdict(conn, st, dag.inputs(conn, st, settings))[0]}
         (srid,) = conn.execute("SELECT srid FROM meta.dataset").fetchone()  # type: ignore[misc]
-    params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
-    file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
-    with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
-            connect(url) as conn:
-        def record(cur: psycopg.Cursor) -> None:
-            for seq, path, sha, base, base_sha, st, counts in rows:
-                cur.execute("INSERT INTO meta.osm_change (seq, path, sha256, base_file, base_sha256, state_sha256, "
-                            "run_id, counts) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
-                            (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
+    from .workers import shared_cluster
 
-        run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
-    up.drop_previous_state(chain, state)  # the chain now ends at ``state``
-    with connect(url, autocommit=True) as conn:
-        same_srid = conn.execute("SELECT srid FROM meta.dataset").fetchone() == (srid,)
-    if not any(run.counts["changed"].values()) and same_srid:  # type: ignore[union-attr]
-        # no building changed: what the stages below derived stands as it is (they read osm.building and the
-        # working CRS, nothing else ingest writes); each current one is recorded again, with the inputs it has
-        # now, instead of doing its work again
-        print("update: no building changed", file=sys.stderr)
-        for stage in below:
-            if stage not in current:
-                current.clear()  # this one runs, and so every stage below it
-                if (rc := cmd_stage(argparse.Namespace(command=stage, if_stale=True), settings)):
-                    return rc
-                continue
-            with connect(url, autocommit=True) as conn:
-                now = dag.inputs(conn, stage, settings)
-                last = conn.execute("SELECT run_id, counts FROM meta.pipeline_run WHERE stage = %s AND status = 'ok' "
-                                    "ORDER BY run_id DESC LIMIT 1", (stage,)).fetchone()
-            assert last is not None
-            with pipeline_run(url, stage, {"carried_from": last[0]}, inputs=now) as carried:
-                carried.counts = {**last[1], "carried_from": last[0]}
-            print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
-    else:
-        from .workers import shared_cluster
+    # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece), started while
+    # ingest reads the OSM state and closed while the export runs
+    with shared_cluster(max(min(4, os.cpu_count() or 1), settings.lod_workers, settings.gen_workers,
+                            settings.tex_workers), warm=_WARM, close_later=True):
+        params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
+        file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
+        with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
+                connect(url) as conn:
+            def record(cur: psycopg.Cursor) -> None:
+                for seq, path, sha, base, base_sha, st, counts in rows:
+                    cur.execute("INSERT INTO meta.osm_change (seq, path, sha256, base_file, base_sha256, state_sha256, "
+                                "run_id, counts) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
+                                (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
 
-        # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece)
-        with shared_cluster(max(min(4, os.cpu_count() or 1), settings.lod_workers, settings.gen_workers,
-                                settings.tex_workers)):
+            run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
+        up.drop_previous_state(chain, state)  # the chain now ends at ``state``
+        with connect(url, autocommit=True) as conn:
+            same_srid = conn.execute("SELECT srid FROM meta.dataset").fetchone() == (srid,)
+        if not any(run.counts["changed"].values()) and same_srid:  # type: ignore[union-attr]
+            # no building changed: what the stages below derived stands as it is (they read osm.building and the
+            # working CRS, nothing else ingest writes); each current one is recorded again, with the inputs it has
+            # now, instead of doing its work again
+            print("update: no building changed", file=sys.stderr)
+            for stage in below:
+                if stage not in current:
+                    current.clear()  # this one runs, and so every stage below it
+                    if (rc := cmd_stage(argparse.Namespace(command=stage, if_stale=True), settings)):
+                        return rc
+                    continue
+                with connect(url, autocommit=True) as conn:
+                    now = dag.inputs(conn, stage, settings)
+                    last = conn.execute("SELECT run_id, counts FROM meta.pipeline_run WHERE stage = %s "
+                                        "AND status = 'ok' ORDER BY run_id DESC LIMIT 1", (stage,)).fetchone()
+                assert last is not None
+                with pipeline_run(url, stage, {"carried_from": last[0]}, inputs=now) as carried:
+                    carried.counts = {**last[1], "carried_from": last[0]}
+                print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
+        else:
             for stage in below:
                 rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
                                                   current_before=stage in current), settings)
@@ -249,6 +250,9 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                                              if_stale=True), settings)
     return 0
 
+
+#: The modules whose functions an update's stages send to the workers (imported there while ingest runs).
+_WARM = ("etl.stages.lod", "etl.stages.generalize", "etl.stages.textures")
 
 #: Stages that open connections of their own besides the one they are given (a reader, worker processes).
 _NEEDS_URL = ("lod", "generalize", "textures")

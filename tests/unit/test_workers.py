@@ -7,6 +7,7 @@ import atexit
 import faulthandler
 import multiprocessing
 import os
+import threading
 import time
 
 import pytest
@@ -160,3 +161,27 @@ def test_calls_within_a_shared_cluster_use_its_warm_workers_and_keep_their_own_l
     assert len(set.union(*calls)) <= 2 and os.getpid() not in set.union(*calls), calls
     assert max(one) == 1, "a call asking for one worker runs one item at a time on a cluster of two"
     assert "client" not in W._SHARED
+
+
+def imported(names: tuple[str, ...]) -> list[bool]:
+    """Which of ``names`` the worker running this has imported."""
+    import sys
+
+    return [n in sys.modules for n in names]
+
+
+def test_a_shared_cluster_starts_while_its_caller_goes_on_and_closes_after_it() -> None:
+    # a module no task imports: only the warm-up can have brought it into the workers
+    warm = ("xml.dom.minidom",)
+    before = {p.pid for p in multiprocessing.active_children()}
+    with W.shared_cluster(2, warm=warm, close_later=True):
+        started = W._SHARED["client"]
+        assert not started.done(), "the block runs while the cluster starts, not after"
+        seen = list(W.imap_isolated(imported, [warm] * 4, workers=2, timeout=30.0))
+        workers = {p.pid for p in multiprocessing.active_children()} - before
+    assert seen == [[True]] * 4, "the workers imported the warm modules before their first task"
+    closing = [t for t in threading.enumerate() if t.name == "citylod-cluster-close"]
+    assert closing and "client" not in W._SHARED, "the cluster closes in a thread while the caller goes on"
+    for t in closing:
+        t.join(30.0)
+    assert workers and not workers & {p.pid for p in multiprocessing.active_children()}, "its workers are gone"
