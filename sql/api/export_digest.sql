@@ -9,7 +9,8 @@
 -- the cost of api.export_features itself (Liechtenstein, every tile, one connection: 4.0 s against 7.5 s). n_features: the rows api.export_features returns.
 --   level, x, y  the tile
 --   single_lod   as api.export_features
---   textures     webp or ktx2: also hash api.tile_pages in that format and api.tile_uvs (NULL: untextured export)
+--   textures     webp or ktx2: also hash api.tile_pages in that format and api.tile_uvs (NULL: untextured export),
+--                through the md5 stored with each page and UV row (migrations/0042)
 -- Example: SELECT * FROM api.export_digest(0, 0, 0, NULL, 'ktx2');
 CREATE OR REPLACE FUNCTION api.export_digest(level integer, x integer, y integer, single_lod integer DEFAULT NULL,
                                              textures text DEFAULT NULL)
@@ -22,9 +23,9 @@ AS $$
                r.building_material, r.roof_material, r.lod, r.gen_level, r.n_members, r.error_m, r.semantics,
                r.ecef_wkb, r.lm_level, r.lm_role, r.lm_landmark_osm_id, r.lm_scale_from_m, r.lm_scale_step,
                r.lm_max_scale, r.lm_radius_m, r.lm_gap_m, r.lm_centre_wkb, r.lm_own_wkb)::text), '' ORDER BY r.ord),
-               (SELECT md5(string_agg(ROW(p.page_no, p.mime, md5(p.bytes))::text, '' ORDER BY p.page_no))
+               (SELECT md5(string_agg(ROW(p.page_no, p.mime, p.md5)::text, '' ORDER BY p.page_no))
                 FROM api.tile_pages($1, $2, $3, $5) p WHERE $5 IS NOT NULL),
-               (SELECT md5(string_agg(ROW(u.feature_kind, u.feature_id, u.n_triangles, md5(u.page), md5(u.uv))::text,
+               (SELECT md5(string_agg(ROW(u.feature_kind, u.feature_id, u.n_triangles, u.md5)::text,
                                       '' ORDER BY u.feature_kind, u.feature_id))
                 FROM api.tile_uvs($1, $2, $3) u WHERE $5 IS NOT NULL))),
            count(*)

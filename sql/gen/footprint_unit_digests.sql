@@ -24,8 +24,10 @@ AS $$
         GROUP BY 1, 2, 3
     ) u
     CROSS JOIN LATERAL (
-        SELECT md5(string_agg(concat_ws('/', g.group_id, g.mesh_md5), '' ORDER BY g.ord)) AS digest
-        FROM gen.group_lod2_meshes(u.ids) WITH ORDINALITY AS g(group_id, mesh, mesh_md5, ord)
+        -- in the function's order, by its columns (WITH ORDINALITY would keep it from being inlined: it would then
+        -- make the WKB of every LOD2 mesh of the city for nothing)
+        SELECT md5(string_agg(concat_ws('/', g.group_id, g.mesh_md5), '' ORDER BY g.group_id, g.building_id)) AS digest
+        FROM gen.group_lod2_meshes(u.ids) g
     ) m
     ORDER BY 1, 2, 3
 $$;
