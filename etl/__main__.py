@@ -6,6 +6,7 @@ successful run recorded with today's (etl/dag.py) and skips, in one line, when t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import os
@@ -202,9 +203,14 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     from .workers import shared_cluster
 
     # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece), started while
-    # ingest reads the OSM state and closed while the export runs
-    with shared_cluster(max(min(4, os.cpu_count() or 1), settings.lod_workers, settings.gen_workers,
-                            settings.tex_workers), warm=_WARM, close_later=True):
+    # ingest reads the OSM state and closed while the export runs. Not for a change that only adds nodes: no way
+    # of the state can refer to them, so no building changes and the stages are carried over (a cluster started
+    # for nothing took 2.1 s more of such an update, its start competing with ingest for the cores)
+    only_nodes = all(n == 0 for _, _, c in new for action, by_type in c.items() for kind, n in by_type.items()
+                     if (action, kind) != ("create", "node"))
+    with contextlib.nullcontext() if only_nodes else shared_cluster(
+            max(min(4, os.cpu_count() or 1), settings.lod_workers, settings.gen_workers, settings.tex_workers),
+            warm=_WARM, close_later=True):
         params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
         file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
         with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
