@@ -392,6 +392,16 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     quiet_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(quiet), "--out", str(out)], env,
                               logs / "update-no-building.log")
     quiet_s = stage_seconds(url, last)
+    # then a change of one building (a height edit, the building nearest the centre): about what every update pays
+    # whatever it changes, which a live database following minutely diffs pays again and again
+    one = OUT_ROOT / "update" / f"{name}-one-building.osc"
+    before_one = _state_file(url)
+    assert before_one is not None
+    write_change(Path(before_one), one, share=0.0)
+    last = _last_run(url)
+    one_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(one), "--out", str(out)], env,
+                            logs / "update-one-building.log")
+    one_s = stage_seconds(url, last)
     # then another 1 % change, the same buildings edited again, with an analyst reading every table meanwhile
     # (not timed: the reader takes a core)
     again = OUT_ROOT / "update" / f"{name}-1pct-again.osc"
@@ -403,7 +413,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
                   logs / "update-read.log")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
             "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
-            "no_building_s": quiet_s,
+            "no_building_s": quiet_s, "one_building_wall_s": round(one_wall, 1), "one_building_s": one_s,
             "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
             "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused, "history": history,
             "full_wal_bytes": full_wal, "update_wal_bytes": wal,
@@ -440,6 +450,13 @@ def section(s: dict[str, Any] | None) -> list[str]:
         out += ["", "A change that touches no building (one new tagged node) after it: "
                 f"{s['no_building_wall_s']:.1f} s (ingest {q.get('ingest', '?')} s, export {q.get('export', '?')} "
                 "s; lod ... textures carried over, not run)."]
+    if "one_building_wall_s" in s:
+        o = s["one_building_s"]
+        out += ["", "A change of one building (a height edit, the building nearest the centre) after that: "
+                f"{s['one_building_wall_s']:.1f} s, {100 * s['one_building_wall_s'] / s['full_total_s']:.0f} % of "
+                "the full rebuild (" + ", ".join(f"{st} {o[st]} s" for st in STAGES if st in o) + "): about what any "
+                "update pays before the work its change brings (one building's tiles are a few): the stages' passes "
+                "over the whole city and their fixed costs."]
     if rd := s.get("readers"):
         odd = rd["odd_counts"]
         out += ["", "An analyst meanwhile (`Reader` in benchmarks/update_bench.py): while another such change was "

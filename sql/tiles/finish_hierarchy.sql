@@ -15,6 +15,10 @@
 -- Example: CALL tiles.finish_hierarchy(0);
 CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision)
 LANGUAGE plpgsql
+-- the planner puts a Memoize over api.buildings_for_tile, keyed by tile: every tile is read once, so it only copied
+-- every feature's row, mesh included, into its cache (71 MB on the benchmark extract; the statement took 1.19 s
+-- against 1.01 s without, median of 5 pairs)
+SET enable_memoize = off
 AS $$
 DECLARE
     v_level integer;
