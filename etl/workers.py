@@ -186,7 +186,8 @@ def shared_cluster(workers: int, warm: tuple[str, ...] = (), close_later: bool =
     def start() -> Any:
         client = stack.enter_context(_local_client(workers))
         if warm:
-            client.run(_import, tuple(warm))
+            with contextlib.suppress(Exception):  # a warm-up: an import that fails fails the task that needs it
+                client.run(_import, tuple(warm))
         return client
 
     pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="citylod-cluster")
