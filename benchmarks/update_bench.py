@@ -340,9 +340,20 @@ def _apply(change: Path, url: str, env: dict[str, str], out: Path, logs: Path) -
     bytes)."""
     last = _last_run(url)
     mark = _wal_mark(url)
-    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env,
-                        logs / "update.log")
+    wall = _run_update(change, env, out, logs / "update.log")
     return last, wall, _wal_since(url, mark)
+
+
+def _run_update(change: Path, env: dict[str, str], out: Path, log: Path) -> float:
+    """``python -m etl update`` of ``change`` with the export to ``out``, its output to ``log``; wall s."""
+    wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)], env, log)
+    return wall
+
+
+def _timed_update(change: Path, url: str, env: dict[str, str], out: Path, log: Path) -> tuple[float, dict[str, float]]:
+    """_run_update, and the seconds of each stage it ran or carried over."""
+    last = _last_run(url)
+    return _run_update(change, env, out, log), stage_seconds(url, last)
 
 
 def _update_one_percent(osm: Path, url: str, env: dict[str, str], out: Path,
@@ -388,20 +399,14 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     quiet.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6"><create>'
                      f'<node id="{10**12}" version="1" lat="{_centre(url)[1]:.7f}" lon="{_centre(url)[0]:.7f}">'
                      '<tag k="amenity" v="bench"/></node></create></osmChange>\n')
-    last = _last_run(url)
-    quiet_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(quiet), "--out", str(out)], env,
-                              logs / "update-no-building.log")
-    quiet_s = stage_seconds(url, last)
+    quiet_wall, quiet_s = _timed_update(quiet, url, env, out, logs / "update-no-building.log")
     # then a change of one building (a height edit, the building nearest the centre): about what every update pays
     # whatever it changes, which a live database following minutely diffs pays again and again
     one = OUT_ROOT / "update" / f"{name}-one-building.osc"
     before_one = _state_file(url)
     assert before_one is not None
     write_change(Path(before_one), one, share=0.0)
-    last = _last_run(url)
-    one_wall, _ = run_child([sys.executable, "-m", "etl", "update", "--osc", str(one), "--out", str(out)], env,
-                            logs / "update-one-building.log")
-    one_s = stage_seconds(url, last)
+    one_wall, one_s = _timed_update(one, url, env, out, logs / "update-one-building.log")
     # then another 1 % change, the same buildings edited again, with an analyst reading every table meanwhile
     # (not timed: the reader takes a core)
     again = OUT_ROOT / "update" / f"{name}-1pct-again.osc"
@@ -409,8 +414,7 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     assert now is not None
     write_change(Path(now), again)
     with Reader(url) as reader:
-        run_child([sys.executable, "-m", "etl", "update", "--osc", str(again), "--out", str(out)], env,
-                  logs / "update-read.log")
+        _run_update(again, env, out, logs / "update-read.log")
     return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
             "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
             "no_building_s": quiet_s, "one_building_wall_s": round(one_wall, 1), "one_building_s": one_s,
