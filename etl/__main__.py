@@ -160,6 +160,8 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
 
     from . import dag
+    from .dirty import Dirty
+    from .dirty import record as record_dirty
     from .runs import pipeline_run, sha256_file
     from .stages import ingest
     from .stages import update as up
@@ -222,6 +224,10 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                                 (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
 
             run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
+            # the buildings it changed, for the stages after it (etl/dirty.py)
+            record_dirty(conn, run.run_id, Dirty(buildings=[
+                int(i) for (i,) in conn.execute("SELECT id FROM osm.building_change")]))
+            conn.commit()
         up.drop_previous_state(chain, state)  # the chain now ends at ``state``
         with connect(url, autocommit=True) as conn:
             same_srid = conn.execute("SELECT srid FROM meta.dataset").fetchone() == (srid,)
@@ -241,8 +247,10 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                     last = conn.execute("SELECT run_id, counts FROM meta.pipeline_run WHERE stage = %s "
                                         "AND status = 'ok' ORDER BY run_id DESC LIMIT 1", (stage,)).fetchone()
                 assert last is not None
-                with pipeline_run(url, stage, {"carried_from": last[0]}, inputs=now) as carried:
+                with pipeline_run(url, stage, {"carried_from": last[0]}, inputs=now) as carried, \
+                        connect(url, autocommit=True) as conn:
                     carried.counts = {**last[1], "carried_from": last[0]}
+                    record_dirty(conn, carried.run_id, Dirty())  # it changed nothing
                 print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
         else:
             for stage in below:
@@ -251,9 +259,11 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                 if rc:
                     return rc
     if args.out:
+        # reached: only the tiles the update's runs reached are fingerprinted (etl/dirty.py); a plain export
+        # fingerprints every tile, so it also sees what was changed in the tables by hand
         return cmd_export(argparse.Namespace(out=args.out, lod=None, publish=args.publish, no_publish=False,
                                              geometry=args.geometry, textures=args.textures, tiling=args.tiling,
-                                             if_stale=True), settings)
+                                             if_stale=True, reached=True), settings)
     return 0
 
 
@@ -268,6 +278,8 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     """lod, landmarks, tiles, generalize, textures: tables in, tables out, recorded in meta.pipeline_run."""
     from core.db import connect
 
+    from .dirty import Dirty
+    from .dirty import record as record_dirty
     from .runs import pipeline_run
 
     stage = args.command
@@ -278,13 +290,25 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
 
     kw: dict[str, object] = {}
     update = bool(getattr(args, "update", False))
+    changed_only = update and getattr(args, "current_before", False)
     if stage in ("generalize", "textures"):  # their fingerprints name their code; an update keeps what did not change
         kw = {"keep": update, "code": json.dumps(inputs["code"], sort_keys=True)}
-    elif stage == "lod" and update and getattr(args, "current_before", False):
+        if changed_only:
+            kw["reached"] = True  # only the tiles the update's runs reached (etl/dirty.py)
+    elif stage == "lod" and changed_only:
         kw = {"changed": True}  # only the buildings the update changed (else all: lod was not current before)
     with pipeline_run(url, stage, {**settings.as_dict(), **({"update": True} if update else {})},
                       inputs=inputs) as run, connect(url) as conn:
-        run.counts = module.run(conn, url, settings, **kw) if stage in _NEEDS_URL else module.run(conn, settings)
+        counts = module.run(conn, url, settings, **kw) if stage in _NEEDS_URL else module.run(conn, settings)
+        reached = counts.pop("dirty", None)
+        # what an update's run changed, for the stages after it; lod drew the buildings ingest recorded
+        if changed_only or (update and stage in ("landmarks", "tiles")):
+            if stage == "lod":
+                reached = Dirty()
+            if isinstance(reached, Dirty):
+                record_dirty(conn, run.run_id, reached)
+                conn.commit()
+        run.counts = counts
     return 0
 
 
@@ -304,6 +328,7 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
     params["publish"] = publish_as
     with pipeline_run(url, "export", params, inputs=inputs) as run:
         run.counts = export_tileset(url, out, settings, lod=args.lod, stream=stream, publish_as=publish_as,
+                                    reached=bool(getattr(args, "reached", False)),
                                     run_id=run.run_id,
                                     code=json.dumps([inputs["code"], inputs["settings"]], sort_keys=True))
         run.output = tileset_output(out)

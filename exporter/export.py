@@ -45,7 +45,7 @@ from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex
 from .gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
 from .meshopt import CompressionError
 from .publish import check_name, publish
-from .reuse import TileKey, copy_unchanged, published_inputs, recipe, tile_keys, unchanged
+from .reuse import TileKey, copy_unchanged, live_keys, published_inputs, recipe, tile_keys, unchanged
 from .stream import COMPACT, StreamOptions
 from .tileset import TileRecord, build, node_matrix, region_centre
 
@@ -503,23 +503,24 @@ def _directory_lock(out: Path) -> Iterator[None]:
 
 def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
                    stream: StreamOptions = COMPACT, publish_as: str | None = None,
-                   run_id: int | None = None, code: str = "") -> dict[str, object]:
+                   run_id: int | None = None, code: str = "", reached: bool = False) -> dict[str, object]:
     """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
     every building at that one level of detail (1 block, 2 roofs, 3 facades). Exports into one directory are
     serialized, and each swaps its tileset in whole (swap_in). With ``publish_as`` the same files become the
     next generation of that tileset in the database (exporter/publish.py), before the directory's swap; with
     ``code`` too (the export's code and settings as etl/dag.py records them), the tiles whose input is the one
-    the live generation was built from are copied from it (exporter/reuse.py)."""
+    the live generation was built from are copied from it (exporter/reuse.py); with ``reached`` (an update's
+    export) only the tiles its stages' runs reached since that generation are fingerprinted (etl/dirty.py)."""
     if lod not in (None, 1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
     if publish_as is not None:
         check_name(publish_as)
     with _directory_lock(out):
-        return _export_tileset(url, out, settings, lod, stream, publish_as, run_id, code)
+        return _export_tileset(url, out, settings, lod, stream, publish_as, run_id, code, reached)
 
 
 def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, stream: StreamOptions,
-                    publish_as: str | None, run_id: int | None, code: str) -> dict[str, object]:
+                    publish_as: str | None, run_id: int | None, code: str, reached: bool) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     for p in (out, partial):
@@ -537,10 +538,17 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     # a published tileset: the tiles whose input is what its live generation was built from are copied
     keys: dict[str, TileKey] = {}
     same: dict[str, bytes] = {}
+    seed = recipe(code, lod, stream, root_region)
+    fingerprinted = len(tiles)
     if publish_as is not None and code:
         with connect(url) as conn:
             published = published_inputs(conn, publish_as)
-        keys = tile_keys(url, tiles, recipe(code, lod, stream, root_region), lod, stream)
+            # the tiles no run reached since the live generation was published (etl/dirty.py), made with the same
+            # recipe: their input is the one it was built from, and they keep its key (no fingerprint read)
+            known = live_keys(conn, publish_as, seed, tiles, published, lod) if reached else {}
+        todo = [r for r in tiles if r.content_uri not in known]
+        fingerprinted = len(todo)
+        keys = {**(tile_keys(url, todo, seed, lod, stream) if todo else {}), **known}
         same = unchanged(keys, published)
     if partial.exists():
         shutil.rmtree(partial)
@@ -564,8 +572,8 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     (partial / PARTIAL_MARKER).unlink()
     published: dict[str, object] = {}
     if publish_as is not None:
-        pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict()}, run_id, settings.publish_keep,
-                      {p: k.key for p, k in keys.items()})
+        pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict(), "recipe": seed}, run_id,
+                      settings.publish_keep, {p: k.key for p, k in keys.items()})
         published = {"published_as": publish_as, **pub.as_dict()}
     swap_in(partial, out)
     seconds = time.perf_counter() - t0
@@ -586,7 +594,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
             "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
             "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
-            "glb_copied": len(same), "glb_built": len(tiles) - len(same),
+            "glb_copied": len(same), "glb_built": len(tiles) - len(same), "glb_fingerprinted": fingerprinted,
             # what building those glbs handled: an update's share of the export's work
             "features_built": features_built,
             "triangles": n_triangles, "bytes": n_bytes,

@@ -3,8 +3,9 @@
 A tile's glb is a function of what api.export_digest fingerprints (its features, their landmark metadata, its
 atlas pages and UVs), of the exporter's code, settings and options, and of the tile's record in the tree. The
 export records the sha256 of all that per glb (pub.file.input_digest) when it publishes; the next export of the
-same tileset computes it again for every tile (about half the cost of reading the features) and copies the glb
-of every tile whose key is the same: from the export directory when the file there has the published bytes,
+same tileset computes it again for every tile its stages' runs reached since (etl/dirty.py; about half the cost
+of reading the features; the others keep the published key, live_keys) and copies the glb of every tile whose key
+is the same: from the export directory when the file there has the published bytes,
 else from pub.blob. So an update that moves a few buildings writes the few tiles they are in and their
 ancestors, and the other glbs keep their bytes (and their ETags).
 """
@@ -78,6 +79,26 @@ def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str
     return {p: (d, bytes(s)) for p, d, s in conn.execute(
         "SELECT f.path, f.input_digest, f.sha256 FROM pub.file f WHERE f.input_digest IS NOT NULL AND f.generation = "
         "(SELECT max(generation) FROM pub.generation WHERE tileset = %s)", (name,))}
+
+
+def live_keys(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRecord],
+              published: dict[str, tuple[str, bytes]], lod: int | None) -> dict[str, TileKey]:
+    """The keys of the tiles whose input is, without reading it, the one the live generation of ``name`` was
+    built from: made with the same recipe (``seed``, recorded in its options), and reached by no run of the
+    stages since the export that published it (etl/dirty.py): their features, pages and record are as they were.
+    Empty when that is not known (another recipe, a run since that recorded no change set)."""
+    from etl.dirty import tiles_since
+
+    live = conn.execute("SELECT run_id, options->>'recipe' FROM pub.generation WHERE tileset = %s "
+                        "ORDER BY generation DESC LIMIT 1", (name,)).fetchone()
+    if live is None or live[0] is None or live[1] != seed:
+        return {}
+    reached = tiles_since(conn, "export", int(live[0]))
+    if reached is None:
+        return {}
+    return {r.content_uri: TileKey(published[r.content_uri][0], r.n_features if lod else r.content_features or 0)
+            for r in tiles
+            if r.content_uri is not None and r.content_uri in published and (r.level, r.x, r.y) not in reached}
 
 
 def unchanged(keys: dict[str, TileKey], published: dict[str, tuple[str, bytes]]) -> dict[str, bytes]:

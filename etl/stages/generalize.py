@@ -76,6 +76,7 @@ from core.progress import Balance, Progress, summary
 from core.settings import Settings
 from core.wkb import decode_triangles, encode_triangles_batch
 
+from ..dirty import Dirty, reach, tiles_since
 from ..geom.decimate import decimate
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
@@ -289,6 +290,7 @@ class _Units:
     step: str
     records: list[tuple] = field(default_factory=list)
     kept: list[tuple[Unit, tuple[str, int, dict[str, float]]]] = field(default_factory=list)
+    computed: list[int] = field(default_factory=list)  # an update: the buildings of the batches computed again
 
     @property
     def level(self) -> int:
@@ -351,6 +353,7 @@ def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, dige
             units.kept.append((u, same[u]))
         else:
             todo[u] = p
+            units.computed += ids[u]
     return todo, ids
 
 
@@ -518,6 +521,7 @@ class _BlockReuse:
     units: _Units = field(default_factory=lambda: _Units("blocks"))
     blocks_kept: int = 0
     written: int = 0  # blocks made (written) so far
+    made: list[Unit] = field(default_factory=list)  # an update: the block tiles made again
 
 
 def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
@@ -635,6 +639,7 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
             {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None})]
         make, keep = _block_tiles(cur, reuse, here)
         _keep_blocks(reuse, keep, stats)
+        reuse.made += make
         lvs, xs, ys = ([t[i] for t in make] for i in range(3))
         # the blocks of the tiles made again: a cluster made of the same inputs keeps its block, not made again
         skip = None if reuse.kept is None or not make else [d for (d,) in cur.execute(
@@ -733,10 +738,13 @@ def _kept(conn: psycopg.Connection) -> Kept:
 
 
 def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
-        code: str = "") -> dict[str, object]:
+        code: str = "", reached: bool = False) -> dict[str, object]:
     """Generalize every tile; with ``keep`` (an update), the rows of the batches and block tiles whose input did
-    not change stay as they are, and only the others are computed and written again. ``code``: see _seed."""
+    not change stay as they are, and only the others are computed and written again. ``code``: see _seed.
+    ``reached`` (an update whose stages were current before it): the hierarchy of the tiles the update's runs
+    reached alone is measured again (etl/dirty.py), with those this run changed."""
     t0 = time.perf_counter()
+    since = tiles_since(conn, "generalize") if keep and reached else None
     srid = working_srid(conn)
     if not conn.execute("SELECT EXISTS (SELECT 1 FROM tiles.tile)").fetchone()[0]:  # type: ignore[index]
         raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
@@ -786,7 +794,14 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                 copy.write_row(row)
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
-        cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
+        own = Dirty(fp_units.computed + dec_units.computed, reuse.made)
+        scope: list[Unit] = []
+        if since is None:
+            cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
+        else:
+            scope = sorted(since | reach(conn, own))
+            cur.execute("CALL tiles.finish_hierarchy(%s, %s, %s, %s)", (settings.base_height_m, *(
+                [t[i] for t in scope] for i in range(3))))
         blk["omitted_within_tile_error"] = cur.execute(
             "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error").fetchone()[0]  # type: ignore[index]
         store_boxes(cur)
@@ -811,6 +826,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
+        "hierarchy_tiles": None if since is None else len(scope),  # measured again (None: every tile)
+        "dirty": own,
     }
     summary(
         "generalize", balance,

@@ -32,7 +32,16 @@ from core.db import working_srid
 from core.progress import Balance, summary
 from core.settings import Settings
 
+from ..dirty import Dirty
 from ..geom import landmarks as lm
+
+#: what a tile's content reads of a building's landmark rows (api.buildings_for_tile, api.export_features): the
+#: buildings whose rows differ here after the stage are what it changed for the stages after it (etl/dirty.py);
+#: score and rank are the city's and move with any edit, and no tile reads them
+_READ = ("SELECT l.building_id, l.level, l.is_landmark, l.lod2_band, md5(x::text) FROM lm.building l "
+         "LEFT JOIN lm.exaggeration x USING (building_id)")
+_CHANGED = f"""SELECT DISTINCT building_id FROM (({_READ} EXCEPT SELECT * FROM _lm_was)
+                                             UNION ALL (SELECT * FROM _lm_was EXCEPT {_READ})) d"""
 
 #: Semantic measure: weight of each tag flag (sum 1). A flag holds when the outline or any of its parts has it.
 SEMANTIC = {"worship": 0.2, "religious_building": 0.2, "tower": 0.15, "historic": 0.15, "wikidata": 0.15,
@@ -129,6 +138,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     centroids = shapely.to_wkb(shapely.set_srid(shapely.points(xy), srid), include_srid=True) if n else []
     band = [int(b) if lm_ else None for b, lm_ in zip(lod2_band.tolist(), is_landmark.tolist(), strict=True)]
     with conn.transaction(), conn.cursor() as cur:
+        cur.execute(f"CREATE TEMP TABLE _lm_was ON COMMIT DROP AS {_READ}")
         cur.execute("DELETE FROM lm.building")  # not TRUNCATE: readers keep the rows of before until the commit
         with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
@@ -147,6 +157,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         cur.execute("CALL lm.fill_exaggeration()")
         roles = cur.execute("SELECT count(*) FROM lm.exaggeration").fetchone()[0]  # type: ignore[index]
         cur.execute("ANALYZE lm.exaggeration")
+        changed = [int(i) for (i,) in cur.execute(_CHANGED)]
     top = ids[np.argsort(rank)[:10]].tolist()
     seconds = time.perf_counter() - t0
     n_lm = int(is_landmark.sum())
@@ -154,4 +165,5 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
             f"(level >= {min_level})", seconds, n)
     return {**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)), "landmark_min_level": min_level,
             "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top, "weights": w,
-            "seconds": round(seconds, 3), "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}
+            "seconds": round(seconds, 3), "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None,
+            "dirty": Dirty(buildings=changed)}

@@ -53,6 +53,7 @@ from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
 from core.wkb import decode_triangles
 
+from ..dirty import Dirty, tiles_since
 from ..geom import atlas as A
 from ..geom import ktx2 as K
 from ..geom import texturing as X
@@ -469,11 +470,14 @@ def _seed(settings: Settings, code: str) -> str:
 
 
 def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
-        code: str = "") -> dict[str, object]:
+        code: str = "", reached: bool = False) -> dict[str, object]:
     """Texture every tile; with ``keep`` (an update), leave the textures of the units whose input did not change
     as they are, and replace only the others' rows, instead of texturing every tile again. ``code``: see
-    _seed."""
+    _seed. ``reached`` (an update whose stages were current before it): only the tiles the update's runs
+    reached are fingerprinted (etl/dirty.py); the others' input is what it was, and they keep the fingerprint
+    the last run recorded."""
     t0 = time.perf_counter()
+    since = tiles_since(conn, "textures") if keep and reached else None
     if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
         raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
     K.binary()  # no encoder is an installation problem, not a bad page: stop before any work ("run make setup")
@@ -490,7 +494,12 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     kept_counts = _kept_counts(conn) if keep else {}
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
     all_units = units(tiles)
-    prints, counts = fingerprints(url, [t for u in all_units for t in u], seed, settings, workers)
+    # a tile no run reached, with its rows whole, keeps its fingerprint; the others' are computed
+    known = {} if since is None or kept is None else {k: f for k, f in kept.items() if k not in since}
+    todo = [t for u in all_units for t in u if (t.level, t.x, t.y) not in known]
+    prints, counts = fingerprints(url, todo, seed, settings, workers) if todo else ({}, {})
+    prints.update(known)
+    counts.update({(t.level, t.x, t.y): t.features for t in tiles if (t.level, t.x, t.y) in known})
     work: list[Unit] = []
     same: list[list[Tile]] = []  # units whose every tile has its last fingerprint: their rows stay as they are
     for u in all_units:
@@ -518,6 +527,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
             cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure")
             cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
         n_kept = 0  # their rows stay as they are
+        made: list[Key] = []  # the tiles textured (their rows replaced)
         written = {"tex.page": 0, "tex.feature_uv": 0}
         inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
         done = [[_kept_result(t, prints[(t.level, t.x, t.y)], counts[(t.level, t.x, t.y)], settings) for t in u]
@@ -535,6 +545,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                     n_kept += 1
                 else:
                     textured_again += res.features
+                    made.append((res.tile.level, res.tile.x, res.tile.y))
                     if keep:
                         _drop_tile(cur, (res.tile.level, res.tile.x, res.tile.y))
                     _write(cur, res)
@@ -600,6 +611,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     )
     return {**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
             "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
+            "tiles_fingerprinted": len(todo),  # the others no run of the update reached (etl/dirty.py)
+            "dirty": Dirty(tiles=made),
             "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

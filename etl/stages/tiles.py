@@ -10,10 +10,20 @@ import psycopg
 from core.progress import Balance, summary
 from core.settings import Settings
 
+from ..dirty import Dirty
+
+#: a tile's row as this stage writes it, and a building's placement, to compare before and after (the tiles and
+#: placements that differ are what the run changed: etl/dirty.py)
+_TILE_ROW = "SELECT level, x, y, md5(ROW(is_leaf, n_features, n_triangles, cell, mesh_region, content_uri, height, " \
+            "gen_level)::text) FROM tiles.tile"
+_PLACED = "SELECT building_id, level, x, y, group_id FROM tiles.building_tile"
+
 
 def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     t0 = time.perf_counter()
     with conn.transaction():
+        conn.execute(f"CREATE TEMP TABLE _tile_was ON COMMIT DROP AS {_TILE_ROW}")
+        conn.execute(f"CREATE TEMP TABLE _placed_was ON COMMIT DROP AS {_PLACED}")
         # in place (sql/tiles/build_quadtree.sql): the blocks and textures of the tiles that stay are kept until
         # their stages replace them
         conn.execute(
@@ -31,6 +41,12 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 3").fetchone()[0]  # type: ignore[index]
         # every feature (a drawn building or part, its LOD3 mesh) in exactly one leaf; checked before commit
         balance = Balance("features", int(meshes), {"in leaf tiles": int(n_features)})
+        changed = [(int(lv), int(x), int(y)) for lv, x, y in conn.execute(
+            f"""SELECT level, x, y FROM (({_TILE_ROW} EXCEPT SELECT * FROM _tile_was)
+                                          UNION (SELECT * FROM _tile_was EXCEPT {_TILE_ROW})) t
+                UNION
+                SELECT level, x, y FROM (({_PLACED} EXCEPT SELECT * FROM _placed_was)
+                                          UNION (SELECT * FROM _placed_was EXCEPT {_PLACED})) p""")]
     seconds = time.perf_counter() - t0
     summary(
         "tiles", balance,
@@ -38,4 +54,4 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         seconds, n_features,
     )
     return {**balance.counts(), "features": n_features, "tiles": n_tiles, "leaves": n_leaves, "depth": depth,
-            "max_leaf_features": max_leaf, "seconds": round(seconds, 3)}
+            "max_leaf_features": max_leaf, "seconds": round(seconds, 3), "dirty": Dirty(tiles=changed)}

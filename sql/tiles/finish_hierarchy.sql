@@ -1,4 +1,4 @@
--- tiles.finish_hierarchy(base_height)
+-- tiles.finish_hierarchy(base_height, levels DEFAULT NULL, xs DEFAULT NULL, ys DEFAULT NULL)
 -- Completes the tile hierarchy once the generalize stage has filled gen.*: for every tile, its own content
 -- (api.buildings_for_tile, exactly what the exporter writes) gives content_features, content_triangles and
 -- content_error_m (the largest error bound of its features and of the blocks it omits) and widens its region to
@@ -12,8 +12,12 @@
 -- city (and every omitted block's twice). It refuses a tile whose content does not stand for the buildings
 -- below it (blocks, drawn or omitted, through their members): as many features as below it in the LOD2/LOD3
 -- bands, as many buildings (outlines with their parts) in the others.
+--   levels, xs, ys  the tiles to measure again, with their ancestors (an update: the tiles its change reached,
+--                   etl/dirty.py); the others keep what the last run measured, which their content, the same,
+--                   gives again. NULL: every tile.
 -- Example: CALL tiles.finish_hierarchy(0);
-CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision)
+CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision, levels integer[] DEFAULT NULL,
+                                                   xs integer[] DEFAULT NULL, ys integer[] DEFAULT NULL)
 LANGUAGE plpgsql
 -- the planner puts a Memoize over api.buildings_for_tile, keyed by tile: every tile is read once, so it only copied
 -- every feature's row, mesh included, into its cache (71 MB on the benchmark extract; the statement took 1.19 s
@@ -24,7 +28,24 @@ DECLARE
     v_level integer;
     v_bad text;
     v_omitted bigint;
+    v_levels integer[];
+    v_xs integer[];
+    v_ys integer[];
 BEGIN
+    -- the tiles measured: those given and every ancestor (a tile's error and region take its children's), or all
+    CREATE TEMP TABLE _scope ON COMMIT DROP AS
+    SELECT t.level, t.x, t.y FROM tiles.tile t
+    WHERE levels IS NULL
+       OR (t.level, t.x, t.y) IN (SELECT d.level - k, d.x >> k, d.y >> k
+                                  FROM unnest(levels, xs, ys) AS d(level, x, y)
+                                  CROSS JOIN LATERAL generate_series(0, d.level) k);
+    ALTER TABLE _scope ADD PRIMARY KEY (level, x, y);
+    ANALYZE _scope;
+    IF levels IS NOT NULL THEN
+        SELECT coalesce(array_agg(s.level), '{}'), coalesce(array_agg(s.x), '{}'), coalesce(array_agg(s.y), '{}')
+        INTO v_levels, v_xs, v_ys FROM _scope s;
+    END IF;
+
     CREATE TEMP TABLE _feature ON COMMIT DROP AS
     SELECT level, x, y, feature_kind, building_id, osm_type, osm_id, lod, gen_level, n_members, n_triangles, error_m,
            min_height, height, ST_Transform(ST_SetSRID(b::box2d::geometry, srid), 4326)::box2d AS ext,
@@ -34,7 +55,7 @@ BEGIN
                f.n_members, f.n_triangles, f.error_m, f.min_height, f.height, Box3D(f.geom) AS b,
                ST_SRID(f.geom) AS srid,
                CASE WHEN f.feature_kind <> 'block' THEN coalesce(o.parent_id, o.id) END AS group_id
-        FROM tiles.tile t
+        FROM _scope t
         CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
         LEFT JOIN osm.building o ON o.id = f.building_id
         WHERE f.feature_kind <> 'block'
@@ -44,6 +65,7 @@ BEGIN
         SELECT k.level, k.x, k.y, 'block', k.block_id, 'B', k.block_id, 0::smallint, k.gen_level, k.n_members,
                k.n_triangles, k.total_error_m, 0::real, k.height, Box3D(k.geom), ST_SRID(k.geom), NULL
         FROM gen.block_as_made k JOIN tiles.tile t ON (t.level, t.x, t.y) = (k.level, k.x, k.y)
+        JOIN _scope sc ON (sc.level, sc.x, sc.y) = (t.level, t.x, t.y)
         WHERE t.gen_level <= 1 AND NOT k.omitted
         -- a fence: each mesh is decompressed once, for its Box3D. Without it the planner pulls the box up into
         -- every reference of the inlined tiles.feature_sphere and decompresses the mesh for each (1.45 s
@@ -60,7 +82,7 @@ BEGIN
            CASE WHEN t.gen_level >= 3 THEN t.n_features
                 ELSE (SELECT count(DISTINCT b.group_id) FROM tiles.building_tiles_below(t.level, t.x, t.y) b)
            END AS expected
-    FROM tiles.tile t
+    FROM tiles.tile t JOIN _scope USING (level, x, y)
     LEFT JOIN (
         SELECT f.level, f.x, f.y, count(*)::integer AS nf, sum(f.n_triangles)::bigint AS nt,
                max(f.error_m)::double precision AS err, ST_Extent(f.ext)::box2d AS ext,
@@ -109,10 +131,11 @@ BEGIN
             FROM tiles.tile c WHERE c.level = v_level + 1
             GROUP BY 1, 2
         ) k
-        WHERE p.level = v_level AND p.x = k.px AND p.y = k.py;
+        WHERE p.level = v_level AND p.x = k.px AND p.y = k.py
+          AND (p.level, p.x, p.y) IN (SELECT * FROM _scope);
     END LOOP;
 
-    CALL tiles.omit_within_error(NULL, v_omitted);
+    CALL tiles.omit_within_error(NULL, v_omitted, v_levels, v_xs, v_ys);
 
     -- the content rows as the table types them (EXCEPT compares them as stored)
     CREATE TEMP TABLE _row (LIKE tiles.tile_content) ON COMMIT DROP;
@@ -126,12 +149,13 @@ BEGIN
     -- not TRUNCATE and rewrite: readers keep the old rows until commit, never wait, and only what differs is
     -- written
     DELETE FROM tiles.tile_content c
-    USING (SELECT * FROM tiles.tile_content EXCEPT SELECT * FROM _row) d
+    USING (SELECT * FROM tiles.tile_content WHERE (level, x, y) IN (SELECT * FROM _scope) EXCEPT SELECT * FROM _row) d
     WHERE (c.level, c.x, c.y, c.feature_kind, c.feature_id) = (d.level, d.x, d.y, d.feature_kind, d.feature_id);
     INSERT INTO tiles.tile_content
-    SELECT * FROM (SELECT * FROM _row EXCEPT SELECT * FROM tiles.tile_content) n
+    SELECT * FROM (SELECT * FROM _row
+                   EXCEPT SELECT * FROM tiles.tile_content WHERE (level, x, y) IN (SELECT * FROM _scope)) n
     ORDER BY level, x, y, feature_kind, feature_id;  -- a tile's rows together on disk
 END
 $$;
-COMMENT ON PROCEDURE tiles.finish_hierarchy(double precision) IS
-    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile from the generalized content, checks each tile stands for every building below it, omits the blocks within their tile''s error (tiles.omit_within_error) and writes the rows of tiles.tile_content that differ. Run by the generalize stage. Example: CALL tiles.finish_hierarchy(0);';
+COMMENT ON PROCEDURE tiles.finish_hierarchy(double precision, integer[], integer[], integer[]) IS
+    'Fills content counts, content error, measured geometric error (max of content and children) and regions of every tile (or of the tiles given, levels/xs/ys, and their ancestors) from the generalized content, checks each tile stands for every building below it, omits the blocks within their tile''s error (tiles.omit_within_error) and writes the rows of tiles.tile_content that differ. Run by the generalize stage. Example: CALL tiles.finish_hierarchy(0);';

@@ -17,6 +17,7 @@ import pytest
 
 from benchmarks.update_bench import TABLES, Reader, table_rows
 from core.db import analyze
+from etl.dirty import tiles_since
 from etl.stages import update
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
@@ -273,6 +274,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
             (gen,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
+            # the hierarchy measured and the textures fingerprinted again only where the change reached
+            # (etl/dirty.py); the first change adds a building beyond the others, which moves every tile's cell
+            (n_tiles,) = conn.execute("SELECT count(*) FROM tiles.tile").fetchone()
+            assert gen["hierarchy_tiles"] is not None and tex["tiles_fingerprinted"] > 0, (gen, tex)
+            if seq == 2:
+                assert gen["hierarchy_tiles"] < n_tiles and tex["tiles_fingerprinted"] < tex["tiles"], (gen, tex)
             assert gen["batches"]["blocks_kept"] > 0, gen  # the blocks the change missed in the tiles it hit
             for step in ("footprints", "decimation", "blocks"):  # the batches the change missed are kept, the rest
                 assert gen["batches"][step]["kept"] > 0 and gen["batches"][step]["computed"] > 0, (step, gen)
@@ -281,6 +288,8 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             assert exp["glb_built"] > 0 and exp["glb_copied"] == exp["glb"] - exp["glb_built"], exp
             # the first change adds a building beyond the others: the root region, every glb's frame, grows
             assert (exp["glb_copied"] > 0) == (seq == 2), exp
+            # the second: only the tiles it reached are fingerprinted (etl/dirty.py), the others keep their keys
+            assert (exp["glb_fingerprinted"] < exp["glb"]) == (seq == 2), exp
             (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
             (n,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
@@ -365,6 +374,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
         assert "current" in run_etl(inc, st, "--if-stale", env=SMALL).stdout
     before, after = files(tmp_path / "before"), files(tmp_path / "after")
     assert before.pop("tileset.json") != after.pop("tileset.json") and before == after
+    with psycopg.connect(inc, autocommit=True) as conn:
+        # the runs carried over changed nothing; a run that recorded no change set (it died after its commit, or
+        # ran before migration 0043) may have changed anything: the stages after it read every tile again
+        assert tiles_since(conn, "generalize") == set() and tiles_since(conn, "textures") == set()
+        conn.execute("INSERT INTO meta.pipeline_run (stage, status, finished_at) VALUES ('tiles', 'failed', now())")
+        assert tiles_since(conn, "generalize") is None and tiles_since(conn, "textures") is None
 
 
 @pytest.mark.db
