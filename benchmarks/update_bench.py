@@ -251,11 +251,14 @@ def _reused(url: str, last: int) -> dict[str, Any]:
     with psycopg.connect(url) as conn:
         runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
                                  "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id", (last,)).fetchall())
-    return {"generalize": runs.get("generalize", {}).get("batches"),
+    gen = runs.get("generalize", {})
+    return {"generalize": gen.get("batches") and {**gen["batches"], "hierarchy_tiles": gen.get("hierarchy_tiles")},
             "textures": {k: runs.get("textures", {}).get(k)
-                         for k in ("tiles", "tiles_kept", "tiles_redrawn", "features", "features_textured")},
+                         for k in ("tiles", "tiles_kept", "tiles_redrawn", "tiles_fingerprinted", "features",
+                                   "features_textured")},
             "export": {k: runs.get("export", {}).get(k)
-                       for k in ("glb", "glb_built", "glb_copied", "features", "features_built")}}
+                       for k in ("glb", "glb_built", "glb_copied", "glb_fingerprinted", "features",
+                                 "features_built")}}
 
 
 def _changed(url: str) -> dict[str, int]:
@@ -486,13 +489,13 @@ def section(s: dict[str, Any] | None) -> list[str]:
             f"decimation batches and the block tiles whose input changed ({batches('footprints')}, "
             f"{batches('decimation')} and {batches('blocks')}; the others' rows stay as they are, as do, in the "
             f"block tiles made again, the {_n(g.get('blocks_kept'))} blocks whose inputs did not change) and the "
-            "hierarchy "
-            "again; textures textures the tiles "
-            f"whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
+            f"hierarchy of the {g.get('hierarchy_tiles', '?')} tiles the update's runs reached (ARCHITECTURE.md, "
+            f"Updates, step 9); textures fingerprints those ({t.get('tiles_fingerprinted', '?')}) and textures the "
+            f"tiles whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
             f"{t.get('tiles', '?')}, and draws {t.get('tiles_redrawn', '?')} kept ones again for a chart cache); "
-            f"the export builds the glbs whose input changed ({e.get('glb_built', '?')} of "
-            f"{e.get('glb', '?')}; the others are copied) and publishes {pub.get('new_files', '?')} new files of "
-            f"{pub.get('files', '?')}.", ""]
+            f"the export fingerprints {e.get('glb_fingerprinted', '?')} glbs and builds those whose input changed "
+            f"({e.get('glb_built', '?')} of {e.get('glb', '?')}; the others are copied) and publishes "
+            f"{pub.get('new_files', '?')} new files of {pub.get('files', '?')}.", ""]
     out += _floor(s)
     return out + history_section(s.get("history"))
 
