@@ -300,14 +300,10 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     with pipeline_run(url, stage, {**settings.as_dict(), **({"update": True} if update else {})},
                       inputs=inputs) as run, connect(url) as conn:
         counts = module.run(conn, url, settings, **kw) if stage in _NEEDS_URL else module.run(conn, settings)
-        reached = counts.pop("dirty", None)
-        # what an update's run changed, for the stages after it; lod drew the buildings ingest recorded
-        if changed_only or (update and stage in ("landmarks", "tiles")):
-            if stage == "lod":
-                reached = Dirty()
-            if isinstance(reached, Dirty):
-                record_dirty(conn, run.run_id, reached)
-                conn.commit()
+        # what an update's run changed, for the stages after it (a stage says it only when it knows it whole)
+        if isinstance(reached := counts.pop("dirty", None), Dirty) and update:
+            record_dirty(conn, run.run_id, reached)
+            conn.commit()
         run.counts = counts
     return 0
 

@@ -39,11 +39,25 @@ class Dirty:
     buildings: list[int] = field(default_factory=list)
     tiles: list[Key] = field(default_factory=list)
 
+    def arrays(self) -> dict[str, list[int]]:
+        """As meta.run_dirty holds it: building ids, and the tiles as levels, xs and ys."""
+        return {"ids": sorted(set(self.buildings)), **tile_arrays(self.tiles)}
+
+
+def tile_arrays(tiles: list[Key]) -> dict[str, list[int]]:
+    """Tiles as the three arrays the SQL functions take (levels, xs, ys)."""
+    return {"levels": [t[0] for t in tiles], "xs": [t[1] for t in tiles], "ys": [t[2] for t in tiles]}
+
+
+def differing(query: str, was: str) -> str:
+    """A statement giving the rows of ``query`` (a constant SELECT) that temporary table ``was`` (made from it
+    before a change) does not hold, and those of ``was`` it does not give: what the change made differ."""
+    return f"(({query}) EXCEPT SELECT * FROM {was}) UNION ALL (SELECT * FROM {was} EXCEPT ({query}))"
+
 
 def record(conn: psycopg.Connection, run_id: int, dirty: Dirty) -> None:
-    conn.execute("INSERT INTO meta.run_dirty (run_id, building_ids, levels, xs, ys) VALUES (%s, %s, %s, %s, %s)",
-                 (run_id, sorted(set(dirty.buildings)), [t[0] for t in dirty.tiles], [t[1] for t in dirty.tiles],
-                  [t[2] for t in dirty.tiles]))
+    conn.execute("INSERT INTO meta.run_dirty (run_id, building_ids, levels, xs, ys) "
+                 "VALUES (%(run)s, %(ids)s, %(levels)s, %(xs)s, %(ys)s)", {"run": run_id, **dirty.arrays()})
 
 
 #: the tiles reached by buildings and tiles: those tiles and the leaves of those buildings (placed by
@@ -65,9 +79,7 @@ _REACHED = """
 
 def reach(conn: psycopg.Connection, dirty: Dirty) -> set[Key]:
     """The tiles ``dirty`` reaches: its tiles and its buildings' leaves, with their ancestors."""
-    return {(int(lv), int(x), int(y)) for lv, x, y in conn.execute(_REACHED, {
-        "ids": sorted(set(dirty.buildings)), "levels": [t[0] for t in dirty.tiles], "xs": [t[1] for t in dirty.tiles],
-        "ys": [t[2] for t in dirty.tiles]})}
+    return {(int(lv), int(x), int(y)) for lv, x, y in conn.execute(_REACHED, dirty.arrays())}
 
 
 def tiles_since(conn: psycopg.Connection, stage: str, run_id: int | None = None) -> set[Key] | None:

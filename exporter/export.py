@@ -539,7 +539,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     keys: dict[str, TileKey] = {}
     same: dict[str, bytes] = {}
     seed = recipe(code, lod, stream, root_region)
-    fingerprinted = len(tiles)
+    fingerprinted = 0  # tiles whose api.export_digest was read
     if publish_as is not None and code:
         with connect(url) as conn:
             published = published_inputs(conn, publish_as)

@@ -76,7 +76,7 @@ from core.progress import Balance, Progress, summary
 from core.settings import Settings
 from core.wkb import decode_triangles, encode_triangles_batch
 
-from ..dirty import Dirty, reach, tiles_since
+from ..dirty import Dirty, reach, tile_arrays, tiles_since
 from ..geom.decimate import decimate
 from ..geom.extrude import extrude
 from ..geom.facade import FacadeParams
@@ -800,8 +800,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
             cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
         else:
             scope = sorted(since | reach(conn, own))
-            cur.execute("CALL tiles.finish_hierarchy(%s, %s, %s, %s)", (settings.base_height_m, *(
-                [t[i] for t in scope] for i in range(3))))
+            cur.execute("CALL tiles.finish_hierarchy(%(base)s, %(levels)s, %(xs)s, %(ys)s)",
+                        {"base": settings.base_height_m, **tile_arrays(scope)})
         blk["omitted_within_tile_error"] = cur.execute(
             "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error").fetchone()[0]  # type: ignore[index]
         store_boxes(cur)
@@ -827,7 +827,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         "hierarchy_tiles": None if since is None else len(scope),  # measured again (None: every tile)
-        "dirty": own,
+        **({} if since is None else {"dirty": own}),
     }
     summary(
         "generalize", balance,

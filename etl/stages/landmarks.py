@@ -32,7 +32,7 @@ from core.db import working_srid
 from core.progress import Balance, summary
 from core.settings import Settings
 
-from ..dirty import Dirty
+from ..dirty import Dirty, differing
 from ..geom import landmarks as lm
 
 #: what a tile's content reads of a building's landmark rows (api.buildings_for_tile, api.export_features): the
@@ -40,8 +40,7 @@ from ..geom import landmarks as lm
 #: score and rank are the city's and move with any edit, and no tile reads them
 _READ = ("SELECT l.building_id, l.level, l.is_landmark, l.lod2_band, md5(x::text) FROM lm.building l "
          "LEFT JOIN lm.exaggeration x USING (building_id)")
-_CHANGED = f"""SELECT DISTINCT building_id FROM (({_READ} EXCEPT SELECT * FROM _lm_was)
-                                             UNION ALL (SELECT * FROM _lm_was EXCEPT {_READ})) d"""
+_CHANGED = f"SELECT DISTINCT building_id FROM ({differing(_READ, '_lm_was')}) d"
 
 #: Semantic measure: weight of each tag flag (sum 1). A flag holds when the outline or any of its parts has it.
 SEMANTIC = {"worship": 0.2, "religious_building": 0.2, "tower": 0.15, "historic": 0.15, "wikidata": 0.15,

@@ -42,6 +42,7 @@ from core.settings import Settings
 from core.wkb import encode_triangles_batch
 
 from .. import heights as heights_mod
+from ..dirty import Dirty
 from ..geom import roofs
 from ..geom.check import closure
 from ..geom.extrude import extrude
@@ -550,6 +551,8 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, changed: bool = 
         **{f"triangles_per_building_lod{lod}": round(counts[f"triangles_lod{lod}"] / nb, 1) for lod in LODS},
         "lod2_closed_pct": round(100.0 * (1 - counts["lod2_not_closed"] / nb), 3),
     }
+    if changed:
+        result["dirty"] = Dirty()  # only the buildings ingest recorded (and their kin, reached through their group)
     summary(
         "lod", balance,
         f"{counts['pitched_roofs']:,} pitched roofs, LOD2 closed {result['lod2_closed_pct']}% | triangles LOD1 "

@@ -612,7 +612,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     return {**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
             "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
             "tiles_fingerprinted": len(todo),  # the others no run of the update reached (etl/dirty.py)
-            "dirty": Dirty(tiles=made),
+            **({} if since is None else {"dirty": Dirty(tiles=made)}),
             "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

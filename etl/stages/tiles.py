@@ -10,7 +10,7 @@ import psycopg
 from core.progress import Balance, summary
 from core.settings import Settings
 
-from ..dirty import Dirty
+from ..dirty import Dirty, differing
 
 #: a tile's row as this stage writes it, and a building's placement, to compare before and after (the tiles and
 #: placements that differ are what the run changed: etl/dirty.py)
@@ -42,11 +42,8 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         # every feature (a drawn building or part, its LOD3 mesh) in exactly one leaf; checked before commit
         balance = Balance("features", int(meshes), {"in leaf tiles": int(n_features)})
         changed = [(int(lv), int(x), int(y)) for lv, x, y in conn.execute(
-            f"""SELECT level, x, y FROM (({_TILE_ROW} EXCEPT SELECT * FROM _tile_was)
-                                          UNION (SELECT * FROM _tile_was EXCEPT {_TILE_ROW})) t
-                UNION
-                SELECT level, x, y FROM (({_PLACED} EXCEPT SELECT * FROM _placed_was)
-                                          UNION (SELECT * FROM _placed_was EXCEPT {_PLACED})) p""")]
+            f"SELECT level, x, y FROM ({differing(_TILE_ROW, '_tile_was')}) t "
+            f"UNION SELECT level, x, y FROM ({differing(_PLACED, '_placed_was')}) p")]
     seconds = time.perf_counter() - t0
     summary(
         "tiles", balance,
