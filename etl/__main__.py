@@ -196,8 +196,14 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     shas = [c.sha256 for c in chain.changes] + [sha for _, sha, _ in new]
     file = {"path": str(chain.base_file), "sha256": chain.base_sha256, "changes": shas}
     below = ("lod", "landmarks", "tiles", "generalize", "textures")
+    # the ingest that made the database read the state before these changes, with this code and these settings:
+    # only what the changes touched need be read again (etl/stages/ingest.py)
+    before = {"path": str(chain.base_file), "sha256": chain.base_sha256,
+              **({"changes": [c.sha256 for c in chain.changes]} if chain.changes else {})}
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
+        touched = up.change_ids(f for f, _, _ in new) if dag.verdict(
+            conn, "ingest", dag.inputs(conn, "ingest", settings, file=before))[0] else None
         # the stages current before the update (same upstream runs, settings and code): only these may redo
         # just what the update changed, or be carried over
         current = {st for st in below if dag.verdict(conn, st, dag.inputs(conn, st, settings))[0]}
@@ -223,7 +229,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                                 "run_id, counts) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
                                 (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
 
-            run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record)
+            run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record, changed=touched)
             # the buildings it changed, for the stages after it (etl/dirty.py)
             record_dirty(conn, run.run_id, Dirty(buildings=[
                 int(i) for (i,) in conn.execute("SELECT id FROM osm.building_change")]))

@@ -45,6 +45,16 @@ _COPY_IMPORT = f"COPY osm.building_import ({', '.join(_IMPORT_COLUMNS)}) FROM ST
 _TYPE_CHAR = {"n": "N", "w": "W", "r": "R"}
 
 
+@dataclass(frozen=True)
+class ChangeIds:
+    """The nodes, ways and relations change files create, modify or delete: what an update's ingest reads again
+    (read_buildings: a way is staged again when it is one of ``ways`` or uses one of ``nodes``)."""
+
+    nodes: frozenset[int]
+    ways: frozenset[int]
+    relations: frozenset[int]
+
+
 @dataclass
 class IngestCounts:
     candidates: int = 0
@@ -172,9 +182,11 @@ def _line_from(nodes: object, negative: dict[int, tuple[float, float]]) -> str |
 
 
 def read_buildings(
-    path: Path, settings: Settings, counts: IngestCounts
+    path: Path, settings: Settings, counts: IngestCounts, changed: ChangeIds | None = None
 ) -> Iterator[tuple[object, ...]]:
-    """Pass B: one staging row per candidate building/part."""
+    """Pass B: one staging row per candidate building/part; with ``changed`` (a partial update) only the ways it
+    names or whose nodes it names, and every relation (libosmium assembles their rings from member ways the
+    Python side never sees)."""
     wkb = osmium.geom.WKBFactory()
     key_filter = osmium.filter.KeyFilter("building", "building:part")
     fp = (
@@ -204,6 +216,9 @@ def read_buildings(
             assembled.add(rid)
             yield _row("R", rid, parsed, tags, "M", geom_hex)
         elif obj.is_way():
+            if changed is not None and obj.id not in changed.ways and changed.nodes.isdisjoint(
+                    n.ref for n in obj.nodes):
+                continue  # as it was: its row stays
             tags = {t.k: t.v for t in obj.tags}
             parsed = parse_building_tags(tags, settings.max_height_m, settings.max_levels)
             if parsed is None:
@@ -277,6 +292,39 @@ def _reject(
     return _row(osm_type, osm_id, parsed, tags, None, None, (reason, detail))
 
 
+_SAME_BOX = ("ST_XMin(o.b) = ST_XMin(n.b) AND ST_YMin(o.b) = ST_YMin(n.b) AND ST_XMax(o.b) = ST_XMax(n.b) "
+             "AND ST_YMax(o.b) = ST_YMax(n.b)")
+#: A partial update keeps the working CRS, which the centre of the footprints' extent chose, and the extent: true
+#: when every footprint the change touched whose box moved (the box ST_Extent takes of it, as the full ingest's
+#: extent is made of them), before (a staged or changed way's row, every relation's, their rejects') and after it
+#: (a staged geometry), lies strictly inside the extent meta.dataset records, and none of those before was
+#: repaired (a repaired footprint's box need not be its ring's). Else the update stages every candidate.
+_EXTENT_KEPT = """
+WITH box AS (SELECT ST_XMin(bbox) AS x0, ST_YMin(bbox) AS y0, ST_XMax(bbox) AS x1, ST_YMax(bbox) AS y1
+             FROM meta.dataset WHERE bbox IS NOT NULL),
+new AS (SELECT i.osm_type, i.osm_id, e.b
+        FROM osm.building_import i CROSS JOIN LATERAL (SELECT ST_Extent(x.g) AS b FROM (SELECT i.geom) x(g)) e
+        WHERE i.geom IS NOT NULL),
+old AS (SELECT o.osm_type, o.osm_id, o.repaired, e.b
+        FROM (SELECT osm_type, osm_id, geom, repaired FROM osm.building
+              UNION ALL SELECT osm_type, osm_id, geom, false FROM osm.reject WHERE stage = 'ingest') o
+        CROSS JOIN LATERAL (SELECT ST_Extent(x.g) AS b FROM (SELECT o.geom) x(g)) e
+        WHERE o.geom IS NOT NULL AND (o.osm_type = 'R' OR (o.osm_type = 'W' AND o.osm_id = ANY(%(ways)s))
+                                      OR (o.osm_type, o.osm_id) IN (SELECT osm_type, osm_id FROM new))),
+moved AS (SELECT n.b, false AS repaired FROM new n
+          WHERE NOT EXISTS (SELECT 1 FROM old o WHERE (o.osm_type, o.osm_id) = (n.osm_type, n.osm_id)
+                            AND NOT o.repaired AND _same_box)
+          UNION ALL
+          SELECT o.b, o.repaired FROM old o
+          WHERE NOT EXISTS (SELECT 1 FROM new n WHERE (o.osm_type, o.osm_id) = (n.osm_type, n.osm_id)
+                            AND NOT o.repaired AND _same_box))
+SELECT EXISTS (SELECT 1 FROM box)
+   AND NOT EXISTS (SELECT 1 FROM moved m, box
+                   WHERE m.repaired OR NOT (ST_XMin(m.b) > box.x0 AND ST_XMax(m.b) < box.x1
+                                            AND ST_YMin(m.b) > box.y0 AND ST_YMax(m.b) < box.y1))
+""".replace("_same_box", _SAME_BOX)
+
+
 def _copy_rows(cur: psycopg.Cursor, statement: str, rows: Iterable[tuple[object, ...]], progress: Progress) -> None:
     with cur.copy(statement) as copy:  # type: ignore[arg-type]
         for row in rows:
@@ -285,11 +333,14 @@ def _copy_rows(cur: psycopg.Cursor, statement: str, rows: Iterable[tuple[object,
 
 
 def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | None, update: bool = False,
-        also: Callable[[psycopg.Cursor], None] | None = None) -> dict[str, object]:
+        also: Callable[[psycopg.Cursor], None] | None = None, changed: ChangeIds | None = None) -> dict[str, object]:
     """Ingest ``path`` in one transaction. Returns the counts recorded in meta.pipeline_run. A full ingest starts
     the database afresh; with ``update`` (``path`` is the OSM state after change files, etl/stages/update.py)
     only the buildings that differ are replaced and listed in osm.building_change, and what is derived from the
-    others is kept. ``also`` runs in the same transaction at its end (the update's meta.osm_change rows)."""
+    others is kept. ``also`` runs in the same transaction at its end (the update's meta.osm_change rows).
+    ``changed`` (an update of a database ingested from the state before the change files, with this code and
+    these settings): only the candidates those files touched are read again (read_buildings), unless one reaches
+    the edge of the extent (_EXTENT_KEPT): then every candidate is."""
     if not path.exists():
         raise FileNotFoundError(f"OSM file not found: {path}")
     t0 = time.perf_counter()
@@ -299,8 +350,6 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
             # not TRUNCATE: readers see the rows of before until the commit and never wait for it
             cur.execute("TRUNCATE osm.building_import")  # the staging table, read by nobody else
             cur.execute("DELETE FROM osm.building_relation")  # its members with it (ON DELETE CASCADE)
-            cur.execute("DELETE FROM osm.reject WHERE stage = 'ingest'")
-            cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'ingest'")
         else:
             # Downstream tables hold derived data of the previous dataset; they are rebuilt by later stages.
             cur.execute(
@@ -325,13 +374,26 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
                         copy.write_row((rid, seq, mtype, ref, role))
 
         progress = Progress("ingest", "buildings")
+        partial = update and changed is not None
         with _reading(path):
-            _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
+            _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts, changed if partial else None),
+                       progress)
+        if partial and not cur.execute(_EXTENT_KEPT, {"ways": sorted(changed.ways)}).fetchone()[0]:  # type: ignore
+            print("  ingest: the change reaches the edge of the data: every candidate is read again", file=sys.stderr)
+            partial, counts = False, IngestCounts(building_relations=counts.building_relations)
+            cur.execute("TRUNCATE osm.building_import")
+            with _reading(path):
+                _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts), progress)
+        if update and not partial:
+            cur.execute("DELETE FROM osm.reject WHERE stage = 'ingest'")
+            cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'ingest'")
         print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
               file=sys.stderr, flush=True)
         staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()
         assert staged is not None
-        cur.execute("CALL osm.finish_ingest(%s, %s, %s, %s)", (settings.min_area_m2, str(path), sha256, update))
+        cur.execute("CALL osm.finish_ingest(%s, %s, %s, %s, %s)",
+                    (settings.min_area_m2, str(path), sha256, update,
+                     sorted(changed.ways) if partial and changed is not None else None))
         loaded = cur.execute("SELECT count(*) FROM osm.building").fetchone()
         rejected = cur.execute(
             "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason"
@@ -339,14 +401,16 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         by_kind = dict(cur.execute("SELECT kind, count(*) FROM osm.building GROUP BY kind").fetchall())
         repaired = cur.execute("SELECT count(*) FROM osm.building WHERE repaired").fetchone()
         srid = cur.execute("SELECT srid, srid_name FROM meta.dataset").fetchone()
-        changed = dict(cur.execute("SELECT change, count(*) FROM osm.building_change GROUP BY change").fetchall())
+        changes = dict(cur.execute("SELECT change, count(*) FROM osm.building_change GROUP BY change").fetchall())
         if also is not None:
             also(cur)
     assert loaded is not None and repaired is not None and srid is not None
     n_rejected = sum(n for _, n in rejected)
-    n_in = int(staged[0])
-    if n_in != counts.candidates:
-        raise RuntimeError(f"ingest lost objects: {counts.candidates} candidates read, {n_in} staged")
+    if int(staged[0]) != counts.candidates:
+        raise RuntimeError(f"ingest lost objects: {counts.candidates} candidates read, {staged[0]} staged")
+    # a partial update read only some candidates: the others' rows are as they were, so the balance is the
+    # database's (every candidate a building or a reject, as a full ingest checks it)
+    n_in = int(loaded[0]) + n_rejected if partial else int(staged[0])
     balance = Balance("buildings and parts", n_in, {"loaded": int(loaded[0])}, n_rejected)
     seconds = time.perf_counter() - t0
     result: dict[str, object] = {
@@ -364,7 +428,9 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         "seconds": round(seconds, 3),
     }
     if update:
-        result["changed"] = {k: int(changed.get(k, 0)) for k in ("added", "modified", "deleted")}
+        result["changed"] = {k: int(changes.get(k, 0)) for k in ("added", "modified", "deleted")}
+        result["partial"] = partial  # only the candidates the change touched were read again
+        result["staged"] = int(staged[0])
     reasons = ", ".join(f"{r} {n}" for r, n in rejected) or "none"
     print(f"  working CRS: EPSG:{srid[0]} ({srid[1]}); rejects: {reasons}", file=sys.stderr)
     summary(

@@ -11,7 +11,10 @@ base file and the recorded changes, each checked against its sha256.
 Ingest then reads the new state in update mode (osm.finish_ingest with p_update): the buildings are assembled
 exactly as a full ingest would, compared with osm.building, and only the rows that differ are replaced, so a
 moved node moves every building drawn with it, a tag edit re-derives that building, and a multipolygon that lost
-a member is assembled again; osm.building_change lists them.
+a member is assembled again; osm.building_change lists them. When the database's last ingest read the state
+before the change files (same code and settings), only the ways the change files name or whose nodes they name,
+and every relation, are read again (change_ids; etl/stages/ingest.py), unless a footprint the change moved
+reaches the edge of the data (the working CRS comes from its extent).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import gzip
 import hashlib
 import os
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +34,7 @@ import psycopg
 from core.settings import REPO
 
 from ..runs import sha256_file
+from .ingest import ChangeIds
 
 STATE_DIR = REPO / "build" / "osm"
 ACTIONS = ("create", "modify", "delete")
@@ -66,10 +70,9 @@ def next_state_sha256(state_sha256: str, change_sha256: str) -> str:
     return hashlib.sha256(f"{state_sha256}\n{change_sha256}\n".encode()).hexdigest()
 
 
-def count_change(path: Path) -> dict[str, dict[str, int]]:
-    """Objects by action and type: {"create": {"node": n, "way": n, "relation": n}, "modify": ..., "delete": ...}.
-    Refuses a file that is not an osmChange document, naming the file and the reason."""
-    counts = {a: dict.fromkeys(TYPES, 0) for a in ACTIONS}
+def _objects(path: Path) -> Iterator[tuple[str, str, int]]:
+    """(action, type, id) of every object of an osmChange file, in file order. Refuses a file that is not an
+    osmChange document, naming the file and the reason."""
     opener = gzip.open if path.name.endswith(".gz") else open
     action: str | None = None
     depth = 0
@@ -84,14 +87,32 @@ def count_change(path: Path) -> dict[str, dict[str, int]]:
                     if depth == 2:
                         action = el.tag if el.tag in ACTIONS else None
                     elif depth == 3 and action is not None and el.tag in TYPES:
-                        counts[action][el.tag] += 1
+                        yield action, el.tag, int(el.get("id", "0"))
                 else:
                     depth -= 1
                     if depth <= 2:
                         el.clear()
-    except (ET.ParseError, OSError, EOFError) as e:
+    except (ET.ParseError, OSError, EOFError, ValueError) as e:
+        if isinstance(e, ChangeFileError):
+            raise
         raise ChangeFileError(f"{path}: cannot be read as an OSM change file: {e}") from e
+
+
+def count_change(path: Path) -> dict[str, dict[str, int]]:
+    """Objects by action and type: {"create": {"node": n, "way": n, "relation": n}, "modify": ..., "delete": ...}.
+    Refuses a file that is not an osmChange document, naming the file and the reason."""
+    counts = {a: dict.fromkeys(TYPES, 0) for a in ACTIONS}
+    for action, kind, _ in _objects(path):
+        counts[action][kind] += 1
     return counts
+
+
+def change_ids(paths: Iterable[Path]) -> ChangeIds:
+    ids: dict[str, set[int]] = {t: set() for t in TYPES}
+    for path in paths:
+        for _, kind, i in _objects(path):
+            ids[kind].add(i)
+    return ChangeIds(frozenset(ids["node"]), frozenset(ids["way"]), frozenset(ids["relation"]))
 
 
 def read_chain(conn: psycopg.Connection) -> Chain:

@@ -1,4 +1,4 @@
--- osm.finish_ingest(min_area_m2, source_file, source_sha256)
+-- osm.finish_ingest(min_area_m2, source_file, source_sha256, p_update, p_changed_ways)
 -- Second half of the ingest stage, set-based over the COPY staging table osm.building_import:
 --   1. closed ways become polygons (ST_MakePolygon); rings with fewer than 4 points are rejected, and so are
 --      footprints crossing the 180th meridian (crosses_antimeridian: they would span the world);
@@ -13,13 +13,20 @@
 --   7. a full ingest (the caller truncated osm.building) loads the new rows; an update (p_update) compares them
 --      with osm.building and replaces only the rows that differ (osm.building_change lists them: added,
 --      modified, deleted), so that the stages below re-derive those alone.
+--   8. a partial update (p_changed_ways not NULL: the caller staged only the candidates a change touched, every
+--      relation and the ways p_changed_ways lists or whose nodes moved, and checked that none reaches the edge of
+--      the extent, so the working CRS stays) decides the rows of those alone: the staged ones, the changed ways
+--      (one no longer a candidate goes) and every relation; their rejects and diagnostics are replaced. The part
+--      linking reads, besides them, the unchanged parts and every unchanged outline a part was or may be linked
+--      to, so each part gets the outline a full ingest would give it.
 -- The caller commits afterwards, so a run is all or nothing.
 -- Example: CALL osm.finish_ingest(1.0, 'helsinki.osm.pbf', '<sha256>');
 CREATE OR REPLACE PROCEDURE osm.finish_ingest(
     min_area_m2 double precision,
     source_file text,
     source_sha256 text,
-    p_update boolean DEFAULT false
+    p_update boolean DEFAULT false,
+    p_changed_ways bigint[] DEFAULT NULL
 )
 LANGUAGE plpgsql
 AS $$
@@ -29,6 +36,7 @@ DECLARE
     v_indexes text[] := '{}';
     v_index text;
     v_gist record;
+    v_partial boolean := p_update AND p_changed_ways IS NOT NULL;
 BEGIN
     CREATE TEMP TABLE _cand ON COMMIT DROP AS
     SELECT i.*, x.crosses,
@@ -43,6 +51,25 @@ BEGIN
     -- OSM splits what meets the 180th meridian; a footprint wider than half the world crossed it
     CROSS JOIN LATERAL (SELECT coalesce(ST_XMax(i.geom) - ST_XMin(i.geom) > 180, false) AS crosses) x;
 
+    -- in a partial update, the rows this run decides (osm.building ids: a way's id, a relation's negated)
+    CREATE TEMP TABLE _affected ON COMMIT DROP AS
+    SELECT CASE WHEN i.osm_type = 'R' THEN -i.osm_id ELSE i.osm_id END AS id, i.osm_type, i.osm_id
+    FROM osm.building_import i WHERE v_partial
+    UNION SELECT w, 'W', w FROM unnest(p_changed_ways) w WHERE v_partial
+    UNION SELECT b.id, b.osm_type, b.osm_id FROM osm.building b WHERE v_partial AND b.osm_type = 'R'
+    UNION SELECT -r.osm_id, r.osm_type, r.osm_id FROM osm.reject r
+          WHERE v_partial AND r.stage = 'ingest' AND r.osm_type = 'R';
+    CREATE UNIQUE INDEX ON _affected (id);
+    ANALYZE _affected;
+    IF v_partial THEN
+        DELETE FROM osm.reject r USING _affected a
+        WHERE r.stage = 'ingest' AND r.osm_type = a.osm_type AND r.osm_id = a.osm_id;
+        DELETE FROM meta.diagnostic d USING _affected a
+        WHERE d.stage = 'ingest' AND d.osm_type = a.osm_type AND d.osm_id = a.osm_id;
+        -- the extent, hence the working CRS, is as it was (the caller checked it)
+        UPDATE meta.dataset SET source_file = finish_ingest.source_file, source_sha256 = finish_ingest.source_sha256;
+        SELECT d.srid INTO v_srid FROM meta.dataset d;
+    ELSE
     SELECT ST_Centroid(ST_Extent(poly)::geometry) INTO v_centre FROM _cand WHERE poly IS NOT NULL;
     IF v_centre IS NULL THEN
         v_srid := 4326;  -- nothing loadable; keep a valid row in meta.dataset
@@ -59,6 +86,7 @@ BEGIN
            -- always a polygon: the extent of a single zero-area building is a line or a point as a geometry
            (SELECT ST_MakeEnvelope(ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), 4326)
             FROM (SELECT ST_Extent(poly) AS e FROM _cand WHERE poly IS NOT NULL) x WHERE e IS NOT NULL);
+    END IF;
 
     CREATE TEMP TABLE _fixed ON COMMIT DROP AS
     SELECT s.*, CASE WHEN s.fixed IS NOT NULL AND NOT ST_IsEmpty(s.fixed)
@@ -97,6 +125,31 @@ BEGIN
     FROM _fixed f
     WHERE f.fixed_local IS NOT NULL AND NOT ST_IsEmpty(f.fixed_local)
       AND ST_Area(f.fixed_local) >= min_area_m2;
+    IF v_partial THEN
+        -- the unchanged rows the part linking reads: every part, the outlines of type=building relations, the
+        -- outlines parts were linked to and those covering a part's point (their links as a full ingest starts them)
+        INSERT INTO _building (
+            id, osm_type, osm_id, kind, building, part, name, height, min_height, levels, min_level,
+            roof_levels, roof_height, roof_angle, roof_shape, roof_direction, roof_orientation,
+            building_colour, roof_colour, building_material, roof_material, tags,
+            geom, geom_local, area_m2, repaired, repair_reason)
+        SELECT o.id, o.osm_type, o.osm_id, o.kind, o.building, o.part, o.name, o.height, o.min_height, o.levels,
+               o.min_level, o.roof_levels, o.roof_height, o.roof_angle, o.roof_shape, o.roof_direction,
+               o.roof_orientation, o.building_colour, o.roof_colour, o.building_material, o.roof_material, o.tags,
+               o.geom, o.geom_local, o.area_m2, o.repaired, o.repair_reason
+        FROM osm.building o
+        WHERE o.id IN (
+            SELECT p.id FROM osm.building p WHERE p.kind = 'part'
+            UNION SELECT p.parent_id FROM osm.building p WHERE p.parent_id IS NOT NULL
+            UNION SELECT b.id FROM osm.building b JOIN osm.building_relation_member m
+                  ON m.role = 'outline' AND m.member_type = b.osm_type AND m.member_id = b.osm_id
+            UNION SELECT c.id
+                  FROM (SELECT p.geom_local FROM osm.building p WHERE p.kind = 'part'
+                        UNION ALL SELECT p.geom_local FROM _building p WHERE p.kind = 'part') p
+                  CROSS JOIN LATERAL (SELECT b.id FROM osm.building b WHERE b.kind = 'building'
+                                      AND ST_Covers(b.geom_local, ST_PointOnSurface(p.geom_local))) c)
+          AND NOT EXISTS (SELECT 1 FROM _affected a WHERE a.id = o.id);
+    END IF;
     CREATE INDEX ON _building USING gist (geom_local);
     CREATE UNIQUE INDEX ON _building (id);
     -- Statistics for the part-linking join below: without them the planner paired every building with every
@@ -136,7 +189,9 @@ BEGIN
     WHERE i.tag_issues IS NOT NULL
     UNION ALL
     SELECT 'ingest', b.osm_type, b.osm_id, 'geometry_repaired', b.repair_reason
-    FROM _building b WHERE b.repaired;
+    FROM _building b
+    -- not the unchanged rows a partial update read for the linking: their diagnostics stay
+    WHERE b.repaired AND (NOT v_partial OR EXISTS (SELECT 1 FROM _affected a WHERE a.id = b.id));
 
     -- Parts named by a type=building relation belong to that relation's outline.
     UPDATE _building p
@@ -199,7 +254,10 @@ BEGIN
         INSERT INTO osm.building_change (id, change)
         SELECT coalesce(n.id, o.id),
                CASE WHEN o.id IS NULL THEN 'added' WHEN n.id IS NULL THEN 'deleted' ELSE 'modified' END
-        FROM _building n FULL JOIN osm.building o ON o.id = n.id
+        FROM _building n
+        FULL JOIN (SELECT * FROM osm.building b
+                   WHERE NOT v_partial OR b.id IN (SELECT a.id FROM _affected a UNION ALL SELECT k.id FROM _building k)) o
+          ON o.id = n.id
         WHERE n.id IS NULL OR o.id IS NULL OR
                (n.osm_type, n.osm_id, n.kind, n.building, n.part, n.name, n.height, n.min_height, n.levels,
                 n.min_level, n.roof_levels, n.roof_height, n.roof_angle, n.roof_shape, n.roof_direction,
@@ -232,5 +290,5 @@ BEGIN
     TRUNCATE osm.building_import;
 END
 $$;
-COMMENT ON PROCEDURE osm.finish_ingest(double precision, text, text, boolean) IS
-    'Turns the ingest staging table into osm.building and osm.reject: polygons, working CRS, repair, part linking.';
+COMMENT ON PROCEDURE osm.finish_ingest(double precision, text, text, boolean, bigint[]) IS
+    'Turns the ingest staging table into osm.building and osm.reject: polygons, working CRS, repair, part linking; in an update only the rows that differ, in a partial one only those of the candidates staged. Example: CALL osm.finish_ingest(1.0, ''helsinki.osm.pbf'', ''<sha256>'');';

@@ -17,39 +17,24 @@ import pytest
 
 from benchmarks.update_bench import TABLES, Reader, table_rows
 from core.db import analyze
+from core.settings import Settings
 from etl.dirty import tiles_since
-from etl.stages import update
+from etl.stages import ingest, update
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
 #: node ids 170001-, way ids 17001- (the numbering of tests/fixtures: fixture 170 is this test's own)
-CHANGE_1 = """<?xml version="1.0" encoding="UTF-8"?>
-<osmChange version="0.6" generator="citylod tests">
-  <modify>
-    <!-- the square's north-east corner moves 3 m east: building 10001 moves with it -->
+#: the square's north-east corner moves 3 m east (building 10001 moves with it), and a tag edit: 4 -> 6 levels
+MOVE_AND_RETAG = """
     <node id="100003" version="2" lat="60.2001795" lon="24.9004157"/>
-    <!-- a tag edit: 4 -> 6 levels -->
     <way id="11001" version="2">
       <nd ref="110001"/><nd ref="110002"/><nd ref="110003"/><nd ref="110004"/><nd ref="110005"/>
       <nd ref="110006"/><nd ref="110001"/>
       <tag k="building" v="residential"/><tag k="building:levels" v="6"/><tag k="roof:shape" v="flat"/>
       <tag k="name" v="L 110"/>
-    </way>
-  </modify>
-  <delete>
-    <way id="13003" version="2"/>
-  </delete>
-  <create>
-    <!-- a new building east of the others -->
-    <node id="170001" version="1" lat="60.2000000" lon="24.9060000"/>
-    <node id="170002" version="1" lat="60.2000000" lon="24.9062000"/>
-    <node id="170003" version="1" lat="60.2001000" lon="24.9062000"/>
-    <node id="170004" version="1" lat="60.2001000" lon="24.9060000"/>
-    <way id="17001" version="1">
-      <nd ref="170001"/><nd ref="170002"/><nd ref="170003"/><nd ref="170004"/><nd ref="170001"/>
-      <tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>
-    </way>
-    <!-- the L gains a building:part in its corner -->
+    </way>"""
+#: the L gains a building:part in its corner
+NEW_PART = """
     <node id="170011" version="1" lat="60.2000200" lon="24.9027500"/>
     <node id="170012" version="1" lat="60.2000200" lon="24.9028500"/>
     <node id="170013" version="1" lat="60.2000700" lon="24.9028500"/>
@@ -57,10 +42,27 @@ CHANGE_1 = """<?xml version="1.0" encoding="UTF-8"?>
     <way id="17002" version="1">
       <nd ref="170011"/><nd ref="170012"/><nd ref="170013"/><nd ref="170014"/><nd ref="170011"/>
       <tag k="building:part" v="yes"/><tag k="height" v="30"/>
-    </way>
-  </create>
-</osmChange>
-"""
+    </way>"""
+#: a new building east of the others
+NEW_HOUSE = """
+    <node id="170001" version="1" lat="60.2000000" lon="24.9060000"/>
+    <node id="170002" version="1" lat="60.2000000" lon="24.9062000"/>
+    <node id="170003" version="1" lat="60.2001000" lon="24.9062000"/>
+    <node id="170004" version="1" lat="60.2001000" lon="24.9060000"/>
+    <way id="17001" version="1">
+      <nd ref="170001"/><nd ref="170002"/><nd ref="170003"/><nd ref="170004"/><nd ref="170001"/>
+      <tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>
+    </way>"""
+
+
+def osm_change(modify: str = "", delete: str = "", create: str = "") -> str:
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6" generator="citylod tests">\n'
+            + "".join(f"  <{a}>{body}\n  </{a}>\n" for a, body in (("modify", modify), ("delete", delete),
+                                                                  ("create", create)) if body)
+            + "</osmChange>\n")
+
+
+CHANGE_1 = osm_change(MOVE_AND_RETAG, '\n    <way id="13003" version="2"/>', NEW_HOUSE + NEW_PART)
 
 #: the courtyard multipolygon loses its inner ring (and the ring's way goes)
 CHANGE_2 = """<?xml version="1.0" encoding="UTF-8"?>
@@ -77,6 +79,40 @@ CHANGE_2 = """<?xml version="1.0" encoding="UTF-8"?>
   </delete>
 </osmChange>
 """
+
+#: inside the data's extent (the working CRS stays, so an update reads only what the change touched): a moved node,
+#: a tag edit, the L gaining a part, and the outline of the parts fixture going (its two parts, unchanged, lose it)
+#: a part in the repaired bow tie (fixture 900: a repaired outline read again for the linking)
+PART_IN_BOWTIE = """
+    <node id="170021" version="1" lat="60.2000350" lon="25.1171950"/>
+    <node id="170022" version="1" lat="60.2000350" lon="25.1172050"/>
+    <node id="170023" version="1" lat="60.2000450" lon="25.1172050"/>
+    <node id="170024" version="1" lat="60.2000450" lon="25.1171950"/>
+    <way id="17003" version="1">
+      <nd ref="170021"/><nd ref="170022"/><nd ref="170023"/><nd ref="170024"/><nd ref="170021"/>
+      <tag k="building:part" v="yes"/><tag k="height" v="3"/>
+    </way>"""
+CHANGE_INSIDE = osm_change(MOVE_AND_RETAG, '\n    <way id="13001" version="2"/>', NEW_PART + PART_IN_BOWTIE)
+
+#: two small buildings south-west and north-east of the fixtures (which all stand on one parallel, the edge of
+#: their extent), so that CHANGE_INSIDE moves no footprint on the edge of the data
+FRAME = osm_change(create="""
+    <node id="171001" version="1" lat="60.1990000" lon="24.8990000"/>
+    <node id="171002" version="1" lat="60.1990000" lon="24.8991000"/>
+    <node id="171003" version="1" lat="60.1990500" lon="24.8991000"/>
+    <node id="171004" version="1" lat="60.1990500" lon="24.8990000"/>
+    <way id="17101" version="1">
+      <nd ref="171001"/><nd ref="171002"/><nd ref="171003"/><nd ref="171004"/><nd ref="171001"/>
+      <tag k="building" v="shed"/>
+    </way>
+    <node id="171011" version="1" lat="60.2020000" lon="25.1200000"/>
+    <node id="171012" version="1" lat="60.2020000" lon="25.1201000"/>
+    <node id="171013" version="1" lat="60.2020500" lon="25.1201000"/>
+    <node id="171014" version="1" lat="60.2020500" lon="25.1200000"/>
+    <way id="17102" version="1">
+      <nd ref="171011"/><nd ref="171012"/><nd ref="171013"/><nd ref="171014"/><nd ref="171011"/>
+      <tag k="building" v="shed"/>
+    </way>""")
 
 EXPECTED_CHANGES = {
     1: {10001: "modified", 11001: "modified", 13003: "deleted", 13001: "modified", 17001: "added",
@@ -293,6 +329,11 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
             (n,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
+            (ing,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'ingest' "
+                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
+            # the first change adds a building beyond the extent (a new working CRS may follow): every candidate
+            # is read again; the second reads only what it touched (every relation, of which the courtyard)
+            assert ing["partial"] == (seq == 2) and (ing["staged"] < n) == (seq == 2), ing
             assert lod["changed_only"] and 0 < lod["in"] < n, "lod drew the changed buildings (and kin) alone"
 
     merged = tmp_path / "merged.osm.pbf"
@@ -383,6 +424,39 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
 
 
 @pytest.mark.db
+def test_an_update_reads_only_what_its_change_touched(fixtures_city: City, new_db: Callable[[str], str],
+                                                      tmp_path: Path) -> None:
+    """Ingest in an update stages only the ways the change names or whose nodes it moves (and every relation);
+    the part linking still finds what a full ingest of the new state finds."""
+    frame, change = tmp_path / "frame.osc", tmp_path / "inside.osc"
+    frame.write_text(FRAME)
+    change.write_text(CHANGE_INSIDE)
+    base, state = tmp_path / "base.osm.pbf", tmp_path / "state.osm.pbf"
+    apply_changes(fixtures_city.osm, [frame], base)
+    apply_changes(base, [change], state)
+    inc = new_db("partial_inc")
+    run_etl(inc, "ingest", "--osm", str(base))
+    with psycopg.connect(inc) as conn:
+        (n_before,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
+        counts = ingest.run(conn, state, Settings.from_env(), "x", update=True, changed=update.change_ids([change]))
+        changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
+    assert counts["partial"] and counts["staged"] < n_before / 2, counts
+    # the parts of the outline that went are unchanged ways, linked again (to nothing); the L's new part is linked
+    assert changed == {10001: "modified", 11001: "modified", 13001: "deleted", 13002: "modified",
+                       13003: "modified", 17002: "added", 17003: "added", 90002: "modified"}, changed
+    full = new_db("partial_full")
+    run_etl(full, "ingest", "--osm", str(state))
+    with psycopg.connect(inc) as a, psycopg.connect(full) as b:
+        for table in ("osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member",
+                      "meta.dataset", "meta.diagnostic"):
+            ra, rb = table_rows(a, table), table_rows(b, table)
+            assert ra == rb, (table, len(ra), len(rb), sorted(set(ra) ^ set(rb))[:3])
+        assert a.execute("SELECT parent_id FROM osm.building WHERE id = 17002").fetchone() == (11001,)
+        assert a.execute("SELECT n_parts FROM osm.building WHERE id = 11001").fetchone() == (1,)
+        assert a.execute("SELECT b.parent_id, o.repaired FROM osm.building b JOIN osm.building o ON o.id = b.parent_id "
+                         "WHERE b.id = 17003").fetchone() == (90002, True)
+
+
 def test_a_small_write_leaves_the_statistics_to_autovacuum(new_db: Callable[[str], str]) -> None:
     """core.db.analyze, which every stage of an update calls for the tables it wrote: an update of a few rows
     skips the ANALYZE (0.1 to 0.4 s a table of meshes), a larger write and a full run (written None) do not."""

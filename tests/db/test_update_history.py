@@ -81,6 +81,8 @@ def test_real_creations_update_equals_a_full_rebuild(new_db: Callable[[str], str
     assert "added" in changed.values() and "deleted" not in changed.values(), changed
     assert after - before == sum(c == "added" for c in changed.values()) and len(changed) < after / 10
     assert runs["lod"]["changed_only"], "lod drew the changed buildings alone"
+    # ingest read again only the candidates the change touched (its parts linked into outlines it did not touch)
+    assert runs["ingest"]["partial"] and runs["ingest"]["staged"] < after / 2, runs["ingest"]
     # the block tiles above the new buildings are made again, but their clusters the change missed are kept
     assert runs["generalize"]["batches"]["blocks_kept"] > 0, runs["generalize"]["batches"]
     assert 0 < runs["textures"]["tiles_kept"] < runs["textures"]["tiles"], runs["textures"]
