@@ -252,7 +252,8 @@ def _reused(url: str, last: int) -> dict[str, Any]:
         runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
                                  "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id", (last,)).fetchall())
     gen = runs.get("generalize", {})
-    return {"generalize": gen.get("batches") and {**gen["batches"], "hierarchy_tiles": gen.get("hierarchy_tiles")},
+    return {"ingest": {k: runs.get("ingest", {}).get(k) for k in ("in", "staged", "partial")},
+            "generalize": gen.get("batches") and {**gen["batches"], "hierarchy_tiles": gen.get("hierarchy_tiles")},
             "textures": {k: runs.get("textures", {}).get(k)
                          for k in ("tiles", "tiles_kept", "tiles_redrawn", "tiles_fingerprinted", "features",
                                    "features_textured")},
@@ -477,13 +478,17 @@ def section(s: dict[str, Any] | None) -> list[str]:
     pub = s.get("published") or {}
     r = s.get("reused") or {}
     g, t, e = r.get("generalize") or {}, r.get("textures") or {}, r.get("export") or {}
+    i = r.get("ingest") or {}
+    read = (f"reads the OSM state again (libosmium's pass over the whole file) but stages only the candidates the "
+            f"change touched ({_n(i.get('staged'))} of {_n(i.get('in'))}: the ways it names or whose nodes it moved, "
+            "and every relation)" if i.get("partial") else "reads the whole OSM state")
 
     def batches(step: str) -> str:
         b = g.get(step) or {}
         return f"{b.get('computed', '?')} of {b.get('computed', 0) + b.get('kept', 0) or '?'}"
 
     out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
-            "of its one process, applying the change file included. The update: ingest reads the whole OSM state "
+            f"of its one process, applying the change file included. The update: ingest {read} "
             "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
             "alone; landmarks and tiles run over the whole city again; generalize computes the footprint and "
             f"decimation batches and the block tiles whose input changed ({batches('footprints')}, "
