@@ -6,6 +6,7 @@ successful run recorded with today's (etl/dag.py) and skips, in one line, when t
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import contextlib
 import importlib
 import json
@@ -195,7 +196,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     up.apply_changes(previous, [f for f, _, _ in new], state)
     shas = [c.sha256 for c in chain.changes] + [sha for _, sha, _ in new]
     file = {"path": str(chain.base_file), "sha256": chain.base_sha256, "changes": shas}
-    below = ("lod", "landmarks", "tiles", "generalize", "textures")
+    below = [stage for step in _UPDATE_STEPS for stage in step]
     # the ingest that made the database read the state before these changes, with this code and these settings:
     # only what the changes touched need be read again (etl/stages/ingest.py)
     before = {"path": str(chain.base_file), "sha256": chain.base_sha256,
@@ -259,10 +260,16 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                     record_dirty(conn, carried.run_id, Dirty())  # it changed nothing
                 print(f"{stage}: unchanged by the update; run {last[0]} carried over", file=sys.stderr)
         else:
-            for stage in below:
-                rc = cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
-                                                  current_before=stage in current), settings)
-                if rc:
+            def one(stage: str) -> int:
+                return cmd_stage(argparse.Namespace(command=stage, if_stale=True, update=True,
+                                                    current_before=stage in current), settings)
+
+            # landmarks and tiles read only what lod and ingest wrote (etl/dag.py GRAPH) and write apart, so they
+            # run side by side: a whole-city pass each, on the two cores of a small machine
+            for step in _UPDATE_STEPS:
+                with concurrent.futures.ThreadPoolExecutor(len(step)) as pool:
+                    rcs = list(pool.map(one, step))
+                if rc := next((r for r in rcs if r), 0):
                     return rc
     if args.out:
         # reached: only the tiles the update's runs reached are fingerprinted (etl/dirty.py); a plain export
@@ -272,6 +279,9 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                                              if_stale=True, reached=True), settings)
     return 0
 
+
+#: The stages below ingest in an update, in order; the stages of a step run at once (none reads another's tables).
+_UPDATE_STEPS = (("lod",), ("landmarks", "tiles"), ("generalize",), ("textures",))
 
 #: The modules whose functions an update's stages send to the workers (imported there while ingest runs).
 _WARM = ("etl.stages.lod", "etl.stages.generalize", "etl.stages.textures")

@@ -103,3 +103,14 @@ def test_differences_name_what_changed() -> None:
     assert differences(rec, {**rec, "settings": {"level_height_m": 3.5}}) == ["settings level_height_m 3.0 -> 3.5"]
     assert differences(rec, {**rec, "code": {"a.py": "y", "b.sql": "z"}}) == ["code changed: a.py, b.sql"]
     assert differences(rec, {**rec, "file": {"path": "/a.osm", "sha256": "s2"}}) == ["file sha256 s1 -> s2"]
+
+
+def test_an_update_runs_at_once_only_stages_that_read_nothing_of_each_other() -> None:
+    from etl.__main__ import _UPDATE_STEPS
+
+    order = [stage for step in _UPDATE_STEPS for stage in step]
+    assert order == list(GRAPH)[1:-1]  # every stage between ingest and the export, in pipeline order
+    for step in _UPDATE_STEPS:
+        for stage in step:
+            assert not set(ancestors(GRAPH[stage])) & set(step), (stage, step)
+    assert ("landmarks", "tiles") in _UPDATE_STEPS
