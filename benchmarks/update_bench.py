@@ -441,7 +441,7 @@ def section(s: dict[str, Any] | None) -> list[str]:
            f"pipeline built. Command: `python -m benchmarks.update_bench --write BENCHMARKS.md`"
            + (f" (machine: {s['machine']})" if s.get("machine") else "") + ". Target: the "
            f"update ≤ 5 % of the full rebuild. Measured: {s['update_wall_s']:.1f} s against "
-           f"{s['full_total_s']:.1f} s, {100 * ratio:.0f} %. osm.building_change: "
+           f"{s['full_total_s']:.1f} s, {100 * ratio:.1f} %. osm.building_change: "
            + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + "." + _wal(s), ""]
     out += markdown_table(["stage", "full rebuild s", "update s"],
                           [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
@@ -613,7 +613,7 @@ def section_larger(s: dict[str, Any] | None) -> list[str]:
            + " (the file: `python -m benchmarks.replicate "
            "../shared/data/osm/liechtenstein_2022-07-24.osm.pbf 6 …`, as the scale bench makes it). Measured: "
            f"{s['update_wall_s']:.1f} s against {s['full_total_s']:.1f} s, "
-           f"{100 * s['update_wall_s'] / s['full_total_s']:.0f} % (target on the benchmark extract: ≤ 5 %); "
+           f"{100 * s['update_wall_s'] / s['full_total_s']:.1f} % (target on the benchmark extract: ≤ 5 %); "
            f"textures made {(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of {t.get('tiles', '?')} "
            f"tiles again, the export built {e.get('glb_built', '?')} of {e.get('glb', '?')} glbs." + _wal(s), ""]
     out += markdown_table(["stage", "full rebuild s", "update s"],
