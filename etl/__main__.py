@@ -195,12 +195,11 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     state = up.state_path(state_sha)
     up.apply_changes(previous, [f for f, _, _ in new], state)
     shas = [c.sha256 for c in chain.changes] + [sha for _, sha, _ in new]
-    file = {"path": str(chain.base_file), "sha256": chain.base_sha256, "changes": shas}
+    file = up.file_input(chain, shas)
     below = [stage for step in _UPDATE_STEPS for stage in step]
     # the ingest that made the database read the state before these changes, with this code and these settings:
     # only what the changes touched need be read again (etl/stages/ingest.py)
-    before = {"path": str(chain.base_file), "sha256": chain.base_sha256,
-              **({"changes": [c.sha256 for c in chain.changes]} if chain.changes else {})}
+    before = up.file_input(chain, [c.sha256 for c in chain.changes])
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
         touched = up.change_ids(f for f, _, _ in new) if dag.verdict(

@@ -47,12 +47,12 @@ _TYPE_CHAR = {"n": "N", "w": "W", "r": "R"}
 
 @dataclass(frozen=True)
 class ChangeIds:
-    """The nodes, ways and relations change files create, modify or delete: what an update's ingest reads again
-    (read_buildings: a way is staged again when it is one of ``ways`` or uses one of ``nodes``)."""
+    """The nodes and ways change files create, modify or delete: what an update's ingest reads again
+    (read_buildings: a way is staged again when it is one of ``ways`` or uses one of ``nodes``; every relation
+    is, whatever the files name)."""
 
     nodes: frozenset[int]
     ways: frozenset[int]
-    relations: frozenset[int]
 
 
 @dataclass
@@ -292,8 +292,6 @@ def _reject(
     return _row(osm_type, osm_id, parsed, tags, None, None, (reason, detail))
 
 
-_SAME_BOX = ("ST_XMin(o.b) = ST_XMin(n.b) AND ST_YMin(o.b) = ST_YMin(n.b) AND ST_XMax(o.b) = ST_XMax(n.b) "
-             "AND ST_YMax(o.b) = ST_YMax(n.b)")
 #: A partial update keeps the working CRS, which the centre of the footprints' extent chose, and the extent: true
 #: when every footprint the change touched whose box moved (the box ST_Extent takes of it, as the full ingest's
 #: extent is made of them), before (a staged or changed way's row, every relation's, their rejects') and after it
@@ -302,27 +300,25 @@ _SAME_BOX = ("ST_XMin(o.b) = ST_XMin(n.b) AND ST_YMin(o.b) = ST_YMin(n.b) AND ST
 _EXTENT_KEPT = """
 WITH box AS (SELECT ST_XMin(bbox) AS x0, ST_YMin(bbox) AS y0, ST_XMax(bbox) AS x1, ST_YMax(bbox) AS y1
              FROM meta.dataset WHERE bbox IS NOT NULL),
-new AS (SELECT i.osm_type, i.osm_id, e.b
+new AS (SELECT i.osm_type, i.osm_id, ST_XMin(e.b) AS x0, ST_YMin(e.b) AS y0, ST_XMax(e.b) AS x1, ST_YMax(e.b) AS y1
         FROM osm.building_import i CROSS JOIN LATERAL (SELECT ST_Extent(x.g) AS b FROM (SELECT i.geom) x(g)) e
         WHERE i.geom IS NOT NULL),
-old AS (SELECT o.osm_type, o.osm_id, o.repaired, e.b
+old AS (SELECT o.osm_type, o.osm_id, o.repaired, ST_XMin(e.b) AS x0, ST_YMin(e.b) AS y0, ST_XMax(e.b) AS x1,
+               ST_YMax(e.b) AS y1
         FROM (SELECT osm_type, osm_id, geom, repaired FROM osm.building
               UNION ALL SELECT osm_type, osm_id, geom, false FROM osm.reject WHERE stage = 'ingest') o
         CROSS JOIN LATERAL (SELECT ST_Extent(x.g) AS b FROM (SELECT o.geom) x(g)) e
         WHERE o.geom IS NOT NULL AND (o.osm_type = 'R' OR (o.osm_type = 'W' AND o.osm_id = ANY(%(ways)s))
                                       OR (o.osm_type, o.osm_id) IN (SELECT osm_type, osm_id FROM new))),
-moved AS (SELECT n.b, false AS repaired FROM new n
-          WHERE NOT EXISTS (SELECT 1 FROM old o WHERE (o.osm_type, o.osm_id) = (n.osm_type, n.osm_id)
-                            AND NOT o.repaired AND _same_box)
+same AS (SELECT n.osm_type, n.osm_id FROM new n JOIN old o USING (osm_type, osm_id, x0, y0, x1, y1)
+         WHERE NOT o.repaired),
+moved AS (SELECT x0, y0, x1, y1, false AS repaired FROM new WHERE (osm_type, osm_id) NOT IN (SELECT * FROM same)
           UNION ALL
-          SELECT o.b, o.repaired FROM old o
-          WHERE NOT EXISTS (SELECT 1 FROM new n WHERE (o.osm_type, o.osm_id) = (n.osm_type, n.osm_id)
-                            AND NOT o.repaired AND _same_box))
+          SELECT x0, y0, x1, y1, repaired FROM old WHERE (osm_type, osm_id) NOT IN (SELECT * FROM same))
 SELECT EXISTS (SELECT 1 FROM box)
    AND NOT EXISTS (SELECT 1 FROM moved m, box
-                   WHERE m.repaired OR NOT (ST_XMin(m.b) > box.x0 AND ST_XMax(m.b) < box.x1
-                                            AND ST_YMin(m.b) > box.y0 AND ST_YMax(m.b) < box.y1))
-""".replace("_same_box", _SAME_BOX)
+                   WHERE m.repaired OR NOT (m.x0 > box.x0 AND m.x1 < box.x1 AND m.y0 > box.y0 AND m.y1 < box.y1))
+"""
 
 
 def _copy_rows(cur: psycopg.Cursor, statement: str, rows: Iterable[tuple[object, ...]], progress: Progress) -> None:
@@ -375,10 +371,11 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
 
         progress = Progress("ingest", "buildings")
         partial = update and changed is not None
+        ways = sorted(changed.ways) if changed is not None else None
         with _reading(path):
             _copy_rows(cur, _COPY_IMPORT, read_buildings(path, settings, counts, changed if partial else None),
                        progress)
-        if partial and not cur.execute(_EXTENT_KEPT, {"ways": sorted(changed.ways)}).fetchone()[0]:  # type: ignore
+        if partial and not cur.execute(_EXTENT_KEPT, {"ways": ways}).fetchone()[0]:  # type: ignore[index]
             print("  ingest: the change reaches the edge of the data: every candidate is read again", file=sys.stderr)
             partial, counts = False, IngestCounts(building_relations=counts.building_relations)
             cur.execute("TRUNCATE osm.building_import")
@@ -392,8 +389,7 @@ def run(conn: psycopg.Connection, path: Path, settings: Settings, sha256: str | 
         staged = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()
         assert staged is not None
         cur.execute("CALL osm.finish_ingest(%s, %s, %s, %s, %s)",
-                    (settings.min_area_m2, str(path), sha256, update,
-                     sorted(changed.ways) if partial and changed is not None else None))
+                    (settings.min_area_m2, str(path), sha256, update, ways if partial else None))
         loaded = cur.execute("SELECT count(*) FROM osm.building").fetchone()
         rejected = cur.execute(
             "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason"

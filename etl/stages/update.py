@@ -112,7 +112,13 @@ def change_ids(paths: Iterable[Path]) -> ChangeIds:
     for path in paths:
         for _, kind, i in _objects(path):
             ids[kind].add(i)
-    return ChangeIds(frozenset(ids["node"]), frozenset(ids["way"]), frozenset(ids["relation"]))
+    return ChangeIds(frozenset(ids["node"]), frozenset(ids["way"]))
+
+
+def file_input(chain: Chain, shas: list[str]) -> dict[str, object]:
+    """What an ingest of the state ``chain``'s base file plus the changes ``shas`` records as its input file (as a
+    full ingest of the base file records it when there are none)."""
+    return {"path": str(chain.base_file), "sha256": chain.base_sha256, **({"changes": shas} if shas else {})}
 
 
 def read_chain(conn: psycopg.Connection) -> Chain:

@@ -70,22 +70,22 @@ BEGIN
         UPDATE meta.dataset SET source_file = finish_ingest.source_file, source_sha256 = finish_ingest.source_sha256;
         SELECT d.srid INTO v_srid FROM meta.dataset d;
     ELSE
-    SELECT ST_Centroid(ST_Extent(poly)::geometry) INTO v_centre FROM _cand WHERE poly IS NOT NULL;
-    IF v_centre IS NULL THEN
-        v_srid := 4326;  -- nothing loadable; keep a valid row in meta.dataset
-    ELSE
-        v_srid := meta.utm_srid(ST_X(v_centre), ST_Y(v_centre));
-    END IF;
+        SELECT ST_Centroid(ST_Extent(poly)::geometry) INTO v_centre FROM _cand WHERE poly IS NOT NULL;
+        IF v_centre IS NULL THEN
+            v_srid := 4326;  -- nothing loadable; keep a valid row in meta.dataset
+        ELSE
+            v_srid := meta.utm_srid(ST_X(v_centre), ST_Y(v_centre));
+        END IF;
 
-    DELETE FROM meta.dataset;
-    INSERT INTO meta.dataset (srid, srid_name, source_file, source_sha256, bbox)
-    SELECT v_srid,
-           coalesce((SELECT split_part(split_part(srtext, '"', 2), '"', 1) FROM spatial_ref_sys WHERE srid = v_srid),
-                    'EPSG:' || v_srid),
-           source_file, source_sha256,
-           -- always a polygon: the extent of a single zero-area building is a line or a point as a geometry
-           (SELECT ST_MakeEnvelope(ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), 4326)
-            FROM (SELECT ST_Extent(poly) AS e FROM _cand WHERE poly IS NOT NULL) x WHERE e IS NOT NULL);
+        DELETE FROM meta.dataset;
+        INSERT INTO meta.dataset (srid, srid_name, source_file, source_sha256, bbox)
+        SELECT v_srid,
+               coalesce((SELECT split_part(split_part(srtext, '"', 2), '"', 1) FROM spatial_ref_sys
+                         WHERE srid = v_srid), 'EPSG:' || v_srid),
+               source_file, source_sha256,
+               -- always a polygon: the extent of a single zero-area building is a line or a point as a geometry
+               (SELECT ST_MakeEnvelope(ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), 4326)
+                FROM (SELECT ST_Extent(poly) AS e FROM _cand WHERE poly IS NOT NULL) x WHERE e IS NOT NULL);
     END IF;
 
     CREATE TEMP TABLE _fixed ON COMMIT DROP AS
@@ -256,7 +256,8 @@ BEGIN
                CASE WHEN o.id IS NULL THEN 'added' WHEN n.id IS NULL THEN 'deleted' ELSE 'modified' END
         FROM _building n
         FULL JOIN (SELECT * FROM osm.building b
-                   WHERE NOT v_partial OR b.id IN (SELECT a.id FROM _affected a UNION ALL SELECT k.id FROM _building k)) o
+                   WHERE NOT v_partial
+                      OR b.id IN (SELECT a.id FROM _affected a UNION ALL SELECT k.id FROM _building k)) o
           ON o.id = n.id
         WHERE n.id IS NULL OR o.id IS NULL OR
                (n.osm_type, n.osm_id, n.kind, n.building, n.part, n.name, n.height, n.min_height, n.levels,

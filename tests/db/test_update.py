@@ -23,6 +23,16 @@ from etl.stages import ingest, update
 from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
+
+def square(way: int, node: int, south: float, west: float, north: float, east: float, tags: str) -> str:
+    """A closed way of four new nodes (``node`` to ``node + 3``, anticlockwise from the south-west corner)."""
+    corners = [(south, west), (south, east), (north, east), (north, west)]
+    nodes = "".join(f'\n    <node id="{node + i}" version="1" lat="{lat:.7f}" lon="{lon:.7f}"/>'
+                    for i, (lat, lon) in enumerate(corners))
+    refs = "".join(f'<nd ref="{node + i}"/>' for i in (0, 1, 2, 3, 0))
+    return f'{nodes}\n    <way id="{way}" version="1">\n      {refs}\n      {tags}\n    </way>'
+
+
 #: node ids 170001-, way ids 17001- (the numbering of tests/fixtures: fixture 170 is this test's own)
 #: the square's north-east corner moves 3 m east (building 10001 moves with it), and a tag edit: 4 -> 6 levels
 MOVE_AND_RETAG = """
@@ -34,25 +44,11 @@ MOVE_AND_RETAG = """
       <tag k="name" v="L 110"/>
     </way>"""
 #: the L gains a building:part in its corner
-NEW_PART = """
-    <node id="170011" version="1" lat="60.2000200" lon="24.9027500"/>
-    <node id="170012" version="1" lat="60.2000200" lon="24.9028500"/>
-    <node id="170013" version="1" lat="60.2000700" lon="24.9028500"/>
-    <node id="170014" version="1" lat="60.2000700" lon="24.9027500"/>
-    <way id="17002" version="1">
-      <nd ref="170011"/><nd ref="170012"/><nd ref="170013"/><nd ref="170014"/><nd ref="170011"/>
-      <tag k="building:part" v="yes"/><tag k="height" v="30"/>
-    </way>"""
+NEW_PART = square(17002, 170011, 60.20002, 24.90275, 60.20007, 24.90285,
+                  '<tag k="building:part" v="yes"/><tag k="height" v="30"/>')
 #: a new building east of the others
-NEW_HOUSE = """
-    <node id="170001" version="1" lat="60.2000000" lon="24.9060000"/>
-    <node id="170002" version="1" lat="60.2000000" lon="24.9062000"/>
-    <node id="170003" version="1" lat="60.2001000" lon="24.9062000"/>
-    <node id="170004" version="1" lat="60.2001000" lon="24.9060000"/>
-    <way id="17001" version="1">
-      <nd ref="170001"/><nd ref="170002"/><nd ref="170003"/><nd ref="170004"/><nd ref="170001"/>
-      <tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>
-    </way>"""
+NEW_HOUSE = square(17001, 170001, 60.2, 24.906, 60.2001, 24.9062,
+                   '<tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>')
 
 
 def osm_change(modify: str = "", delete: str = "", create: str = "") -> str:
@@ -83,36 +79,14 @@ CHANGE_2 = """<?xml version="1.0" encoding="UTF-8"?>
 #: inside the data's extent (the working CRS stays, so an update reads only what the change touched): a moved node,
 #: a tag edit, the L gaining a part, and the outline of the parts fixture going (its two parts, unchanged, lose it)
 #: a part in the repaired bow tie (fixture 900: a repaired outline read again for the linking)
-PART_IN_BOWTIE = """
-    <node id="170021" version="1" lat="60.2000350" lon="25.1171950"/>
-    <node id="170022" version="1" lat="60.2000350" lon="25.1172050"/>
-    <node id="170023" version="1" lat="60.2000450" lon="25.1172050"/>
-    <node id="170024" version="1" lat="60.2000450" lon="25.1171950"/>
-    <way id="17003" version="1">
-      <nd ref="170021"/><nd ref="170022"/><nd ref="170023"/><nd ref="170024"/><nd ref="170021"/>
-      <tag k="building:part" v="yes"/><tag k="height" v="3"/>
-    </way>"""
+PART_IN_BOWTIE = square(17003, 170021, 60.200035, 25.117195, 60.200045, 25.117205,
+                        '<tag k="building:part" v="yes"/><tag k="height" v="3"/>')
 CHANGE_INSIDE = osm_change(MOVE_AND_RETAG, '\n    <way id="13001" version="2"/>', NEW_PART + PART_IN_BOWTIE)
 
 #: two small buildings south-west and north-east of the fixtures (which all stand on one parallel, the edge of
 #: their extent), so that CHANGE_INSIDE moves no footprint on the edge of the data
-FRAME = osm_change(create="""
-    <node id="171001" version="1" lat="60.1990000" lon="24.8990000"/>
-    <node id="171002" version="1" lat="60.1990000" lon="24.8991000"/>
-    <node id="171003" version="1" lat="60.1990500" lon="24.8991000"/>
-    <node id="171004" version="1" lat="60.1990500" lon="24.8990000"/>
-    <way id="17101" version="1">
-      <nd ref="171001"/><nd ref="171002"/><nd ref="171003"/><nd ref="171004"/><nd ref="171001"/>
-      <tag k="building" v="shed"/>
-    </way>
-    <node id="171011" version="1" lat="60.2020000" lon="25.1200000"/>
-    <node id="171012" version="1" lat="60.2020000" lon="25.1201000"/>
-    <node id="171013" version="1" lat="60.2020500" lon="25.1201000"/>
-    <node id="171014" version="1" lat="60.2020500" lon="25.1200000"/>
-    <way id="17102" version="1">
-      <nd ref="171011"/><nd ref="171012"/><nd ref="171013"/><nd ref="171014"/><nd ref="171011"/>
-      <tag k="building" v="shed"/>
-    </way>""")
+FRAME = osm_change(create=square(17101, 171001, 60.199, 24.899, 60.19905, 24.8991, '<tag k="building" v="shed"/>')
+                   + square(17102, 171011, 60.202, 25.12, 60.20205, 25.1201, '<tag k="building" v="shed"/>'))
 
 EXPECTED_CHANGES = {
     1: {10001: "modified", 11001: "modified", 13003: "deleted", 13001: "modified", 17001: "added",
