@@ -7,8 +7,9 @@
 --     max_level; otherwise its groups move on to the four cells of the next level;
 --   * tiles.tile gets every cell with a content URI, its height above its deepest leaf and the generalization
 --     level of its content (gen.level_for_height), its 3D Tiles bounding region (extent of the meshes of
---     every LOD below it, heights above the ellipsoid from base_height) and geometric error 0 for leaves;
---     inner tiles get theirs from the generalize stage (tiles.finish_hierarchy), which measures it;
+--     every LOD below it, from their stored envelopes, heights above the ellipsoid from base_height) and geometric
+--     error 0 for leaves; inner tiles get theirs from the generalize stage (tiles.finish_hierarchy), which
+--     measures it;
 --   * tiles.building_tile gets each mesh's leaf, its outline (group) and the anchor point that placed it.
 -- Both tables are changed in place, never emptied: tiles that vanished are deleted (with what hangs off them),
 -- tiles whose cell, counts or mesh region changed are updated (the columns the generalize stage owns, geometric
@@ -111,8 +112,9 @@ BEGIN
            0::smallint AS height, 4::smallint AS gen_level
     FROM _cell c
     JOIN (
-        -- bounds of every LOD's mesh: roofs add height, onion domes and LOD3 openings stand out of the walls
-        SELECT g.lvl, g.tx, g.ty, ST_Extent(ST_Transform(ST_Envelope(m.geom), 4326))::box2d AS ext,
+        -- bounds of every LOD's mesh: roofs add height, onion domes and LOD3 openings stand out of the walls;
+        -- from each mesh's stored envelope (migrations/0045), not from the meshes themselves
+        SELECT g.lvl, g.tx, g.ty, ST_Extent(m.envelope_4326)::box2d AS ext,
                min(m.min_height) AS zmin, max(m.height) AS zmax
         FROM _grp g
         JOIN osm.building b ON coalesce(b.parent_id, b.id) = g.group_id

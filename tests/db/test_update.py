@@ -194,6 +194,29 @@ def _check_unit_digests(conn: psycopg.Connection) -> None:
         assert changed == holding and {k[0] for k in changed} == {"footprints", "decimation"}, (changed, holding)
     finally:
         conn.rollback()
+    # an outline moved to within 5 cm of a building of another batch pins it: that batch's footprint digest
+    # changes too, though it looks up the neighbours once per batch, not per building as footprint_input does
+    pinned, neighbour = conn.execute(
+        "WITH u AS (SELECT unit_level, unit_x, unit_y, unnest(group_ids) AS id "
+        "FROM gen.footprint_unit_digests(0.05, 8)) "
+        "SELECT o.id, n.id FROM osm.building o JOIN u uo ON uo.id = o.id "
+        "JOIN osm.building n ON n.parent_id IS NULL JOIN u un ON un.id = n.id "
+        "AND (un.unit_level, un.unit_x, un.unit_y) <> (uo.unit_level, uo.unit_x, uo.unit_y) "
+        "WHERE o.parent_id IS NULL ORDER BY 1, 2 LIMIT 1").fetchone()
+    try:
+        # by the vector between their closest points, and 1 cm past it
+        conn.execute(
+            "UPDATE osm.building n SET geom_local = ST_Translate(n.geom_local, "
+            "ST_X(b) - ST_X(a) + 0.01 * (ST_X(b) - ST_X(a)) / d, ST_Y(b) - ST_Y(a) + 0.01 * (ST_Y(b) - ST_Y(a)) / d) "
+            "FROM (SELECT ST_ClosestPoint(n.geom_local, o.geom_local) AS a, ST_ClosestPoint(o.geom_local, "
+            "n.geom_local) AS b, ST_Distance(n.geom_local, o.geom_local) AS d FROM osm.building n, osm.building o "
+            "WHERE n.id = %s AND o.id = %s) c WHERE n.id = %s", (neighbour, pinned, neighbour))
+        assert conn.execute("SELECT ST_DWithin(n.geom_local, o.geom_local, 0.05) FROM osm.building n, osm.building o "
+                            "WHERE n.id = %s AND o.id = %s", (neighbour, pinned)).fetchone() == (True,)
+        after = digests()
+        assert [k for k, (ids, d) in before.items() if k[0] == "footprints" and pinned in ids and after[k][1] != d]
+    finally:
+        conn.rollback()
 
 
 def _check_input_digests(conn: psycopg.Connection) -> None:
