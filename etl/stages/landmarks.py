@@ -141,11 +141,15 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         cur.execute("DELETE FROM lm.building")  # not TRUNCATE: readers keep the rows of before until the commit
         with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
-            for i in np.argsort(rank).tolist():  # in rank order, as analysts read it
-                copy.write_row((int(ids[i]), centroids[i], float(height[i]), float(volume[i]), float(area[i]),
-                                float(relative[i]), float(shape[i]), float(semantic[i]), float(score[i]),
-                                int(rank[i]), int(level[i]), bool(is_landmark[i]), band[i], float(radius[i]),
-                                *intervals[i]))
+            # in rank order, as analysts read it; each column made a list at once (numpy scalars row by row took
+            # 0.36 s against 0.09 s for the six copies' 106k rows)
+            order = np.argsort(rank)
+            at = order.tolist()
+            ranked = [c[order].tolist() for c in (ids, height, volume, area, relative, shape, semantic, score, rank,
+                                                 level, is_landmark)]
+            for row in zip(ranked[0], [centroids[i] for i in at], *ranked[1:], [band[i] for i in at],
+                           radius[order].tolist(), *zip(*[intervals[i] for i in at], strict=True), strict=True):
+                copy.write_row(row)
         cur.execute("CALL lm.flag_landmarks()")
         # every drawn building is scored (the lod stage recorded the ones it could not draw); checked before commit
         drawn = cur.execute("SELECT lod.drawn_buildings()").fetchone()[0]  # type: ignore[index]
