@@ -157,7 +157,8 @@ def test_input_digests_change_with_what_is_read_and_only_there(fixtures_city: Ci
     features and the LOD3 windows of one of its LOD2 buildings (read for the paint, not drawn there) each change
     that tile's digest, and only the digests of tiles that draw the building. Generalize likewise computes
     again only the batches whose gen.*_unit_digests changed: a LOD2 mesh that moves (its footprint input the
-    same) changes its batch's digests, and no other batch's."""
+    same) changes its batch's digests, and no other batch's; an outline moved to within the pinning distance of
+    a building of another batch changes that batch's footprint digest too."""
     url = new_db("update_digests")
     build(url, fixtures_city.osm, tmp_path / "out")
     with psycopg.connect(url) as conn:
