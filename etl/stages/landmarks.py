@@ -142,7 +142,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
             copy.set_types(list(_TYPES))
             # in rank order, as analysts read it; each column made a list at once (numpy scalars row by row took
-            # 0.36 s against 0.09 s for the six copies' 106k rows)
+            # 0.36 s against 0.09 s for 106k rows of synthetic columns, measured alone)
             order = np.argsort(rank)
             at = order.tolist()
             ranked = [c[order].tolist() for c in (ids, height, volume, area, relative, shape, semantic, score, rank,

@@ -208,7 +208,7 @@ def _check_unit_digests(conn: psycopg.Connection) -> None:
         # by the vector between their closest points, and 1 cm past it
         conn.execute(
             "UPDATE osm.building n SET geom_local = ST_Translate(n.geom_local, "
-            "ST_X(b) - ST_X(a) + 0.01 * (ST_X(b) - ST_X(a)) / d, ST_Y(b) - ST_Y(a) + 0.01 * (ST_Y(b) - ST_Y(a)) / d) "
+            "(1 + 0.01 / d) * (ST_X(b) - ST_X(a)), (1 + 0.01 / d) * (ST_Y(b) - ST_Y(a))) "
             "FROM (SELECT ST_ClosestPoint(n.geom_local, o.geom_local) AS a, ST_ClosestPoint(o.geom_local, "
             "n.geom_local) AS b, ST_Distance(n.geom_local, o.geom_local) AS d FROM osm.building n, osm.building o "
             "WHERE n.id = %s AND o.id = %s) c WHERE n.id = %s", (neighbour, pinned, neighbour))
