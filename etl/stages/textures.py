@@ -109,7 +109,7 @@ class Result:
     ktx2_failed: int = 0  # features among ``failures`` textured, but on a page without KTX2
     stats: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
-    ktx2_seconds: float = 0.0
+    encode_seconds: float = 0.0
     fingerprint: str | None = None  # of everything read for the tile (tex.tile_input)
     kept: bool = False  # the tile's input had not changed: its rows in tex.* stay as they are
     redrawn: bool = False  # kept, but drawn again for its unit's chart cache (its unit's LOD2 tile changed)
@@ -254,9 +254,10 @@ def fingerprints(url: str, tiles: list[Tile], seed: str, settings: Settings,
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
-              store: bool, rows: list[Feature] | None = None, encode: bool = True) -> Result:
+              store: bool, rows: list[Feature] | None = None, encode: bool = True, jobs: int = 1) -> Result:
     """Texture ``tile``. ``encode`` False: only draw it, for the charts it adds to ``cache`` (its pages are
-    kept from the last run, so neither encoded nor returned)."""
+    kept from the last run, so neither encoded nor returned). ``jobs``: basisu processes for its pages (the
+    cores this unit has to itself)."""
     t0 = time.perf_counter()
     rho, distance = resolution(tile.geometric_error, settings)
     pad = padding_for(rho, settings)
@@ -292,12 +293,17 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
         rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
         util = tt.layout.utilization
         refused: dict[int, str] = {}
+        # basisu's processes encode the KTX2 while this one writes the WebP (the bytes do not depend on ``jobs``)
         t1 = time.perf_counter()
-        ktx2 = K.encode_many(list(tt.pages), settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
-                             settings.tex_ktx2_timeout_s)
-        res.ktx2_seconds += time.perf_counter() - t1
+        pending = K.start_many(list(tt.pages), settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
+                               settings.tex_ktx2_timeout_s, jobs)
+        try:
+            webp = [A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD) for img in tt.pages]
+        finally:
+            ktx2 = pending.result()
+        res.encode_seconds += time.perf_counter() - t1
         for p, img in enumerate(tt.pages):
-            data, mime = A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD)
+            data, mime = webp[p]
             k2 = ktx2[p]
             if isinstance(k2, K.EncodeError):  # this page stays WebP only; its features get vertex colours in KTX2
                 k2, refused[p] = None, str(k2)
@@ -338,9 +344,10 @@ def _write(cur: psycopg.Cursor, res: Result) -> None:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(url: str, settings: Settings) -> None:
+def _init_worker(url: str, settings: Settings, jobs: int = 1) -> None:
     _WORKER["conn"] = connect(url, autocommit=True)  # reads only: no transaction left open between tiles
     _WORKER["settings"] = settings
+    _WORKER["jobs"] = jobs
     atexit.register(_WORKER["conn"].close)
 
 
@@ -364,7 +371,7 @@ def _do_unit(item: Unit) -> list[Result]:
         # a leaf as it was is drawn again for the charts the LOD2 tile reads from the cache, not encoded: its
         # pages are the kept ones (a leaf reads no chart of another leaf: a building is in one leaf)
         same = store and kept is not None and kept.get((t.level, t.x, t.y)) == f
-        res = _one_tile(t, conn, settings, cache, store=store, encode=not same)
+        res = _one_tile(t, conn, settings, cache, store=store, encode=not same, jobs=_WORKER.get("jobs", 1))
         if same:
             res = replace(_kept_result(t, f, res.features, settings), seconds=res.seconds, redrawn=True)
         res.fingerprint = f
@@ -385,8 +392,10 @@ def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> 
         finally:
             _WORKER.pop("conn").close()
         return
+    # fewer units than workers (an update of a few buildings): the cores no unit takes encode their pages
+    jobs = max(1, workers // len(work))
     yield from imap_isolated(_do_unit, work, min(workers, len(work)), settings.tex_unit_timeout_s, _init_worker,
-                             (url, settings))
+                             (url, settings, jobs))
 
 
 def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[Result]:
@@ -515,7 +524,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     totals = dict.fromkeys(("features", "textured", "failed", "ktx2_failed", "pages", "bytes", "ktx2_pages",
                             "ktx2_bytes", "page_texels", "content_texels", "rendered_texels", "copied", "resized",
                             "flat", "sheets", "scaled", "panels_mapped"), 0)
-    ktx2_seconds = 0.0
+    encode_seconds = 0.0
     redrawn = 0  # kept tiles drawn again for their unit's chart cache
     textured_again = 0  # features of the tiles textured (not kept): an update's share of the stage's work
     with conn.transaction(), conn.cursor() as cur:
@@ -571,7 +580,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                 totals["bytes"] += n_bytes
                 totals["ktx2_pages"] += sum(1 for p in res.pages if p[17] is not None)
                 totals["ktx2_bytes"] += sum(p[18] or 0 for p in res.pages)
-                ktx2_seconds += res.ktx2_seconds
+                encode_seconds += res.encode_seconds
                 totals["page_texels"] += page_texels
                 for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
                           "panels_mapped"):
@@ -600,7 +609,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
     summary(
         "textures", balance,
         f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB WebP, "
-        f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({ktx2_seconds:.1f} s encoding in the workers), "
+        f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({encode_seconds:.1f} s encoding KTX2 and WebP in the workers), "
         f"utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)"
@@ -613,6 +622,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
             "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
             "tiles_fingerprinted": len(todo),  # the others no run of the update reached (etl/dirty.py)
             **({} if since is None else {"dirty": Dirty(tiles=made)}),
-            "workers": workers, "utilization": round(util, 4), "ktx2_seconds": round(ktx2_seconds, 3),
+            "workers": workers, "utilization": round(util, 4), "encode_seconds": round(encode_seconds, 3),
             "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
             "buildings_per_s": round(buildings / seconds, 1) if seconds else None}

