@@ -56,6 +56,7 @@ block's error is that of the omission, sqrt(radius² + height²).
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import itertools
 import os
 import time
@@ -458,14 +459,34 @@ def _copy(cur: psycopg.Cursor, out: _Out, replace: bool = False) -> None:
                 copy.write_row(row)
 
 
+_DECIMATION_DIGESTS = ("SELECT unit_level, unit_x, unit_y, building_ids, digest "
+                       "FROM gen.decimation_unit_digests(%s, %s)")
+
+
+def decimation_digests(url: str, settings: Settings) -> concurrent.futures.Future[list[tuple]]:
+    """The decimation units' digests (gen.decimation_unit_digests), read in a thread on a connection of its own:
+    they read only what the stages before generalize committed (LOD2 and LOD3 meshes, the tiles' buildings), so
+    PostgreSQL computes them while the footprint batches are computed (0.2 to 0.4 s of every update of the
+    benchmark extract, which reads every unit's digest)."""
+    def read() -> list[tuple]:
+        with connect(url, autocommit=True) as c:
+            return c.execute(_DECIMATION_DIGESTS, (settings.gen_decimate_min_triangles,
+                                                   settings.gen_batch_features)).fetchall()
+
+    pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="citylod-digests")
+    try:
+        return pool.submit(read)
+    finally:
+        pool.shutdown(wait=False)
+
+
 def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
-                tol: float, seed: str, kept: Kept | None) -> tuple[dict[str, float], _Units]:
+                tol: float, seed: str, kept: Kept | None,
+                digests: concurrent.futures.Future[list[tuple]]) -> tuple[dict[str, float], _Units]:
     stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0, "lost": 0}
     units = _Units("decimation")
     with reader.cursor(name="gen_features", row_factory=dict_row) as src, conn.cursor() as cur:
-        todo, ids = _plan(cur, units, kept, seed, cur.execute(
-            "SELECT unit_level, unit_x, unit_y, building_ids, digest FROM gen.decimation_unit_digests(%s, %s)",
-            (settings.gen_decimate_min_triangles, settings.gen_batch_features)).fetchall())
+        todo, ids = _plan(cur, units, kept, seed, digests.result())
         src.itersize = settings.gen_batch_features
         src.execute("SELECT * FROM gen.decimation_input(%s, %s, %s::int8[])",
                     (settings.gen_decimate_min_triangles, settings.gen_batch_features, _todo_ids(todo, ids, kept)))
@@ -773,11 +794,12 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                         "AND (t.gen_level IS NULL OR t.gen_level > 1)")
         cur.execute("DELETE FROM gen.unit_input")
         step = time.perf_counter()
+        dec_digests = decimation_digests(url, settings)  # computed meanwhile
         fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],
                                    Progress("generalize", "buildings", total=n_groups), seed, kept)
         seconds["footprints"] = time.perf_counter() - step
         step = time.perf_counter()
-        dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept)
+        dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept, dec_digests)
         seconds["decimation"] = time.perf_counter() - step
         step = time.perf_counter()
         # the blocks join the footprints and meshes just written: without statistics the planner takes the
