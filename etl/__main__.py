@@ -12,6 +12,7 @@ import importlib
 import json
 import os
 import sys
+import threading
 from pathlib import Path
 
 from core import cluster
@@ -219,6 +220,9 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     with contextlib.nullcontext() if only_nodes else shared_cluster(
             max(min(4, os.cpu_count() or 1), settings.lod_workers, settings.gen_workers, settings.tex_workers),
             warm=_WARM, close_later=True):
+        if not only_nodes:
+            # the stages that run in this process import their modules while ingest reads the state file
+            threading.Thread(target=_import_all, args=(_WARM_HERE,), name="citylod-warm", daemon=True).start()
         params = {**settings.as_dict(), "osm": str(state), "update": [r[0] for r in rows]}
         file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
         with pipeline_run(url, "ingest", params, state, input_sha256=file_sha, inputs=inputs) as run, \
@@ -284,6 +288,18 @@ _UPDATE_STEPS = (("lod",), ("landmarks", "tiles"), ("generalize",), ("textures",
 
 #: The modules whose functions an update's stages send to the workers (imported there while ingest runs).
 _WARM = ("etl.stages.lod", "etl.stages.generalize", "etl.stages.textures")
+
+#: The modules of the stages an update runs in its own process whose import is on its critical path: landmarks
+#: (scipy: about 0.6 s, while tiles, beside it, waits on PostgreSQL), imported in a thread while ingest reads
+#: the state file.
+_WARM_HERE = ("etl.stages.landmarks",)
+
+
+def _import_all(names: tuple[str, ...]) -> None:
+    for name in names:
+        with contextlib.suppress(Exception):  # a warm-up: an import that fails fails the stage that needs it
+            importlib.import_module(name)
+
 
 #: Stages that open connections of their own besides the one they are given (a reader, worker processes).
 _NEEDS_URL = ("lod", "generalize", "textures")
