@@ -130,32 +130,19 @@ def test_start_many_returns_while_the_encoder_runs(tmp_path: Path, monkeypatch) 
     assert not late.exists() and out == [K.encode(p) for p in pages]
 
 
-def test_a_page_the_encoder_refuses_is_the_only_one_lost(tmp_path: Path, monkeypatch) -> None:
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_page_the_encoder_refuses_is_the_only_one_lost(tmp_path: Path, monkeypatch, jobs: int) -> None:
     # the real encoder behind a wrapper that refuses any run with a page above 5 kB (64 x 64 and larger): the
-    # one process for all pages fails, each page is encoded again on its own, and only the big one is refused
-    real = K.binary()
-    wrapper = ('for a; do case "$a" in *.tga)\n'
-               '  [ "$(wc -c < "$a")" -gt 5000 ] && { echo "ERROR: too big" >&2; exit 4; };; esac; done\n'
-               f'exec {real} "$@"')
-    monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
-    small, big = page(16, 16), page(64, 64)
-    out = K.encode_many([small, big, small])
-    assert isinstance(out[1], K.EncodeError) and "basisu exit 4" in str(out[1]) and "too big" in str(out[1])
-    monkeypatch.delenv(K.ENV_BINARY)
-    assert out[0] == out[2] == K.encode(small)
-
-
-def test_a_page_refused_by_one_of_several_processes_is_the_only_one_lost(tmp_path: Path, monkeypatch) -> None:
-    # two processes, [small, big] and [small, small]: the first fails as a whole, its small page is encoded again
-    # on its own; the second's pages are its own
+    # process given the big page fails as a whole (jobs 1: the one for all pages; 2: the one for the first two),
+    # each of its pages is encoded again on its own, and only the big one is refused
     real = K.binary()
     wrapper = ('for a; do case "$a" in *.tga)\n'
                '  [ "$(wc -c < "$a")" -gt 5000 ] && { echo "ERROR: too big" >&2; exit 4; };; esac; done\n'
                f'exec {real} "$@"')
     monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
     small, big, other = page(16, 16), page(64, 64), page(32, 16, seed=5)
-    out = K.encode_many([small, big, small, other], jobs=2)
-    assert isinstance(out[1], K.EncodeError) and "basisu exit 4" in str(out[1])
+    out = K.encode_many([small, big, small, other], jobs=jobs)
+    assert isinstance(out[1], K.EncodeError) and "basisu exit 4" in str(out[1]) and "too big" in str(out[1])
     monkeypatch.delenv(K.ENV_BINARY)
     assert out[0] == out[2] == K.encode(small) and out[3] == K.encode(other)
 
