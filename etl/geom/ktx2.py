@@ -203,7 +203,7 @@ def encode_many(pages: list[np.ndarray], quality: int = QUALITY, comp_level: int
 
 
 class Pending:
-    """Pages being encoded by basisu processes (start_many); result() waits for them."""
+    """Pages being encoded by basisu processes (start_many); result() waits for them, cancel() stops them."""
 
     def __init__(self, imgs: list[np.ndarray], quality: int, comp_level: int, timeout_s: float, jobs: int) -> None:
         self._imgs, self._args = imgs, (quality, comp_level, timeout_s)
@@ -234,6 +234,10 @@ class Pending:
         except BaseException:
             self._close()
             raise
+
+    def cancel(self) -> None:
+        """Stop the processes and remove their files, for a caller that will not take the result."""
+        self._close()
 
     def _close(self) -> None:
         for _, proc in self._procs:

@@ -299,8 +299,10 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
                                settings.tex_ktx2_timeout_s, jobs)
         try:
             webp = [A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD) for img in tt.pages]
-        finally:
-            ktx2 = pending.result()
+        except BaseException:
+            pending.cancel()
+            raise
+        ktx2 = pending.result()
         res.encode_seconds += time.perf_counter() - t1
         for p, img in enumerate(tt.pages):
             data, mime = webp[p]

@@ -8,6 +8,7 @@ textured glb with KTX2 pages through KHR_texture_basisu that glTF-Validator acce
 from __future__ import annotations
 
 import struct
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -109,10 +110,37 @@ def test_many_pages_by_one_process_are_encodes_bytes() -> None:
 
 
 @pytest.mark.parametrize("jobs", [1, 2, 5])
-def test_pages_by_several_processes_at_once_are_encodes_bytes(jobs: int) -> None:
+def test_pages_by_several_processes_at_once_are_encodes_bytes(tmp_path: Path, monkeypatch, jobs: int) -> None:
+    # the real encoder behind a wrapper that notes each start: min(jobs, pages) processes
+    starts = tmp_path / "starts"
+    monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, f'echo $$ >> {starts}\nexec {K.binary()} "$@"'))
     pages = [page(64, 64), page(16, 128), page(512, 256), page(32, 32, seed=2)]
-    assert K.encode_many(pages, jobs=jobs) == [K.encode(p) for p in pages]
-    assert K.encode_many(pages[2:3], jobs=jobs) == [K.encode(pages[2])]
+    out = K.encode_many(pages, jobs=jobs)
+    assert len(starts.read_text().split()) == min(jobs, len(pages))
+    one = K.encode_many(pages[2:3], jobs=jobs)
+    monkeypatch.delenv(K.ENV_BINARY)
+    assert out == [K.encode(p) for p in pages] and one == [K.encode(pages[2])]
+
+
+def test_a_process_that_hangs_is_killed_and_its_pages_tried_alone(tmp_path: Path, monkeypatch) -> None:
+    # two processes, [small, big] and [small, other], behind a wrapper that hangs on any run with the big page: the
+    # first is killed at its time-out (2 pages x 1 s), its small page encoded again on its own and the big one
+    # refused at its own; every process started is gone and no temporary directory is left behind
+    starts, tmp = tmp_path / "starts", tmp_path / "tmp"
+    tmp.mkdir()
+    wrapper = (f'echo $$ >> {starts}\n'
+               'for a; do case "$a" in *.tga) [ "$(wc -c < "$a")" -gt 5000 ] && exec sleep 60;; esac; done\n'
+               f'exec {K.binary()} "$@"')
+    monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    small, big, other = page(16, 16), page(64, 64), page(32, 16, seed=5)
+    out = K.encode_many([small, big, small, other], timeout_s=1.0, jobs=2)
+    pids = [int(p) for p in starts.read_text().split()]
+    assert isinstance(out[1], K.EncodeError) and "more than 1 s" in str(out[1])
+    assert len(pids) == 4 and not any(Path(f"/proc/{p}").exists() for p in pids)  # 2 at once, then 2 alone
+    assert list(tmp.iterdir()) == []
+    monkeypatch.delenv(K.ENV_BINARY)
+    assert out[0] == out[2] == K.encode(small) and out[3] == K.encode(other)
 
 
 def test_start_many_returns_while_the_encoder_runs(tmp_path: Path, monkeypatch) -> None:
