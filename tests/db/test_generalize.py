@@ -5,6 +5,7 @@ the root, and api.lod_for_view chooses exactly what a 3D Tiles client traversing
 chooses."""
 
 import json
+import time
 
 import numpy as np
 import psycopg
@@ -483,3 +484,22 @@ def test_the_same_rows_on_one_or_two_dask_workers_and_a_hung_batch_is_kept_as_ma
     assert kept[0] == c["decimation"]["features"] == c["decimation"]["lost"] == kept[1] > 100
     run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "1"})
     assert _gen_digest(conn) == one
+
+
+def test_a_query_read_beside_a_failing_step_is_cancelled(server_url) -> None:
+    # generalize reads the decimation digests beside the footprint step (generalize.Beside): a step that fails
+    # leaves no query running behind it, which the process would wait for at its exit
+    from etl.stages.generalize import Beside
+
+    mark = "beside-a-failing-step"
+    with psycopg.connect(server_url, autocommit=True) as watch, \
+            pytest.raises(RuntimeError, match="the step failed"), \
+            Beside(server_url, f"SELECT pg_sleep(60) -- {mark}", ()) as beside:
+        for _ in range(200):  # until the query runs: a cancel before it is sent cancels nothing
+            if watch.execute("SELECT count(*) FROM pg_stat_activity WHERE state = 'active' AND query LIKE %s",
+                             (f"%-- {mark}",)).fetchone()[0]:
+                break
+            time.sleep(0.05)
+        raise RuntimeError("the step failed")
+    with pytest.raises(psycopg.errors.QueryCanceled):
+        beside.result(timeout=30)
