@@ -69,7 +69,9 @@ def thread_map(url: str, fn: Callable[[psycopg.Connection, T], R], items: Iterab
                workers: int) -> Iterator[Iterator[R]]:
     """``fn(conn, item)`` for every item, in order, by ``workers`` threads that each open a connection of their
     own (the SQL runs in separate backends, and numpy releases the GIL); the threads stop and the connections
-    close when the block ends, consumed or not."""
+    close when the block ends, consumed or not. The work starts at once, so the block may do something else
+    meanwhile (generalize reads its decimation digests beside the footprint step); a block that fails cancels the
+    statements still running, which it would otherwise wait for."""
     local = threading.local()
     conns: list[psycopg.Connection] = []
 
@@ -82,6 +84,11 @@ def thread_map(url: str, fn: Callable[[psycopg.Connection, T], R], items: Iterab
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         yield pool.map(one, items)
+    except BaseException:
+        for c in list(conns):
+            with contextlib.suppress(Exception):
+                c.cancel_safe()
+        raise
     finally:
         pool.shutdown(cancel_futures=True)
         for c in conns:

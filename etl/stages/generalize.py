@@ -56,8 +56,6 @@ block's error is that of the omission, sqrt(radius² + height²).
 from __future__ import annotations
 
 import collections
-import concurrent.futures
-import contextlib
 import itertools
 import os
 import time
@@ -71,7 +69,7 @@ import shapely
 from psycopg.rows import dict_row
 from psycopg.types.json import Jsonb
 
-from core.db import analyze, connect, working_srid
+from core.db import analyze, connect, thread_map, working_srid
 from core.fingerprint import Fingerprint, run_seed
 from core.geodesy import region_box
 from core.progress import Balance, Progress, summary
@@ -460,53 +458,23 @@ def _copy(cur: psycopg.Cursor, out: _Out, replace: bool = False) -> None:
                 copy.write_row(row)
 
 
-_DECIMATION_DIGESTS = ("SELECT unit_level, unit_x, unit_y, building_ids, digest "
-                       "FROM gen.decimation_unit_digests(%s, %s)")
-
-
-class Beside:
-    """A query's rows, read in a thread on a connection of its own while the caller goes on; leaving the block
-    cancels it if it still runs (the caller failed meanwhile)."""
-
-    def __init__(self, url: str, query: str, params: tuple) -> None:
-        self._conn = connect(url, autocommit=True)
-        pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="citylod-beside")
-        self._future = pool.submit(self._read, query, params)
-        pool.shutdown(wait=False)
-
-    def _read(self, query: str, params: tuple) -> list[tuple]:
-        try:
-            return self._conn.execute(query, params).fetchall()
-        finally:
-            self._conn.close()
-
-    def result(self, timeout: float | None = None) -> list[tuple]:
-        return self._future.result(timeout)
-
-    def __enter__(self) -> Beside:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if not self._future.done():
-            with contextlib.suppress(Exception):
-                self._conn.cancel_safe()
-
-
-def decimation_digests(url: str, settings: Settings) -> Beside:
-    """The decimation units' digests (gen.decimation_unit_digests), read beside the footprint step: they read only
-    what the stages before generalize committed (LOD2 and LOD3 meshes, the tiles' buildings), so PostgreSQL
-    computes them while the footprint batches are computed (0.2 to 0.4 s of every update of the benchmark
-    extract, which reads every unit's digest)."""
-    return Beside(url, _DECIMATION_DIGESTS, (settings.gen_decimate_min_triangles, settings.gen_batch_features))
+def _decimation_digests(conn: psycopg.Connection, settings: Settings) -> list[tuple]:
+    """The decimation units' digests (gen.decimation_unit_digests). run() reads them beside the footprint step (a
+    thread_map of one): they read only what the stages before generalize committed (LOD2 and LOD3 meshes, the
+    tiles' buildings), so PostgreSQL computes them while the footprint batches are computed (on the benchmark
+    extract 0.19 s alone, 0.36 s in an update's statement log: every update reads every unit's digest)."""
+    return conn.execute("SELECT unit_level, unit_x, unit_y, building_ids, digest "
+                        "FROM gen.decimation_unit_digests(%s, %s)",
+                        (settings.gen_decimate_min_triangles, settings.gen_batch_features)).fetchall()
 
 
 def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
                 tol: float, seed: str, kept: Kept | None,
-                digests: Beside) -> tuple[dict[str, float], _Units]:
+                digests: list[tuple]) -> tuple[dict[str, float], _Units]:
     stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0, "lost": 0}
     units = _Units("decimation")
     with reader.cursor(name="gen_features", row_factory=dict_row) as src, conn.cursor() as cur:
-        todo, ids = _plan(cur, units, kept, seed, digests.result())
+        todo, ids = _plan(cur, units, kept, seed, digests)
         src.itersize = settings.gen_batch_features
         src.execute("SELECT * FROM gen.decimation_input(%s, %s, %s::int8[])",
                     (settings.gen_decimate_min_triangles, settings.gen_batch_features, _todo_ids(todo, ids, kept)))
@@ -814,12 +782,13 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                         "AND (t.gen_level IS NULL OR t.gen_level > 1)")
         cur.execute("DELETE FROM gen.unit_input")
         step = time.perf_counter()
-        with decimation_digests(url, settings) as dec_digests:  # computed meanwhile
+        # the decimation's digests computed meanwhile
+        with thread_map(url, _decimation_digests, [settings], 1) as dec_digests:
             fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],
                                        Progress("generalize", "buildings", total=n_groups), seed, kept)
             seconds["footprints"] = time.perf_counter() - step
             step = time.perf_counter()
-            dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept, dec_digests)
+            dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept, next(dec_digests))
             seconds["decimation"] = time.perf_counter() - step
         step = time.perf_counter()
         # the blocks join the footprints and meshes just written: without statistics the planner takes the

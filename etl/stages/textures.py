@@ -373,7 +373,7 @@ def _do_unit(item: Unit) -> list[Result]:
         # a leaf as it was is drawn again for the charts the LOD2 tile reads from the cache, not encoded: its
         # pages are the kept ones (a leaf reads no chart of another leaf: a building is in one leaf)
         same = store and kept is not None and kept.get((t.level, t.x, t.y)) == f
-        res = _one_tile(t, conn, settings, cache, store=store, encode=not same, jobs=_WORKER.get("jobs", 1))
+        res = _one_tile(t, conn, settings, cache, store=store, encode=not same, jobs=_WORKER["jobs"])
         if same:
             res = replace(_kept_result(t, f, res.features, settings), seconds=res.seconds, redrawn=True)
         res.fingerprint = f

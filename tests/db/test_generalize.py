@@ -487,19 +487,25 @@ def test_the_same_rows_on_one_or_two_dask_workers_and_a_hung_batch_is_kept_as_ma
 
 
 def test_a_query_read_beside_a_failing_step_is_cancelled(server_url) -> None:
-    # generalize reads the decimation digests beside the footprint step (generalize.Beside): a step that fails
-    # leaves no query running behind it, which the process would wait for at its exit
-    from etl.stages.generalize import Beside
+    # generalize reads the decimation digests beside the footprint step (core.db.thread_map): a step that fails
+    # leaves no query running behind it, which the block would wait for at its end
+    from core.db import thread_map
 
     mark = "beside-a-failing-step"
+    cancelled: list[bool] = []
+
+    def sleep(c: psycopg.Connection, _: None) -> None:
+        try:
+            c.execute(f"SELECT pg_sleep(60) -- {mark}")
+        except psycopg.errors.QueryCanceled:
+            cancelled.append(True)
+
     with psycopg.connect(server_url, autocommit=True) as watch, \
-            pytest.raises(RuntimeError, match="the step failed"), \
-            Beside(server_url, f"SELECT pg_sleep(60) -- {mark}", ()) as beside:
+            pytest.raises(RuntimeError, match="the step failed"), thread_map(server_url, sleep, [None], 1):
         for _ in range(200):  # until the query runs: a cancel before it is sent cancels nothing
             if watch.execute("SELECT count(*) FROM pg_stat_activity WHERE state = 'active' AND query LIKE %s",
                              (f"%-- {mark}",)).fetchone()[0]:
                 break
             time.sleep(0.05)
         raise RuntimeError("the step failed")
-    with pytest.raises(psycopg.errors.QueryCanceled):
-        beside.result(timeout=30)
+    assert cancelled == [True]

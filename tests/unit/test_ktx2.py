@@ -103,12 +103,6 @@ def test_an_encoder_that_fails_writes_nothing_or_hangs_is_an_encode_error(tmp_pa
     assert e.value.reason == "ktx2_encode_failed"
 
 
-def test_many_pages_by_one_process_are_encodes_bytes() -> None:
-    pages = [page(64, 64), page(16, 128), page(512, 256)]
-    assert K.encode_many(pages) == [K.encode(p) for p in pages]
-    assert K.encode_many([]) == []
-
-
 @pytest.mark.parametrize("jobs", [1, 2, 5])
 def test_pages_by_several_processes_at_once_are_encodes_bytes(tmp_path: Path, monkeypatch, jobs: int) -> None:
     # the real encoder behind a wrapper that notes each start: min(jobs, pages) processes
@@ -120,6 +114,7 @@ def test_pages_by_several_processes_at_once_are_encodes_bytes(tmp_path: Path, mo
     one = K.encode_many(pages[2:3], jobs=jobs)
     monkeypatch.delenv(K.ENV_BINARY)
     assert out == [K.encode(p) for p in pages] and one == [K.encode(pages[2])]
+    assert K.encode_many([], jobs=jobs) == []
 
 
 def test_a_process_that_hangs_is_killed_and_its_pages_tried_alone(tmp_path: Path, monkeypatch) -> None:
