@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from etl.geom import atlas as A
+from etl.textures import atlas as A
 
 
 @dataclass
@@ -79,7 +79,7 @@ def run(n: int, distances: list[float], page_size: int, padding: int, seed: int,
 
 def _draw(metres: np.ndarray, owner: np.ndarray, sizes: np.ndarray, page_size: int, packer: str, padding: int,
           fmt: str, seed: int) -> tuple[float, int]:
-    from etl.geom import textures as T
+    from etl.textures import procedural as T
 
     rng = np.random.default_rng(seed + 1)
     n = int(owner.max()) + 1

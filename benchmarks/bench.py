@@ -60,7 +60,7 @@ from benchmarks.common import (
 )
 from core import cluster
 from core.settings import REPO, Settings
-from etl.stages.fetch import DEMO_OSM
+from etl.fetch import DEMO_OSM
 
 # Liechtenstein first: it is the benchmark extract the headline figures quote.
 DEFAULT_EXTRACTS = (
@@ -75,7 +75,7 @@ STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "expo
 BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
                  "textures": "buildings", "export": "buildings"}
 SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
-# serve --db before and after exporter/serve.py (http.server, a hand-written pool) became exporter/server/
+# serve --db before and after exporter/serve.py (http.server, a hand-written pool) became exporter/serve/
 # (Starlette on uvicorn, psycopg_pool), issue 16. make bench measures only the code it runs, so both are recorded
 # here: `python -m benchmarks.serve_bench --database-url URL` run from a checkout of each commit, alternately
 # (after, before, after, ...), on one Liechtenstein database built by the pipeline (ingest .. textures), the
@@ -450,7 +450,7 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
                              "errors"], rows, "llrrrrrrr"), "",
             f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: "
             f"{pass_mark(warm >= SERVER_TARGET)}.", "",
-            "Before and after the server moved from http.server to Starlette on uvicorn (exporter/server/, issue "
+            "Before and after the server moved from http.server to Starlette on uvicorn (exporter/serve/, issue "
             f"16): the recorded rows, medians of {SERVER_SPLIT['runs']} alternating runs each of "
             "`python -m benchmarks.serve_bench --database-url URL` from a checkout of each commit on the same "
             "database (a busy machine: compare them with each other, not with this run): "

@@ -328,7 +328,7 @@ def outline_bound(url: str) -> dict[str, Any]:
 def compare_views(views: dict[str, dict[str, Any]], out: Path) -> None:
     """Each measured camera's masks compared (``masks``) and drawn side by side into <out>/<camera>.png; a
     comparison that fails is recorded as the camera's ``masks`` error."""
-    from etl.geom.atlas import encode_image
+    from etl.textures.atlas import encode_image
 
     for name, v in views.items():
         if "error" in v:

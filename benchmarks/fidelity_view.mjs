@@ -1,6 +1,6 @@
 // What a client streaming a tileset draws against the city at full detail (issue 18): the citylod viewer page in
 // headless Chromium (SwiftShader WebGL 2), offline, driven by playwright-core (tests/e2e/browser.mjs). Used by
-// benchmarks/fidelity_bench.py and tests/e2e/test_fidelity.py.
+// benchmarks/fidelity_bench.py and tests/e2e/test_bench_fidelity.py.
 //
 //   node benchmarks/fidelity_view.mjs --url http://127.0.0.1:8765/ --out build/bench/fidelity/x \
 //        --cameras '[{"name":"overview","lon":9.52,"lat":47.14,"height":21000,"heading":0,"pitch":-90,

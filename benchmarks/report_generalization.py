@@ -7,14 +7,14 @@ child processes, exactly as ``make`` (and benchmarks/bench.py, whose helpers thi
 streamed in batches from server-side cursors:
 
 * footprints: the building outlines (osm.building.geom_local, ``parent_id IS NULL``)
-    - *simplified* by etl.geom.simplify.simplify_footprints at each tolerance, vertices on touching neighbours
+    - *simplified* by etl.generalize.simplify.simplify_footprints at each tolerance, vertices on touching neighbours
       pinned and the area limit from settings, as the generalize stage makes gen.footprint;
     - *aggregated* as gen.block is made: the simplified outlines closer than the tolerance are clustered
       (ST_ClusterDBSCAN over the whole extract instead of per coarse tile), merged by buffer-union-unbuffer
       with mitred joins, and the merged outlines simplified again at the tolerance;
   error: the symmetric Hausdorff distance between the outlines (every ring), new against old (for a block,
   against the outline of the union of its members' original footprints);
-* 3D models: the LOD2 meshes (lod.building_mesh, lod = 2) decimated by etl.geom.decimate.decimate at each
+* 3D models: the LOD2 meshes (lod.building_mesh, lod = 2) decimated by etl.generalize.decimate.decimate at each
   target reduction, with a low ``min_triangles`` so that nearly every mesh takes part and ``max_error = inf`` so
   that no result is refused for its error; the error is the measured surface Hausdorff distance.
 
@@ -57,11 +57,11 @@ from benchmarks.common import (
 from core import cluster
 from core.settings import REPO, Settings
 from core.wkb import decode_triangles
+from etl.fetch import DEMO_OSM
+from etl.generalize.decimate import decimate
+from etl.generalize.hausdorff import hausdorff
+from etl.generalize.simplify import PIN_DISTANCE, simplify_footprints
 from etl.geom.check import weld as weld_rows
-from etl.geom.decimate import decimate
-from etl.geom.hausdorff import hausdorff
-from etl.geom.simplify import PIN_DISTANCE, simplify_footprints
-from etl.stages.fetch import DEMO_OSM
 
 EXTRACTS = {
     "munich": SHARED_OSM / "munich_altstadt.osm.pbf",
@@ -83,7 +83,7 @@ REDUCTIONS = (0.25, 0.5, 0.75)
 #: Meshes with fewer triangles are left alone by decimate(); 8 takes in the 12-triangle boxes.
 MIN_TRIANGLES = 8
 BATCH = 2000
-#: Hausdorff distances are measured within this much (m) below the truth (etl.geom.hausdorff): outlines ...
+#: Hausdorff distances are measured within this much (m) below the truth (etl.generalize.hausdorff): outlines ...
 SPACING_FOOTPRINT_M = 0.05
 #: ... and meshes (whose decimation errors are metres; this halves the measuring time).
 SPACING_MESH_M = 0.1
@@ -100,7 +100,7 @@ def log(msg: str) -> None:
     print(f"[report-generalization {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-# --- pure helpers (tested in tests/unit/test_report_generalization.py) ----------------------------------------
+# --- pure helpers (tested in tests/unit/test_bench_report_generalization.py) ----------------------------------------
 
 
 def reduction_pct(before: float, after: float) -> float:
@@ -483,7 +483,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         "",
         "*changed / features*: output features (outlines, blocks, meshes) and how many of them differ from what "
         "they replace; the Hausdorff columns are the largest and the mean over the changed ones. Errors are "
-        "symmetric Hausdorff distances measured by `etl/geom/hausdorff.py`, never above the truth and at most "
+        "symmetric Hausdorff distances measured by `etl/generalize/hausdorff.py`, never above the truth and at most "
         f"{p['spacing_footprint_m']:g} m (footprints) / {p['spacing_mesh_m']:g} m (meshes) below it: for "
         "footprints between the outlines (every ring), a block against the outline of the union of its members' "
         "original outlines; for LOD2 between the mesh surfaces. Reduction = (before − after) / before.",

@@ -2,13 +2,13 @@
 section 5.3), and how often each of the 10 most salient buildings is seen as itself, with and without the
 landmark rule.
 
-The path (etl.geom.view_saliency.camera_path, default 120 frames) circles the city once while its focus loops
+The path (benchmarks.view_saliency.camera_path, default 120 frames) circles the city once while its focus loops
 over it, zooms twice from 150 m to beyond the distance at which the root tile alone satisfies the maximum
 screen-space error (so every band of the tile hierarchy is drawn in some frames) and tilts between 12° and 75°
 below the horizon. Per frame, one call of api.lod_for_view (60°, 1080 px, 16:9, max SSE 16) gives the
 features a 3D Tiles client draws; parts count with their building, a block is one feature. For every drawn
 feature inside the view the three metrics of the thesis are measured (normalized view distance, vertical view
-angle, distance to the region of interest by jump flooding; see etl/geom/view_saliency.py), combined into its
+angle, distance to the region of interest by jump flooding; see benchmarks/view_saliency.py), combined into its
 interest, and its saliency = interest × (lod + 1) / 4 is painted into a per-frame saliency map.
 
 *Visible* means: the building is drawn as itself (its own row, or a block whose only member it is), its screen
@@ -46,12 +46,12 @@ from typing import Any
 import numpy as np
 import psycopg
 
+from benchmarks import view_saliency as vs
 from benchmarks.common import db_name, machine, machine_section, markdown_table
 from core import cluster
 from core.camera import distance_for_pixels
 from core.geodesy import enu_rotation
 from core.settings import REPO
-from etl.geom import view_saliency as vs
 
 DEFAULT_OUT = Path("build/reports")
 DEFAULT_FRAMES = 120
@@ -487,7 +487,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         "",
         "## Method",
         "",
-        f"* **Path** (etl.geom.view_saliency.camera_path): {p['frames']} frames. The camera circles the city once "
+        f"* **Path** (benchmarks.view_saliency.camera_path): {p['frames']} frames. The camera circles the city once "
         f"while its focus loops over it (a 2:1 Lissajous figure of {0.45 * c['radius_m']:.0f} m), zooms twice from "
         f"{p['near_m']:.0f} m to {p['far_m']:.0f} m from the focus (log-spaced; the far end is 1.25 × the distance "
         "at which the root tile alone meets the maximum screen-space error, plus the city's half extent, so "
@@ -503,7 +503,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         "frame's largest; *vertical view angle* between the view ray and the horizontal at the feature, / 90° "
         f"(0 side-on, 1 from above); *ROI distance*: the ROI is a {p['roi_m']:.0f} m disc on the ground around "
         f"the focus, rasterized on a {p['grid'][0]}×{p['grid'][1]} grid over the viewport, its distance map "
-        "computed by jump flooding (etl/geom/jfa.py, JFA+1) and read at the feature's ground point on screen, / the "
+        "computed by jump flooding (benchmarks/jfa.py, JFA+1) and read at the feature's ground point on screen, / the "
         "map's largest distance (1 when the ROI is off screen).",
         "* **Interest** = mean of (1 − metric) over the three (weights "
         f"{', '.join(f'{w:g}' for w in p['weights'])}); **saliency** = interest × (lod + 1) / 4 (block 0.25, "

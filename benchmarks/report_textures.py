@@ -58,8 +58,8 @@ from benchmarks import view_bench as vb
 from benchmarks.common import db_name, machine, machine_section, markdown_table, pass_mark
 from core import cluster
 from core.settings import REPO, Settings
-from etl.geom import atlas as A
-from etl.stages.textures import WEBP_METHOD
+from etl.textures import atlas as A
+from etl.textures.stage import WEBP_METHOD
 
 DEFAULT_OUT = Path("build/reports")
 PACKER_TILES = 20

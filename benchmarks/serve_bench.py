@@ -31,8 +31,8 @@ from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
-from benchmarks.servers import spawned
 from core.tiles3d import tileset_files
+from tests.support.servers import spawned
 
 BROWSER_HEADERS = {"Accept-Encoding": "gzip, deflate, br"}
 

@@ -1,4 +1,4 @@
-"""``python -m benchmarks.soak_bench``: ``serve --db`` under the soak client (benchmarks/soak.py, 200 requests per
+"""``python -m benchmarks.soak_bench``: ``serve --db`` under the soak client (tests/support/soak.py, 200 requests per
 second) while every stage rebuilds the benchmark extract's database and the export publishes a new generation.
 
 1. a fresh database with the pipeline on the extract (ingest ... textures) and an export that publishes it;
@@ -36,10 +36,10 @@ from benchmarks.common import (
     run_child,
     section_bench,
 )
-from benchmarks.servers import spawned
-from benchmarks.soak import RATE, soak
 from exporter.publish import tileset_name
-from exporter.server.reader import READER_ROLE
+from exporter.serve.reader import READER_ROLE
+from tests.support.servers import spawned
+from tests.support.soak import RATE, soak
 
 SOAK_DB = "citylod_bench_soak"
 DEFAULT_OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
@@ -135,7 +135,7 @@ def section(s: dict[str, Any] | None) -> list[str]:
     p = s["publish"]
     out = ["## Soak: serving while the database is rebuilt and updated", "",
            f"`python -m etl serve --db` (the tileset the export published into `pub.*`) under the soak client "
-           f"(benchmarks/soak.py: {s['rate']:.0f} requests/s, open loop, 16 keep-alive connections, every third a "
+           f"(tests/support/soak.py: {s['rate']:.0f} requests/s, open loop, 16 keep-alive connections, every third a "
            f"revalidation) while every stage and the export ran again on {s['extract']}, then while `python -m "
            "etl update` applied a change file touching 1 % of its buildings (benchmarks/update_bench.py writes "
            "it) and published again. Command: `python -m benchmarks.soak_bench --write BENCHMARKS.md`. Target: "

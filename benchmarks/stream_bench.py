@@ -63,11 +63,11 @@ from benchmarks.common import (
     pass_mark,
     run_child,
 )
-from benchmarks.servers import spawned
 from core import cluster
 from core.camera import Camera
 from core.settings import REPO
 from exporter.stream import COMPACT, PLAIN, StreamOptions
+from tests.support.servers import spawned
 
 VARIANTS: dict[str, StreamOptions] = {"compact": COMPACT, "compact-ext": replace(COMPACT, geometry="compact-ext"),
                                        "plain": PLAIN}

@@ -8,7 +8,7 @@
    moved by half a metre (a geometry edit: every building drawn with that node moves);
 3. ``python -m etl update --osc that --out the export`` in one process, timed, with its stages' own seconds
    (meta.pipeline_run) and what the export published anew;
-4. a real change (benchmarks/history.py): the extract as it was on HISTORY_BEFORE, as far as its own versions
+4. a real change (tests/support/history.py): the extract as it was on HISTORY_BEFORE, as far as its own versions
    and timestamps tell, built in full in another database and exported, then updated with the change file of
    what mappers created since, timed the same way and compared with the full rebuild of step 1.
 
@@ -48,7 +48,7 @@ from benchmarks.common import (
     run_child,
     section_bench,
 )
-from benchmarks.history import split
+from tests.support.history import split
 
 UPDATE_DB = "citylod_bench_update"
 DEFAULT_OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
@@ -549,7 +549,7 @@ def history_section(h: dict[str, Any] | None) -> list[str]:
     e = (h.get("reused") or {}).get("export") or {}
     out = ["### A real change", "",
            f"The same extract as it was on {h['before']}, as far as its own versions and timestamps tell "
-           "(`python -m benchmarks.history`: every object at version 1 stamped after that day left out), built in "
+           "(`python -m tests.support.history`: every object at version 1 stamped after that day left out), built in "
            f"full in another database, then updated with the change file of what mappers created since "
            f"({c['ways']:,} ways, {c['relations']:,} relations, {c['nodes']:,} nodes; osm.building_change: "
            + ", ".join(f"{n:,} {k}" for k, n in sorted(h["changed"].items())) + "). "

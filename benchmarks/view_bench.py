@@ -75,8 +75,8 @@ from benchmarks.common import HEADLINE, LOG_DIR, SHARED_OSM, recreate_db, run_ch
 from core import cluster
 from core.camera import Camera
 from core.settings import REPO, Settings
-from etl.stages import generalize
-from etl.stages.generalize import store_boxes
+from etl.generalize import stage as generalize
+from etl.generalize.stage import store_boxes
 
 MAX_SSE = 16.0
 SEED = 4
@@ -536,7 +536,7 @@ def scale(admin_url: str, osm: Path, n: int = N_CAMERAS, seed: int = SEED, rebui
         out[key] = measure_latency(url, n, seed)
         out[key]["measure_s"] = round(time.perf_counter() - t, 1)
         # issue 17: tileset.json stays small at scale with implicit tiling (tile records only, no glb)
-        from .tileset_size import measure as tileset_size
+        from benchmarks.tileset_size import measure as tileset_size
 
         out[key]["tileset"] = tileset_size(url)
         log(f"{key}: p50 {out[key]['p50_ms']} ms, p95 {out[key]['p95_ms']} ms, max {out[key]['max_ms']} ms, "

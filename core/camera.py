@@ -2,8 +2,8 @@
 
 One rule, as 3D Tiles clients apply it: a length of ``l`` metres at distance ``d`` from a camera with vertical
 field of view ``fov`` on a viewport ``H`` pixels high spans ``l × H / (d × 2 tan(fov / 2))`` pixels. A tile's
-screen-space error is its geometric error measured that way; the tile traversal (exporter/traverse.py), the
-texture resolution (etl/stages/textures.py, etl/geom/atlas.py), the landmark intervals and the view saliency
+screen-space error is its geometric error measured that way; the tile traversal (tests/support/traverse.py), the
+texture resolution (etl/textures/stage.py, etl/textures/atlas.py), the landmark intervals and the view saliency
 use the functions below, and SQL has the same rule once, ``tiles.screen_space_error``
 (sql/tiles/screen_space_error.sql), which ``api.lod_for_view`` uses; tests/db/test_camera_sql.py holds the
 two against each other.
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geodesy import enu_rotation, geodetic_to_ecef
+from core.geodesy import enu_rotation, geodetic_to_ecef
 
 #: Distances are clamped here, so a camera inside a box gives a large finite error instead of a division by 0.
 MIN_DISTANCE_M = 1e-7

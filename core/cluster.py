@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .settings import REPO, Settings
+from core.settings import REPO, Settings
 
 PG_VERSION = "15"
 PGBIN = Path(f"/usr/lib/postgresql/{PG_VERSION}/bin")

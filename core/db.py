@@ -11,8 +11,8 @@ from typing import TypeVar
 import psycopg
 from psycopg import sql
 
-from . import cluster
-from .settings import Settings
+from core import cluster
+from core.settings import Settings
 
 
 def connect(url: str | None = None, autocommit: bool = False, settings: Settings | None = None) -> psycopg.Connection:

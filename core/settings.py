@@ -95,7 +95,7 @@ class Settings:
     #: take ~2 s): its buildings are kept as mapped (their LOD2 meshes), saying so in gen.footprint.status.
     gen_batch_timeout_s: float = 600.0
 
-    # --- landmarks (saliency weights: 0 leaves a measure out; etl/stages/landmarks.py) --------------------------
+    # --- landmarks (saliency weights: 0 leaves a measure out; etl/landmarks/stage.py) --------------------------
     #: Weight of the height (the thesis' proof of concept used height alone).
     lm_w_height: float = 1.0
     #: Weight of the volume of the building's meshes.
@@ -120,7 +120,7 @@ class Settings:
     #: ... up to this scale for the top of the hierarchy (the lowest landmark level gets a share of it).
     lm_max_scale: float = 3.0
 
-    # --- textures (etl/stages/textures.py; the resolution rule is etl/geom/atlas.py texels_per_metre) -------
+    # --- textures (etl/textures/stage.py; the resolution rule is etl/textures/atlas.py texels_per_metre) -------
     #: Largest atlas page side in texels (the thesis' 512; a power of two, 16 to 4096). Pages are cropped to
     #: the smallest power-of-two rectangle that holds them, and a tile gets as many pages as its charts need.
     tex_page_size: int = 512
@@ -138,7 +138,7 @@ class Settings:
     #: quadruples the stage's time and bytes.
     tex_max_texels_per_metre: float = 2.0
     #: Gutter texels around each chart (bilinear filtering and the first mip levels never mix in a
-    #: neighbour) at the cap; coarser tiles get less (etl/stages/textures.py padding_for).
+    #: neighbour) at the cap; coarser tiles get less (etl/textures/stage.py padding_for).
     tex_padding: int = 2
     #: Charts with fewer texels than this (or thinner than 2) are drawn in their flat tagged colour.
     tex_min_chart_texels: int = 16

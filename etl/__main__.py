@@ -17,8 +17,7 @@ from pathlib import Path
 
 from core import cluster
 from core.settings import REPO, Settings
-
-from .stages.fetch import DEMO_OSM
+from etl.fetch import DEMO_OSM
 
 
 def _url(settings: Settings) -> str:
@@ -43,8 +42,7 @@ def cmd_db(args: argparse.Namespace, settings: Settings) -> int:
 
 def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
-
-    from .migrate import migrate, reload_sql, sql_current
+    from etl.migrate import migrate, reload_sql, sql_current
 
     with connect(settings=settings) as conn:
         applied = migrate(conn)
@@ -68,7 +66,7 @@ def cmd_config(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_fetch_demo(args: argparse.Namespace, settings: Settings) -> int:
-    from .stages.fetch import fetch_demo
+    from etl.fetch import fetch_demo
 
     print(fetch_demo())
     return 0
@@ -79,8 +77,7 @@ def _inputs_unless_current(url: str, stage: str, settings: Settings, args: argpa
     """The inputs this run records (etl.dag.inputs); None when --if-stale finds the stage current, which it says
     in one line, as it says why it runs. Stages import their module after this, so a skip costs no numpy."""
     from core.db import connect
-
-    from . import dag
+    from etl import dag
 
     with connect(url, autocommit=True) as conn:
         now = dag.inputs(conn, stage, settings, **kw)  # type: ignore[arg-type]
@@ -125,8 +122,7 @@ def _stream_arguments(p: argparse.ArgumentParser) -> None:
 
 def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
     from core.db import connect
-
-    from .runs import pipeline_run, sha256_file
+    from etl.runs import pipeline_run, sha256_file
 
     path = Path(args.osm).resolve()
     if not path.exists():
@@ -145,7 +141,7 @@ def cmd_ingest(args: argparse.Namespace, settings: Settings) -> int:
     inputs = _inputs_unless_current(url, "ingest", settings, args, file=file)
     if inputs is None:
         return 0
-    from .stages import ingest
+    from etl.ingest import stage as ingest
 
     params = {**settings.as_dict(), "osm": str(path)}
     with pipeline_run(url, "ingest", params, path, input_sha256=sha, inputs=inputs) as run, connect(url) as conn:
@@ -159,14 +155,13 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     import psycopg
     from psycopg.types.json import Jsonb
 
+    from core.changes import Dirty
+    from core.changes import record as record_dirty
     from core.db import connect
-
-    from . import dag
-    from .dirty import Dirty
-    from .dirty import record as record_dirty
-    from .runs import pipeline_run, sha256_file
-    from .stages import ingest
-    from .stages import update as up
+    from etl import dag
+    from etl.ingest import stage as ingest
+    from etl.runs import pipeline_run, sha256_file
+    from etl.update import osc as up
 
     url = _url(settings)
     files = [Path(f).resolve() for f in args.osc]
@@ -199,7 +194,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
     file = up.file_input(chain, shas)
     below = [stage for step in _UPDATE_STEPS for stage in step]
     # the ingest that made the database read the state before these changes, with this code and these settings:
-    # only what the changes touched need be read again (etl/stages/ingest.py)
+    # only what the changes touched need be read again (etl/ingest/stage.py)
     before = up.file_input(chain, [c.sha256 for c in chain.changes])
     with connect(url, autocommit=True) as conn:
         inputs = dag.inputs(conn, "ingest", settings, file=file)
@@ -209,7 +204,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
         # just what the update changed, or be carried over
         current = {st for st in below if dag.verdict(conn, st, dag.inputs(conn, st, settings))[0]}
         (srid,) = conn.execute("SELECT srid FROM meta.dataset").fetchone()  # type: ignore[misc]
-    from .workers import shared_cluster
+    from core.workers import shared_cluster
 
     # one cluster for the stages' workers, not one started and stopped by each (about 1 s apiece), started while
     # ingest reads the OSM state and closed while the export runs. Not for a change that only adds nodes: no way
@@ -234,7 +229,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                                 (seq, path, sha, base, base_sha, st, run.run_id, Jsonb(counts)))
 
             run.counts = ingest.run(conn, state, settings, file_sha, update=True, also=record, changed=touched)
-            # the buildings it changed, for the stages after it (etl/dirty.py)
+            # the buildings it changed, for the stages after it (core/changes.py)
             record_dirty(conn, run.run_id, Dirty(buildings=[
                 int(i) for (i,) in conn.execute("SELECT id FROM osm.building_change")]))
             conn.commit()
@@ -275,7 +270,7 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
                 if rc := next((r for r in rcs if r), 0):
                     return rc
     if args.out:
-        # reached: only the tiles the update's runs reached are fingerprinted (etl/dirty.py); a plain export
+        # reached: only the tiles the update's runs reached are fingerprinted (core/changes.py); a plain export
         # fingerprints every tile, so it also sees what was changed in the tables by hand
         return cmd_export(argparse.Namespace(out=args.out, lod=None, publish=args.publish, no_publish=False,
                                              geometry=args.geometry, textures=args.textures, tiling=args.tiling,
@@ -287,12 +282,12 @@ def cmd_update(args: argparse.Namespace, settings: Settings) -> int:
 _UPDATE_STEPS = (("lod",), ("landmarks", "tiles"), ("generalize",), ("textures",))
 
 #: The modules whose functions an update's stages send to the workers (imported there while ingest runs).
-_WARM = ("etl.stages.lod", "etl.stages.generalize", "etl.stages.textures")
+_WARM = ("etl.lod.stage", "etl.generalize.stage", "etl.textures.stage")
 
 #: The modules of the stages an update runs in its own process whose import is on its critical path: landmarks
 #: (scipy: about 0.6 s, while tiles, beside it, waits on PostgreSQL), imported in a thread while ingest reads
 #: the state file.
-_WARM_HERE = ("etl.stages.landmarks",)
+_WARM_HERE = ("etl.landmarks.stage",)
 
 
 def _import_all(names: tuple[str, ...]) -> None:
@@ -307,17 +302,16 @@ _NEEDS_URL = ("lod", "generalize", "textures")
 
 def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     """lod, landmarks, tiles, generalize, textures: tables in, tables out, recorded in meta.pipeline_run."""
+    from core.changes import Dirty
+    from core.changes import record as record_dirty
     from core.db import connect
-
-    from .dirty import Dirty
-    from .dirty import record as record_dirty
-    from .runs import pipeline_run
+    from etl.runs import pipeline_run
 
     stage = args.command
     url = _url(settings)
     if (inputs := _inputs_unless_current(url, stage, settings, args)) is None:
         return 0
-    module = importlib.import_module(f"etl.stages.{stage}")  # after the check: a skip imports no numpy
+    module = importlib.import_module(f"etl.{stage}.stage")  # after the check: a skip imports no numpy
 
     kw: dict[str, object] = {}
     update = bool(getattr(args, "update", False))
@@ -325,7 +319,7 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
     if stage in ("generalize", "textures"):  # their fingerprints name their code; an update keeps what did not change
         kw = {"keep": update, "code": json.dumps(inputs["code"], sort_keys=True)}
         if changed_only:
-            kw["reached"] = True  # only the tiles the update's runs reached (etl/dirty.py)
+            kw["reached"] = True  # only the tiles the update's runs reached (core/changes.py)
     elif stage == "lod" and changed_only:
         kw = {"changed": True}  # only the buildings the update changed (else all: lod was not current before)
     with pipeline_run(url, stage, {**settings.as_dict(), **({"update": True} if update else {})},
@@ -340,8 +334,8 @@ def cmd_stage(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
-    from .dag import tileset_output
-    from .runs import pipeline_run
+    from etl.dag import tileset_output
+    from etl.runs import pipeline_run
 
     url = _url(settings)
     out, kw = _export_options(args)
@@ -365,10 +359,9 @@ def cmd_export(args: argparse.Namespace, settings: Settings) -> int:
 def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
     """What ``make export`` would run: each stage current or stale and why; a stage below a stale one is stale."""
     from core.db import connect
-
-    from . import dag
-    from .migrate import discover, loaded_sql, sql_current
-    from .runs import sha256_file
+    from etl import dag
+    from etl.migrate import discover, loaded_sql, sql_current
+    from etl.runs import sha256_file
 
     url = _url(settings)
     with connect(url, autocommit=True) as conn:
@@ -407,8 +400,8 @@ def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
 
 def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
     if args.db:
-        from exporter.server.reader import reader_url
-        from exporter.server.run import serve_db, serve_published
+        from exporter.serve.reader import reader_url
+        from exporter.serve.run import serve_db, serve_published
 
         url, cache_bytes = reader_url(_url(settings)), int(args.cache_mb * 2**20)
         if args.live:
@@ -425,7 +418,7 @@ def cmd_serve(args: argparse.Namespace, settings: Settings) -> int:
         print("serve: --lod and --live need --db (a tileset directory holds the LOD it was exported with)",
               file=sys.stderr)
         return 2
-    from exporter.server.run import serve
+    from exporter.serve.run import serve
 
     serve(Path(args.dir).resolve(), args.host, args.port)
     return 0
@@ -527,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("CITYLOD_DEBUG") == "1":
             raise
         print(f"{args.command}: error: {e}", file=sys.stderr)
-        from . import runs
+        from etl import runs
 
         if runs.recorded_failures:
             print("  (recorded as failed in meta.pipeline_run; CITYLOD_DEBUG=1 shows the traceback)", file=sys.stderr)

@@ -35,8 +35,7 @@ import psycopg
 
 from core.settings import REPO, Settings
 from core.tiles3d import tileset_files
-
-from .migrate import discover_sql
+from etl.migrate import discover_sql
 
 #: stage -> the stages whose tables it reads, in pipeline order. Export reads the textures only for the
 #: generalized hierarchy; ``export --lod`` reads ("generalize",) (see cmd_export).
@@ -50,7 +49,7 @@ GRAPH: dict[str, tuple[str, ...]] = {
     "export": ("textures",),               # api.buildings_for_tile, lm.building, tex.*
 }
 #: The module that defines each stage; its import closure is the stage's Python code.
-MODULES = {s: f"etl.stages.{s}" for s in GRAPH if s != "export"} | {"export": "exporter.export"}
+MODULES = {s: f"etl.{s}.stage" for s in GRAPH if s != "export"} | {"export": "exporter.export"}
 _PACKAGES = ("core", "etl", "exporter")
 #: Settings that say where the database is, or how the work is spread (the output is the same whatever their
 #: values), not how a stage's output is made.

@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     ck = sub.add_parser("check", help="check a tileset.json against the 3D Tiles 1.1 rules citylod enforces")
     ck.add_argument("tileset", help="path to tileset.json")
     args = p.parse_args(argv)
-    from .checks import check_tileset
+    from exporter.checks import check_tileset
 
     problems = check_tileset(Path(args.tileset))
     print(json.dumps({"tileset": args.tileset, "errors": problems}, indent=1))

@@ -36,9 +36,8 @@ import numpy as np
 
 from core.geodesy import geodetic_to_ecef
 from core.tiles3d import expand
-
-from .gltf import SCALAR_DTYPES, accessor_array, read_glb
-from .gltf import view_bytes as _view_bytes
+from exporter.gltf import SCALAR_DTYPES, accessor_array, read_glb
+from exporter.gltf import view_bytes as _view_bytes
 
 TOLERANCE_RAD = 1e-9
 TOLERANCE_M = 1e-3

@@ -1,6 +1,6 @@
 """Stage export: tiles in PostGIS -> a 3D Tiles 1.1 tileset directory.
 
-Streams tile by tile (threads, or Dask tasks: each with its own connection; etl/workers.py): for each tile,
+Streams tile by tile (threads, or Dask tasks: each with its own connection; core/workers.py): for each tile,
 api.buildings_for_tile(level, x, y) gives the features of its band (blocks at the root down to LOD3 at the
 leaves; REPLACE refinement), or with ``lod`` every building of each leaf at that one LOD (ADD), lifted by the
 base height and transformed to ECEF by PostGIS (ST_Transform to EPSG:4978, z = height above the ellipsoid);
@@ -40,14 +40,13 @@ from core.geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
 from core.progress import Balance, Progress, summary
 from core.settings import Settings
 from core.wkb import decode_triangles
-
-from .content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
-from .gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
-from .meshopt import CompressionError
-from .publish import check_name, publish
-from .reuse import TileKey, copy_unchanged, live_keys, published_inputs, recipe, tile_keys, unchanged
-from .stream import COMPACT, StreamOptions
-from .tileset import TileRecord, build, node_matrix, region_centre
+from exporter.content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
+from exporter.gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
+from exporter.meshopt import CompressionError
+from exporter.publish import check_name, publish
+from exporter.reuse import TileKey, copy_unchanged, live_keys, published_inputs, recipe, tile_keys, unchanged
+from exporter.stream import COMPACT, StreamOptions
+from exporter.tileset import TileRecord, build, node_matrix, region_centre
 
 TILESET_JSON = "tileset.json"
 
@@ -368,7 +367,7 @@ def _init_worker(url: str, base_height: float, lod: int | None, stream: StreamOp
 
 def _tile_task(rec: TileRecord) -> tuple[bytes, int, int]:
     """One tile's glb as a Dask task, read through the worker's own connection (a module-level function, as
-    etl/workers.py needs); the bytes come back, so a worker on another machine writes nothing here."""
+    core/workers.py needs); the bytes come back, so a worker on another machine writes nothing here."""
     return tile_glb(_WORKER["conn"], rec, *_WORKER["args"])  # type: ignore[arg-type]
 
 
@@ -377,11 +376,11 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
                   root_region: tuple[float, ...]) -> tuple[int, int, int, int]:
     """Write every tile's glb. Tiles are independent: by default threads of this process share them; with
     ``export_workers`` of 2 or more, or a Dask cluster named (CITYLOD_DASK_SCHEDULER), each is a Dask task
-    (etl/workers.py) reading through its worker's own connection, and this process writes the bytes as they
+    (core/workers.py) reading through its worker's own connection, and this process writes the bytes as they
     come back. A tile whose worker hung or died on every attempt stops the export with the tile named; the
     tileset in place is kept (the tiles are written into the partial directory). Returns (features,
     triangles, bytes, compact tiles meshoptimizer refused, written plain)."""
-    from etl.workers import SCHEDULER_ENV, Lost, imap_isolated, worker_count
+    from core.workers import SCHEDULER_ENV, Lost, imap_isolated, worker_count
 
     args = (base_height, lod, stream, root_region)
     with contextlib.ExitStack() as stack:
@@ -510,7 +509,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     next generation of that tileset in the database (exporter/publish.py), before the directory's swap; with
     ``code`` too (the export's code and settings as etl/dag.py records them), the tiles whose input is the one
     the live generation was built from are copied from it (exporter/reuse.py); with ``reached`` (an update's
-    export) only the tiles its stages' runs reached since that generation are fingerprinted (etl/dirty.py)."""
+    export) only the tiles its stages' runs reached since that generation are fingerprinted (core/changes.py)."""
     if lod not in (None, 1, 2, 3):
         raise ValueError(f"--lod must be 1, 2 or 3, not {lod}")
     if publish_as is not None:
@@ -543,7 +542,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     if publish_as is not None and code:
         with connect(url) as conn:
             published = published_inputs(conn, publish_as)
-            # the tiles no run reached since the live generation was published (etl/dirty.py), made with the same
+            # the tiles no run reached since the live generation was published (core/changes.py), made with the same
             # recipe: their input is the one it was built from, and they keep its key (no fingerprint read)
             known = live_keys(conn, publish_as, seed, tiles, published, lod) if reached else {}
         todo = [r for r in tiles if r.content_uri not in known]

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import ATTRIBUTION, __version__, meshopt
+from exporter import ATTRIBUTION, __version__, meshopt
 
 BYTE, SHORT = 5120, 5122
 FLOAT, UNSIGNED_BYTE, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5121, 5123, 5125

@@ -3,7 +3,7 @@
 A tile's glb is a function of what api.export_digest fingerprints (its features, their landmark metadata, its
 atlas pages and UVs), of the exporter's code, settings and options, and of the tile's record in the tree. The
 export records the sha256 of all that per glb (pub.file.input_digest) when it publishes; the next export of the
-same tileset computes it again for every tile its stages' runs reached since (etl/dirty.py; about half the cost
+same tileset computes it again for every tile its stages' runs reached since (core/changes.py; about half the cost
 of reading the features; the others keep the published key, live_keys) and copies the glb of every tile whose key
 is the same: from the export directory when the file there has the published bytes,
 else from pub.blob. So an update that moves a few buildings writes the few tiles they are in and their
@@ -23,10 +23,9 @@ import psycopg
 
 from core.db import connect, shares, thread_map
 from core.fingerprint import run_seed
-
-from .gltf import read_glb
-from .stream import StreamOptions
-from .tileset import TileRecord
+from exporter.gltf import read_glb
+from exporter.stream import StreamOptions
+from exporter.tileset import TileRecord
 
 #: a share of the tiles in one statement: planned once, where a call per tile was planned per call (Liechtenstein,
 #: 133 tiles: 1.7 s with 2 connections against 2.2 s a call per tile)
@@ -85,9 +84,9 @@ def live_keys(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRe
               published: dict[str, tuple[str, bytes]], lod: int | None) -> dict[str, TileKey]:
     """The keys of the tiles whose input is, without reading it, the one the live generation of ``name`` was
     built from: made with the same recipe (``seed``, recorded in its options), and reached by no run of the
-    stages since the export that published it (etl/dirty.py): their features, pages and record are as they were.
+    stages since the export that published it (core/changes.py): their features, pages and record are as they were.
     Empty when that is not known (another recipe, a run since that recorded no change set)."""
-    from etl.dirty import tiles_since
+    from core.changes import tiles_since
 
     live = conn.execute("SELECT run_id, options->>'recipe' FROM pub.generation WHERE tileset = %s "
                         "ORDER BY generation DESC LIMIT 1", (name,)).fetchone()

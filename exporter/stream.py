@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Literal
 
-from . import meshopt
+from exporter import meshopt
 
 Geometry = Literal["compact", "compact-ext", "plain"]
 Textures = Literal["ktx2", "webp"]

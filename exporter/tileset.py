@@ -32,9 +32,8 @@ from typing import Any, Literal, TypedDict
 import numpy as np
 
 from core.geodesy import Y_UP_TO_Z_UP, Z_UP_TO_Y_UP, column_major, enu_to_ecef, geodetic_to_ecef
-
-from . import ATTRIBUTION, __version__
-from .subtree import choose_subtree_levels, subtree_roots, write_subtree
+from exporter import ATTRIBUTION, __version__
+from exporter.subtree import choose_subtree_levels, subtree_roots, write_subtree
 
 Refine = Literal["ADD", "REPLACE"]
 Tiling = Literal["implicit", "explicit"]

@@ -14,7 +14,7 @@ CREATE TABLE gen.footprint (
     error_m         real    NOT NULL,
     status          text    NOT NULL
 );
-COMMENT ON TABLE gen.footprint IS 'Footprint of every building (outline with its parts) simplified at gen.tolerance(2): vertex importance (angle × edge lengths) and the Sester–Brenner short-edge rules (etl/geom/simplify.py).';
+COMMENT ON TABLE gen.footprint IS 'Footprint of every building (outline with its parts) simplified at gen.tolerance(2): vertex importance (angle × edge lengths) and the Sester–Brenner short-edge rules (etl/generalize/simplify.py).';
 COMMENT ON COLUMN gen.footprint.building_id IS 'osm.building.id of the outline (a building and its parts are one footprint here).';
 COMMENT ON COLUMN gen.footprint.geom IS 'Simplified footprint in the working CRS; valid; vertices shared with touching neighbours kept.';
 COMMENT ON COLUMN gen.footprint.tolerance_m IS 'Simplification tolerance used (m), gen.tolerance(2).';

@@ -25,8 +25,8 @@ COMMENT ON COLUMN lm.building.volume_m3 IS 'Measure: volume of the LOD2 meshes o
 COMMENT ON COLUMN lm.building.area_m2 IS 'Measure: footprint area of the outline (m²).';
 COMMENT ON COLUMN lm.building.relative_height IS 'Measure: height / mean height of the buildings within lm_neighbour_radius_m (1 with no neighbours).';
 COMMENT ON COLUMN lm.building.shape_distinctiveness IS 'Measure: RMS z-score of the footprint''s shape descriptors (compactness, rectangularity, log vertices, log area) against its neighbours'' (0 = typical).';
-COMMENT ON COLUMN lm.building.semantic IS 'Measure in [0, 1]: weighted tags (place of worship or religious building type, tower, historic/heritage, wikidata, tourism, name); etl/stages/landmarks.py SEMANTIC.';
-COMMENT ON COLUMN lm.building.score IS 'Saliency in [0, 1]: sum of weight × normalized measure / sum of weights (etl.geom.landmarks.saliency).';
+COMMENT ON COLUMN lm.building.semantic IS 'Measure in [0, 1]: weighted tags (place of worship or religious building type, tower, historic/heritage, wikidata, tourism, name); etl/landmarks/stage.py SEMANTIC.';
+COMMENT ON COLUMN lm.building.score IS 'Saliency in [0, 1]: sum of weight × normalized measure / sum of weights (etl.landmarks.saliency.saliency).';
 COMMENT ON COLUMN lm.building.rank IS '1 = most salient.';
 COMMENT ON COLUMN lm.building.level IS 'Landmark level: voting rounds survived (0 = never promoted); the single most salient building has the highest.';
 COMMENT ON COLUMN lm.building.lod2_band IS 'Landmarks only: the coarsest tile band (tiles.tile.gen_level) that draws it at LOD2 instead of a simplified solid, 2 - (level - lowest landmark level): one band coarser per level above the lowest landmark level, and -32768 (every band) for the top of the hierarchy; coarser bands draw its simplified solid, never a block.';

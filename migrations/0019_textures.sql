@@ -25,7 +25,7 @@ CREATE TABLE tex.page (
 );
 -- encoded images do not compress further
 ALTER TABLE tex.page ALTER COLUMN bytes SET STORAGE EXTERNAL;
-COMMENT ON TABLE tex.page IS 'Texture atlas pages: every chart (wall, roof face, xatlas sheet, flat-colour palette) of a tile''s content packed onto pages of at most tex_page_size texels a side, at the resolution the tile''s view distance needs (etl/stages/textures.py). The exporter gives each page one glTF material. Example: SELECT t.gen_level, count(*) AS pages, sum(p.n_bytes) AS bytes, sum(p.utilization * p.width * p.height) / sum(p.width * p.height) AS utilization FROM tex.page p JOIN tiles.tile t USING (level, x, y) GROUP BY 1 ORDER BY 1;';
+COMMENT ON TABLE tex.page IS 'Texture atlas pages: every chart (wall, roof face, xatlas sheet, flat-colour palette) of a tile''s content packed onto pages of at most tex_page_size texels a side, at the resolution the tile''s view distance needs (etl/textures/stage.py). The exporter gives each page one glTF material. Example: SELECT t.gen_level, count(*) AS pages, sum(p.n_bytes) AS bytes, sum(p.utilization * p.width * p.height) / sum(p.width * p.height) AS utilization FROM tex.page p JOIN tiles.tile t USING (level, x, y) GROUP BY 1 ORDER BY 1;';
 COMMENT ON COLUMN tex.page.level IS 'Tile (tiles.tile) the page belongs to: quadtree level.';
 COMMENT ON COLUMN tex.page.x IS 'Tile column.';
 COMMENT ON COLUMN tex.page.y IS 'Tile row.';

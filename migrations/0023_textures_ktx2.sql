@@ -7,7 +7,7 @@ ALTER TABLE tex.page
     ADD CONSTRAINT page_ktx2_complete CHECK ((ktx2 IS NULL) = (ktx2_n_bytes IS NULL)
                                              AND (ktx2 IS NULL) = (ktx2_levels IS NULL));
 ALTER TABLE tex.page ALTER COLUMN ktx2 SET STORAGE EXTERNAL;
-COMMENT ON COLUMN tex.page.ktx2 IS 'The page as KTX2: Basis Universal ETC1S (BasisLZ), sRGB, no alpha, every mip level down to 1x1 (basisu -ktx2 -mipmap, etl/geom/ktx2.py), for KHR_texture_basisu. NULL when the encoder refused the page: its features are in tex.failure (ktx2_encode_failed) and KTX2 exports draw them with vertex colours.';
+COMMENT ON COLUMN tex.page.ktx2 IS 'The page as KTX2: Basis Universal ETC1S (BasisLZ), sRGB, no alpha, every mip level down to 1x1 (basisu -ktx2 -mipmap, etl/textures/ktx2.py), for KHR_texture_basisu. NULL when the encoder refused the page: its features are in tex.failure (ktx2_encode_failed) and KTX2 exports draw them with vertex colours.';
 COMMENT ON COLUMN tex.page.ktx2_n_bytes IS 'Length of ktx2.';
 COMMENT ON COLUMN tex.page.ktx2_levels IS 'Mip levels in ktx2: log2(max(width, height)) + 1.';
 COMMENT ON COLUMN tex.page.format IS 'Image format of bytes: webp (the KTX2 encoding is in ktx2).';

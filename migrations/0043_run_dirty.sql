@@ -1,5 +1,5 @@
 -- 0043: what a run of a stage in an update changed, for the stages after it to read again only the tiles that
--- holds (etl/dirty.py). Until now every update's generalize measured the hierarchy of every tile, and textures
+-- holds (core/changes.py). Until now every update's generalize measured the hierarchy of every tile, and textures
 -- and the export fingerprinted every tile's features, whatever the change: three passes over the city each
 -- update paid (about 2.5 s on the benchmark extract, most of a one-building update's generalize and export).
 -- A run with no row here (a full run, a run that died, a run from before this migration) may have changed

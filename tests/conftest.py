@@ -38,8 +38,8 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.common import SHARED_OSM  # noqa: E402
 from core import cluster  # noqa: E402
+from etl.fetch import DEMO_OSM  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
-from etl.stages.fetch import DEMO_OSM  # noqa: E402
 from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
 
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).

@@ -13,7 +13,7 @@ local buildings = osm2pgsql.define_table({
     name = 'buildings',
     ids = { type = 'any', type_column = 'osm_type', id_column = 'osm_id' },
     columns = {
-        -- 'building' or 'part', the same classification as etl/tags.py building_kind().
+        -- 'building' or 'part', the same classification as etl/geom/tags.py building_kind().
         { column = 'kind', type = 'text', not_null = true },
         -- All tags, so the comparison loads the same amount of data per row as citylod does.
         { column = 'tags', type = 'jsonb' },

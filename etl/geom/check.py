@@ -7,7 +7,7 @@
 
 Vertices are identified by exact coordinates within one mesh (trimesh merges them the same way when it
 loads). Building one ``trimesh.Trimesh`` per building costs ~0.2 ms, more than building the mesh, so the
-batch is checked with numpy; ``tests/unit/test_check.py`` holds the two to the same verdicts, and the lod
+batch is checked with numpy; ``tests/unit/test_geom_check.py`` holds the two to the same verdicts, and the lod
 stage re-checks every failure with trimesh itself before recording it.
 """
 

@@ -18,8 +18,7 @@ import numpy as np
 import shapely
 
 from core.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
-
-from .check import signed_volume
+from etl.geom.check import signed_volume
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@
 -- radius_m); a building is pushed radially away from the landmark centre by the overlap the scaling adds
 -- (an overlap that already existed at scale 1, between adjacent buildings, is kept, so neighbours move
 -- continuously from 0 as the landmark grows); pushed by several landmarks, it takes the largest push. Landmarks
--- stay where they are. lm.clearing_push is the rule (etl.geom.landmarks.displacement(combine="max",
+-- stay where they are. lm.clearing_push is the rule (etl.landmarks.saliency.displacement(combine="max",
 -- only_growth=True) in numpy).
 --   camera  point with Z: longitude, latitude (any SRID PostGIS can take to EPSG:4326) and height above the
 --           ellipsoid (m), as api.lod_for_view; ground is the bottom of the root tile's region (0 before tiles)

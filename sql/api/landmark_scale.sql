@@ -3,7 +3,7 @@
 -- intervals (lm.building.scale_distances_m / scale_factors, filled by the landmarks stage): 1 before the first
 -- distance, scale_factors[i] from scale_distances_m[i] on. ramp_m > 0 blends each step linearly over the ramp_m
 -- metres before its distance, so a moving camera sees the landmark grow instead of pop (as
--- etl.geom.landmarks.exaggeration_scale). 1 for a building that is not a landmark, NULL for an unknown id.
+-- etl.landmarks.saliency.exaggeration_scale). 1 for a building that is not a landmark, NULL for an unknown id.
 --   building_id  lm.building.building_id (osm.building.id of the outline)
 -- Example (the top landmark seen from 5 km):
 --   SELECT api.landmark_scale(building_id, 5000) FROM lm.building WHERE rank = 1;

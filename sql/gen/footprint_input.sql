@@ -5,7 +5,7 @@
 -- no area), the lowest bottom, its LOD2 triangles, whether LOD3 put openings on it, and the boundaries of
 -- the outlines within pin_m of it (their shared walls stay where they are), and the unit of the batches it goes
 -- into (gen.batch_units: the rows of one unit are one batch).
---   pin_m  distance (m) within which a neighbour's boundary pins vertices (etl.geom.simplify.PIN_DISTANCE)
+--   pin_m  distance (m) within which a neighbour's boundary pins vertices (etl.generalize.simplify.PIN_DISTANCE)
 --   batch  settings.gen_batch_features (gen.batch_units)
 --   ids    only these buildings (group ids; NULL: all): an update reads only the batches it computes again,
 --          without aggregating every building's meshes first

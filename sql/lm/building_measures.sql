@@ -4,7 +4,7 @@
 -- covers the outline, the outline's area, perimeter, oriented-envelope area and vertex count (shape), the
 -- height of its tallest LOD2 mesh and the volume of them all, and its semantic tags: a flag holds when the
 -- outline or any of its parts has it.
---   religious_types  building / building:part values of religious buildings (etl/stages/landmarks.py RELIGIOUS)
+--   religious_types  building / building:part values of religious buildings (etl/landmarks/stage.py RELIGIOUS)
 --   tower_types      building / man_made values of towers (TOWERS)
 -- Streamed by a server-side cursor: inlined into the caller's query (LANGUAGE sql, STABLE, not STRICT).
 -- Example: SELECT building_id, height, volume, worship FROM lm.building_measures(ARRAY['church'], ARRAY['tower'])

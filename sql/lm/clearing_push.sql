@@ -1,6 +1,6 @@
 -- lm.clearing_push(scale, landmark_radius_m, radius_m, distance_m) -> metres a building moves for a landmark
 -- The displacement rule of the landmark exaggeration, one place for api.landmark_exaggeration and
--- lm.exaggeration_role (and etl.geom.landmarks.displacement(only_growth=True) in numpy): footprints are circles;
+-- lm.exaggeration_role (and etl.landmarks.saliency.displacement(only_growth=True) in numpy): footprints are circles;
 -- a building whose circle (radius_m) lies distance_m from the centre of a landmark scaled by scale (circle
 -- landmark_radius_m at scale 1) moves radially away by the overlap the scaling adds, keeping any overlap that
 -- existed at scale 1. <= 0: it need not move.

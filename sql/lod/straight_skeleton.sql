@@ -1,5 +1,5 @@
 -- lod.straight_skeleton(geom) -> MULTILINESTRING of the straight skeleton's arcs, or NULL when SFCGAL fails
--- The LOD2 roofs of hipped, gabled and related shapes are read off these arcs (etl/geom/roofs.py). SFCGAL
+-- The LOD2 roofs of hipped, gabled and related shapes are read off these arcs (etl/lod/roofs.py). SFCGAL
 -- raises on some degenerate footprints; one such building must not abort the stage, so the error becomes
 -- NULL (the stage then draws the roof flat and records why).
 -- Example:

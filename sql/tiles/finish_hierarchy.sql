@@ -13,7 +13,7 @@
 -- below it (blocks, drawn or omitted, through their members): as many features as below it in the LOD2/LOD3
 -- bands, as many buildings (outlines with their parts) in the others.
 --   levels, xs, ys  the tiles to measure again, with their ancestors (an update: the tiles its change reached,
---                   etl/dirty.py); the others keep what the last run measured, which their content, the same,
+--                   core/changes.py); the others keep what the last run measured, which their content, the same,
 --                   gives again. NULL: every tile.
 -- Example: CALL tiles.finish_hierarchy(0);
 CREATE OR REPLACE PROCEDURE tiles.finish_hierarchy(base_height double precision, levels integer[] DEFAULT NULL,

@@ -44,7 +44,7 @@ BEGIN
     WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) AND k.built_error_m IS NOT NULL
       AND NOT EXISTS (SELECT FROM _omit o WHERE o.block_id = k.block_id);
     -- omitted, the errors as made kept beside: an update copies the block as it was made
-    -- (etl/stages/generalize.py); one omitted already has these values from the same row
+    -- (etl/generalize/stage.py); one omitted already has these values from the same row
     UPDATE gen.block k SET omitted = true, error_m = o.collapse_m, total_error_m = o.total,
                            built_error_m = k.error_m, built_total_error_m = k.total_error_m
     FROM _omit o WHERE k.block_id = o.block_id AND NOT o.already;

@@ -128,7 +128,7 @@ def test_make_export_on_a_fresh_database_runs_every_stage(built: Built) -> None:
     assert inputs["generalize"]["upstream"] == {"ingest": 1, "lod": 2, "landmarks": 3, "tiles": 4}
     assert inputs["ingest"]["file"]["path"] == str(built.osm)
     assert "level_height_m" in inputs["lod"]["settings"] and "tex_quality" not in inputs["lod"]["settings"]
-    assert "etl/stages/lod.py" in inputs["lod"]["code"] and "exporter/export.py" not in inputs["lod"]["code"]
+    assert "etl/lod/stage.py" in inputs["lod"]["code"] and "exporter/export.py" not in inputs["lod"]["code"]
     assert inputs["export"]["options"] == {"out": str(built.out), "lod": None, "geometry": "compact",
                                            "textures": "ktx2", "tiling": "implicit", "publish": built.out.name}
 

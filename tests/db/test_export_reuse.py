@@ -14,7 +14,7 @@ import pytest
 
 from exporter.reuse import glb_triangles
 from tests.conftest import City, run_etl
-from tests.db.test_publish import on_disk
+from tests.db.test_export_publish import on_disk
 from tests.db.test_serve_db import city_copy
 
 SMALL = {"CITYLOD_TILE_MAX_FEATURES": "4"}  # many tiles from the few fixtures

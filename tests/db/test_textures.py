@@ -20,18 +20,18 @@ import numpy as np
 import psycopg
 import pytest
 
-from benchmarks.servers import threaded
 from core.semantics import SEM_WALL, SEM_WINDOW
 from core.settings import Settings
 from core.wkb import decode_triangles
-from etl.geom import atlas as A
+from etl.textures import atlas as A
 from exporter.checks import check_tileset
 from exporter.gltf import read_glb
-from exporter.server.app import make_app
-from exporter.server.reader import reader_url
-from exporter.server.source import DbTileSource
+from exporter.serve.app import make_app
+from exporter.serve.reader import reader_url
+from exporter.serve.source import DbTileSource
 from tests.conftest import REPO, helsinki, run_etl, validate_glb
-from tests.unit.test_ktx2 import IDENTIFIER, assert_ktx2_report, read_ktx2
+from tests.support.servers import threaded
+from tests.unit.test_textures_ktx2 import IDENTIFIER, assert_ktx2_report, read_ktx2
 
 S = Settings()
 

@@ -16,11 +16,12 @@ import psycopg
 import pytest
 
 from benchmarks.update_bench import TABLES, Reader, table_rows
+from core.changes import tiles_since
 from core.db import analyze
 from core.settings import Settings
-from etl.dirty import tiles_since
-from etl.stages import ingest, update
-from etl.stages.update import ChangeFileError, apply_changes, count_change, state_path
+from etl.ingest import stage as ingest
+from etl.update import osc as update
+from etl.update.osc import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
 
 
@@ -309,7 +310,7 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             (gen,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()
             # the hierarchy measured and the textures fingerprinted again only where the change reached
-            # (etl/dirty.py); the first change adds a building beyond the others, which moves every tile's cell
+            # (core/changes.py); the first change adds a building beyond the others, which moves every tile's cell
             (n_tiles,) = conn.execute("SELECT count(*) FROM tiles.tile").fetchone()
             assert gen["hierarchy_tiles"] is not None and tex["tiles_fingerprinted"] > 0, (gen, tex)
             if seq == 2:
@@ -322,7 +323,7 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
             assert exp["glb_built"] > 0 and exp["glb_copied"] == exp["glb"] - exp["glb_built"], exp
             # the first change adds a building beyond the others: the root region, every glb's frame, grows
             assert (exp["glb_copied"] > 0) == (seq == 2), exp
-            # the second: only the tiles it reached are fingerprinted (etl/dirty.py), the others keep their keys
+            # the second: only the tiles it reached are fingerprinted (core/changes.py), the others keep their keys
             assert (exp["glb_fingerprinted"] < exp["glb"]) == (seq == 2), exp
             (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
                                   "ORDER BY run_id DESC LIMIT 1").fetchone()

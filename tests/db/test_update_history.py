@@ -1,10 +1,10 @@
 """`python -m etl update` with real changes, updated it must equal a full rebuild: every table, every glb and subtree.
 
 * Helsinki (the demo extract) as it was on 2018-11-01, as far as the extract's own history tells
-  (benchmarks/history.py: every object at version 1 stamped after that day left out), brought to the extract by
+  (tests/support/history.py: every object at version 1 stamped after that day left out), brought to the extract by
   the change file of the buildings, parts and other objects mappers created since: creations only.
 * A small area of Oakland (a street relation, its members and their nodes) as it stood on three days, from a
-  file of its full history (benchmarks.history.fetch_history): two real change files between them, with the
+  file of its full history (tests.support.history.fetch_history): two real change files between them, with the
   nodes mappers moved and deleted, the buildings they retagged and redrew, a way that became a building and
   buildings drawn new."""
 
@@ -19,12 +19,12 @@ import osmium
 import psycopg
 import pytest
 
-from benchmarks.history import changes, fetch_history, read_history, split, states
 from benchmarks.update_bench import differences, tileset_differences
 from core.settings import REPO
-from etl.stages.update import apply_changes
+from etl.update.osc import apply_changes
 from tests.conftest import helsinki, run_etl
 from tests.db.test_update import PIPELINE
+from tests.support.history import changes, fetch_history, read_history, split, states
 
 BEFORE = dt.datetime(2018, 11, 1, tzinfo=dt.UTC)
 #: tiles of at most 64 features and generalize batches of 100, so that the new buildings leave some unchanged

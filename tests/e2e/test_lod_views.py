@@ -32,7 +32,7 @@ from core.camera import Camera
 from core.geodesy import box_distance, region_box
 from core.tiles3d import expand
 from tests.conftest import REPO, helsinki, run_etl
-from tests.e2e.test_viewer import run_driver, served
+from tests.e2e.test_serve_viewer import run_driver, served
 
 pytestmark = pytest.mark.e2e
 

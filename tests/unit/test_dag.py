@@ -25,12 +25,12 @@ def test_the_graph_is_in_pipeline_order_and_ancestors_are_transitive() -> None:
 
 def test_each_stage_is_its_module_closure_its_sql_and_its_settings() -> None:
     lod, export, tiles = stage_code("lod"), stage_code("export"), stage_code("tiles")
-    assert {"etl/stages/lod.py", "etl/geom/roofs.py", "core/wkb.py", "etl/__init__.py"} <= lod.python.keys()
+    assert {"etl/lod/stage.py", "etl/lod/roofs.py", "core/wkb.py", "etl/__init__.py"} <= lod.python.keys()
     assert {"exporter/export.py", "exporter/gltf.py"} <= export.python.keys()
     for code in map(stage_code, GRAPH):
         # the command line and the bookkeeping are not a stage's code; the settings' values are compared instead
         assert not {"etl/__main__.py", "etl/runs.py", "etl/dag.py", "core/settings.py",
-                    "exporter/server/app.py"} & code.python.keys()
+                    "exporter/serve/app.py"} & code.python.keys()
         assert "pg_port" not in code.settings
     assert "sql/lod/outline_remainder.sql" in lod.sql
     # named in Python (api.buildings_for_tile) and through its SQL (tiles.lod2_features; the landmarks stage reaches
@@ -67,11 +67,11 @@ def _touched(before: dict[str, StageCode], root: Path) -> list[str]:
 
 
 @pytest.mark.parametrize(("edit", "stages"), [
-    ("etl/stages/textures.py", ["textures"]),
+    ("etl/textures/stage.py", ["textures"]),
     ("core/wkb.py", ["lod", "generalize", "textures", "export"]),
     ("etl/geom/facade.py", ["lod", "generalize", "textures"]),
     ("exporter/gltf.py", ["export"]),
-    ("exporter/server/app.py", []),
+    ("exporter/serve/app.py", []),
     ("etl/__main__.py", []),
 ])
 def test_a_python_edit_touches_exactly_the_stages_that_import_it(tmp_path: Path, edit: str,
@@ -86,7 +86,7 @@ def test_a_python_edit_touches_exactly_the_stages_that_import_it(tmp_path: Path,
 def test_a_new_sql_reference_and_a_new_setting_are_seen(tmp_path: Path) -> None:
     root = _tree(tmp_path, "tree")
     tiles = stage_code("tiles", root)
-    f = root / "etl" / "stages" / "tiles.py"
+    f = root / "etl" / "tiles" / "stage.py"
     f.write_text(f.read_text() + "\n# uses tiles.finish_hierarchy and settings.gen_max_area_change now\n")
     stage_code.cache_clear()
     now = stage_code("tiles", root)

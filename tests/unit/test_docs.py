@@ -109,7 +109,7 @@ def test_every_stage_is_documented(known: dict[str, set[str]]) -> None:
 
 def test_the_checker_finds_what_is_missing(known: dict[str, set[str]]) -> None:
     # every rule on a made-up document, so a broken pattern cannot pass the real ones vacuously
-    doc = ("See [the stage](etl/stages/nowhere.py), `sql/api/no_such.sql` and `etl/stages/lod.py`; run "
+    doc = ("See [the stage](etl/stages/nowhere.py), `sql/api/no_such.sql` and `etl/lod/stage.py`; run "
            "`make frobnicate` or `make lod`, `python -m etl nosuchstage`, `python -m benchmarks.nothing`, and "
            "query `api.no_such_function` or `api.lod_for_view`.")
     found = problems("README.md", doc, **known)

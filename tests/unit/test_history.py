@@ -1,4 +1,4 @@
-"""benchmarks/history.py on a history file written here: the state at a moment is each object's last version by
+"""tests/support/history.py on a history file written here: the state at a moment is each object's last version by
 then unless it deletes the object, and the change between two moments creates, modifies and deletes exactly what
 differs between their states."""
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import osmium
 
-from benchmarks.history import changes, read_history, states
-from etl.stages.update import apply_changes
+from etl.update.osc import apply_changes
+from tests.support.history import changes, read_history, states
 
 HISTORY = """<?xml version="1.0" encoding="UTF-8"?>
 <osm version="0.6">

@@ -1,4 +1,4 @@
-"""etl.geom.landmarks: measure normalization, relative height, shape distinctiveness, weighted saliency, the
+"""etl.landmarks.saliency: measure normalization, relative height, shape distinctiveness, weighted saliency, the
 Winter et al. voting hierarchy (known answers, invariants, degenerate inputs, a brute-force reference round),
 view-dependent exaggeration and the displacement of the buildings an enlarged landmark would cover."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from etl.geom.landmarks import (
+from etl.landmarks.saliency import (
     displacement,
     exaggeration_intervals,
     exaggeration_scale,

@@ -1,4 +1,4 @@
-"""etl/workers.py: a hung or crashed item loses only itself, in item order, with its stacks on stderr; an
+"""core/workers.py: a hung or crashed item loses only itself, in item order, with its stacks on stderr; an
 exception in the item's code is raised; a worker that hangs on its way out is killed, never waited on."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from etl import workers as W
+from core import workers as W
 
 
 def behave(item: tuple[str, int]) -> int:

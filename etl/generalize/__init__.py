@@ -1,0 +1,1 @@
+"""Stage generalize: simplified footprints, decimated meshes and aggregated blocks, each error measured, into gen.*."""

@@ -1,0 +1,1 @@
+"""Stage textures: procedural facades and roofs in multi-resolution atlas pages into tex.*."""

@@ -1,0 +1,1 @@
+"""Stage tiles: the quadtree over the buildings into tiles.*."""

@@ -1,0 +1,1 @@
+"""Helpers the tests share (servers, traversal, OSM history, comparisons); benchmarks use them too."""
