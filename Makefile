@@ -17,7 +17,7 @@ SETUP_PY   := $(VENV)/.installed
 SETUP_REPORTS := $(VENV)/.installed-reports
 SETUP_NODE := node_modules/.installed
 
-.PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures ingest lod landmarks tiles generalize textures export update serve demo test \
+.PHONY: help setup setup-test db db-stop psql migrate status fetch-demo fixtures update serve demo test \
         test-unit test-extracts bench bench-scale report-generalization report-saliency report-textures lint clean distclean
 
 help: ## list the targets
@@ -85,26 +85,17 @@ fixtures: $(SETUP_PY) ## write the hand-written test fixtures (tests/fixtures/os
 data/Helsinki.osm.pbf: | $(SETUP_PY)
 	$(PY) -m etl fetch-demo
 
-ingest: migrate $(OSM) ## OSM=path: load buildings and parts into osm.building
-	$(PY) -m etl ingest --osm $(OSM) $(call STALE,ingest)
-
-lod: ingest ## build LOD1 blocks, LOD2 roofs, LOD3 facades into lod.building_mesh
-	$(PY) -m etl lod $(call STALE,lod)
-
-landmarks: lod ## score every building's saliency, rank landmarks (Delaunay voting hierarchy) into lm.building
-	$(PY) -m etl landmarks $(call STALE,landmarks)
-
-tiles: lod ## build the tile quadtree into tiles.tile
-	$(PY) -m etl tiles $(call STALE,tiles)
-
-generalize: landmarks tiles ## simplify footprints, decimate meshes, aggregate blocks; measure each tile's error
-	$(PY) -m etl generalize $(call STALE,generalize)
-
-textures: generalize ## procedural facade/roof textures in per-tile atlas pages at each tile's resolution into tex.*
-	$(PY) -m etl textures $(call STALE,textures)
-
-export: $(EXPORT_READS) ## OUT=dir [LOD=1|2|3]: write 3D Tiles 1.1 (tileset.json + glb), every LOD unless LOD is set
-	$(PY) -m etl export --out $(OUT) $(if $(LOD),--lod $(LOD)) $(STREAM) $(call STALE,export)
+# The stage targets (ingest ... export) come from the stage graph, core/pipeline.py: each depends on the stages it
+# reads and runs `python -m etl <stage> $(ARGS_<stage>) --if-stale`. Made with the system's python3 (the graph
+# module needs nothing else), so `make help` works before the venv exists.
+STAGES_MK := build/stages.mk
+$(STAGES_MK): core/pipeline.py
+	@mkdir -p $(@D)
+	@python3 -m core.pipeline make > $@
+include $(STAGES_MK)
+ARGS_ingest = --osm $(OSM)
+ARGS_export = --out $(OUT) $(if $(LOD),--lod $(LOD)) $(STREAM)
+READS_export = $(EXPORT_READS)
 
 OSC ?=
 update: migrate ## OSC="a.osc[.gz] ...": apply OSM change files, derive again what they changed, export to OUT and publish

@@ -8,7 +8,7 @@ import json
 
 def run_seed(*parts: object) -> str:
     """sha256 hex of ``parts`` as JSON (keys sorted): what every fingerprint of a run starts from (its settings,
-    its code as etl/dag.py records it, and whatever else all its units share)."""
+    its code as etl/staleness.py records it, and whatever else all its units share)."""
     return hashlib.sha256(json.dumps(list(parts), sort_keys=True, default=str).encode()).hexdigest()
 
 

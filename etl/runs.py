@@ -1,5 +1,5 @@
 """meta.pipeline_run bookkeeping: one row per stage run, written at start and finished at the end, with the
-inputs etl/dag.py compares to decide whether the stage is current; a run is ok only with its balance
+inputs etl/staleness.py compares to decide whether the stage is current; a run is ok only with its balance
 (in = out + rejected) in its counts."""
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ def pipeline_run(
     input_sha256: str | None = None, inputs: dict[str, object] | None = None,
 ) -> Iterator[Run]:
     """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row.
-    ``inputs`` (etl.dag.inputs) is what a later --if-stale compares."""
+    ``inputs`` (etl.staleness.inputs) is what a later --if-stale compares."""
     with psycopg.connect(url, autocommit=True) as conn:
         # runs whose process died without recording its end (kill -9, a server restart) are failed first
         conn.execute("SELECT * FROM meta.reap_dead_runs(%s)", (RUN_LOCK,))

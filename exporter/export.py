@@ -21,6 +21,7 @@ import contextlib
 import ctypes
 import errno
 import fcntl
+import hashlib
 import json
 import os
 import shutil
@@ -39,6 +40,7 @@ from core.db import connect, thread_map
 from core.geodesy import Z_UP_TO_Y_UP, enu_rotation, geodetic_to_ecef
 from core.progress import Balance, Progress, summary
 from core.settings import Settings
+from core.stage import Context, Result
 from core.wkb import decode_triangles
 from exporter.content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArrays, hex_rgba, tile_arrays
 from exporter.gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
@@ -500,6 +502,31 @@ def _directory_lock(out: Path) -> Iterator[None]:
         yield  # the lock goes with the file's closing
 
 
+@dataclass(frozen=True)
+class Options:
+    """What an export writes: the directory, the generalized hierarchy or one ``lod``, the stream's encoding,
+    and the name it publishes the tileset under in the database (None: the directory only)."""
+
+    out: Path
+    lod: int | None = None
+    stream: StreamOptions = COMPACT
+    publish_as: str | None = None
+
+
+def run(ctx: Context) -> Result:
+    """The export stage (core/stage.py): ``ctx.options`` says what to write. An update's export fingerprints
+    only the tiles the runs since the live generation reached (exporter/reuse.py)."""
+    o: Options = ctx.options
+    counts = export_tileset(ctx.url, o.out, ctx.settings, lod=o.lod, stream=o.stream, publish_as=o.publish_as,
+                            run_id=ctx.run_id, code=ctx.code, reached=ctx.update)
+    return Result(counts, output=tileset_output(o.out))
+
+
+def tileset_output(out: Path) -> dict[str, object]:
+    """What export records of the directory it wrote (etl/staleness.py compares it)."""
+    return {"tileset_sha256": hashlib.sha256((out / TILESET_JSON).read_bytes()).hexdigest()}
+
+
 def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
                    stream: StreamOptions = COMPACT, publish_as: str | None = None,
                    run_id: int | None = None, code: str = "", reached: bool = False) -> dict[str, object]:
@@ -507,7 +534,7 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
     every building at that one level of detail (1 block, 2 roofs, 3 facades). Exports into one directory are
     serialized, and each swaps its tileset in whole (swap_in). With ``publish_as`` the same files become the
     next generation of that tileset in the database (exporter/publish.py), before the directory's swap; with
-    ``code`` too (the export's code and settings as etl/dag.py records them), the tiles whose input is the one
+    ``code`` too (the export's code and settings as etl/staleness.py records them), the tiles whose input is the one
     the live generation was built from are copied from it (exporter/reuse.py); with ``reached`` (an update's
     export) only the tiles its stages' runs reached since that generation are fingerprinted (core/changes.py)."""
     if lod not in (None, 1, 2, 3):

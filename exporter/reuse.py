@@ -21,6 +21,7 @@ from pathlib import Path
 
 import psycopg
 
+from core.changes import reach, since
 from core.db import connect, shares, thread_map
 from core.fingerprint import run_seed
 from exporter.gltf import read_glb
@@ -41,7 +42,7 @@ class TileKey:
 
 def recipe(code: str, lod: int | None, stream: StreamOptions, root_region: tuple[float, ...]) -> str:
     """What every tile's key starts from: ``code`` (the export's Python and SQL and the settings they read, as
-    the command line has etl/dag.py record them), the options, and the root region (every glb is placed in its
+    the command line has etl/staleness.py record them), the options, and the root region (every glb is placed in its
     frame)."""
     return run_seed(code, lod, stream.as_dict(), list(root_region))
 
@@ -86,15 +87,14 @@ def live_keys(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRe
     built from: made with the same recipe (``seed``, recorded in its options), and reached by no run of the
     stages since the export that published it (core/changes.py): their features, pages and record are as they were.
     Empty when that is not known (another recipe, a run since that recorded no change set)."""
-    from core.changes import tiles_since
-
     live = conn.execute("SELECT run_id, options->>'recipe' FROM pub.generation WHERE tileset = %s "
                         "ORDER BY generation DESC LIMIT 1", (name,)).fetchone()
     if live is None or live[0] is None or live[1] != seed:
         return {}
-    reached = tiles_since(conn, "export", int(live[0]))
-    if reached is None:
+    changed = since(conn, "export", int(live[0]))
+    if changed is None:
         return {}
+    reached = reach(conn, changed)
     return {r.content_uri: TileKey(published[r.content_uri][0], r.n_features if lod else r.content_features or 0)
             for r in tiles
             if r.content_uri is not None and r.content_uri in published and (r.level, r.x, r.y) not in reached}

@@ -69,12 +69,13 @@ import shapely
 from psycopg.rows import dict_row
 from psycopg.types.json import Jsonb
 
-from core.changes import Dirty, reach, tile_arrays, tiles_since
+from core.changes import Changes, reach, tile_arrays
 from core.db import analyze, connect, thread_map, working_srid
 from core.fingerprint import Fingerprint, run_seed
 from core.geodesy import region_box
 from core.progress import Balance, Progress, summary
 from core.settings import Settings
+from core.stage import Context, Result
 from core.wkb import decode_triangles, encode_triangles_batch
 from core.workers import Lost, imap_isolated, worker_count
 from etl.generalize.decimate import decimate
@@ -735,7 +736,7 @@ def store_boxes(cur: psycopg.Cursor) -> None:
 
 
 def _seed(settings: Settings, code: str, srid: int, tol: dict[int, float]) -> str:
-    """What every batch fingerprint of this run starts from: the settings, the stage's code as etl/dag.py
+    """What every batch fingerprint of this run starts from: the settings, the stage's code as etl/staleness.py
     records it (new code never copies old rows), the working CRS and the tolerances."""
     return run_seed(settings.as_dict(), code, srid, tol)
 
@@ -745,14 +746,14 @@ def _kept(conn: psycopg.Connection) -> Kept:
         "SELECT step, level, x, y, fingerprint, n_rows, stats FROM gen.unit_input WHERE fingerprint IS NOT NULL")}
 
 
-def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
-        code: str = "", reached: bool = False) -> dict[str, object]:
-    """Generalize every tile; with ``keep`` (an update), the rows of the batches and block tiles whose input did
-    not change stay as they are, and only the others are computed and written again. ``code``: see _seed.
-    ``reached`` (an update whose stages were current before it): the hierarchy of the tiles the update's runs
-    reached alone is measured again (core/changes.py), with those this run changed."""
+def run(ctx: Context) -> Result:
+    """Generalize every tile; in an update, the rows of the batches and block tiles whose input did not change
+    stay as they are, and only the others are computed and written again; when it knows what changed since the
+    last run (``ctx.changed``), the hierarchy of the tiles that reaches alone is measured again, with those this
+    run changed."""
+    conn, url, settings, keep, code = ctx.conn, ctx.url, ctx.settings, ctx.update, ctx.code
     t0 = time.perf_counter()
-    since = tiles_since(conn, "generalize") if keep and reached else None
+    since = reach(conn, ctx.changed) if keep and ctx.changed is not None else None
     srid = working_srid(conn)
     if not conn.execute("SELECT EXISTS (SELECT 1 FROM tiles.tile)").fetchone()[0]:  # type: ignore[index]
         raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
@@ -804,7 +805,7 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                 copy.write_row(row)
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
-        own = Dirty(fp_units.computed + dec_units.computed, reuse.made)
+        own = Changes(fp_units.computed + dec_units.computed, reuse.made)
         scope: list[Unit] = []
         if since is None:
             cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
@@ -837,7 +838,6 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
                    "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
         "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         "hierarchy_tiles": None if since is None else len(scope),  # measured again (None: every tile)
-        **({} if since is None else {"dirty": own}),
     }
     summary(
         "generalize", balance,
@@ -848,4 +848,4 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
            f"{len(reuse.units.records):,} (and {reuse.blocks_kept:,} blocks of the others)" if keep else ""),
         wall, n_groups,
     )
-    return result
+    return Result(result, None if since is None else own)

@@ -25,20 +25,18 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import psycopg
 import shapely
 
-from core.changes import Dirty, differing
+from core.changes import Changes, differing
 from core.db import working_srid
 from core.progress import Balance, summary
 from core.settings import Settings
+from core.stage import Context, Result
 from etl.landmarks import saliency as lm
 
-#: what a tile's content reads of a building's landmark rows (api.buildings_for_tile, api.export_features): the
-#: buildings whose rows differ here after the stage are what it changed for the stages after it (core/changes.py);
-#: score and rank are the city's and move with any edit, and no tile reads them
-_READ = ("SELECT l.building_id, l.level, l.is_landmark, l.lod2_band, md5(x::text) FROM lm.building l "
-         "LEFT JOIN lm.exaggeration x USING (building_id)")
+#: what a tile's content reads of a building's landmark rows: the buildings whose rows differ here after the
+#: stage are what it changed for the stages after it (core/changes.py)
+_READ = "SELECT * FROM lm.tile_inputs()"
 _CHANGED = f"SELECT DISTINCT building_id FROM ({differing(_READ, '_lm_was')}) d"
 
 #: Semantic measure: weight of each tag flag (sum 1). A flag holds when the outline or any of its parts has it.
@@ -77,7 +75,8 @@ def landmark_min_level(level: np.ndarray, max_fraction: float) -> int:
     return int(ok[0]) + 1
 
 
-def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
+def run(ctx: Context) -> Result:
+    conn, settings = ctx.conn, ctx.settings
     t0 = time.perf_counter()
     srid = working_srid(conn)
     # lm.building_measures (sql/lm/building_measures.sql), an inlined SQL function streamed into columns by name
@@ -165,7 +164,7 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
     n_lm = int(is_landmark.sum())
     summary("landmarks", balance, f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
             f"(level >= {min_level})", seconds, n)
-    return {**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)), "landmark_min_level": min_level,
-            "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top, "weights": w,
-            "seconds": round(seconds, 3), "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None,
-            "dirty": Dirty(buildings=changed)}
+    return Result({**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)),
+                   "landmark_min_level": min_level, "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top,
+                   "weights": w, "seconds": round(seconds, 3),
+                   "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}, Changes(buildings=changed))

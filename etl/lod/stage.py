@@ -35,11 +35,12 @@ import psycopg
 import shapely
 from psycopg.rows import dict_row
 
-from core.changes import Dirty
+from core.changes import Changes
 from core.db import analyze, connect, working_srid
 from core.progress import Balance, Progress, summary
 from core.semantics import N_SEMANTICS, SEM_ROOF, SEM_WALL
 from core.settings import Settings
+from core.stage import Context, Result
 from core.wkb import encode_triangles_batch
 from core.workers import Lost, imap_isolated, worker_count
 from etl.geom.check import closure
@@ -432,21 +433,11 @@ def _built(src: psycopg.Cursor, settings: Settings, srid: int,
         yield rows, (_lost_batch(rows, out) if isinstance(out, Lost) else out)
 
 
-#: An update's buildings to draw again: those it added or modified, their outlines (a part's change changes its
-#: outline's remainder) and every part of those outlines; with the ids it deleted, whose rejects and
-#: diagnostics go.
-_AFFECTED = """
-    WITH c AS (SELECT id FROM osm.building_change WHERE change <> 'deleted'),
-         o AS (SELECT id FROM c UNION SELECT b.parent_id FROM osm.building b JOIN c USING (id)
-               WHERE b.parent_id IS NOT NULL)
-    SELECT b.id FROM osm.building b WHERE b.id IN (SELECT id FROM o) OR b.parent_id IN (SELECT id FROM o)
-    UNION SELECT id FROM osm.building_change WHERE change = 'deleted'
-    ORDER BY 1"""
-
-
-def run(conn: psycopg.Connection, url: str, settings: Settings, changed: bool = False) -> dict[str, object]:
-    """Draw every building; with ``changed`` (an update), only those osm.building_change names, with their
-    outlines and parts (_AFFECTED), keeping every other building's meshes."""
+def run(ctx: Context) -> Result:
+    """Draw every building; in an update that knows what changed since the last run, only the buildings it
+    changed, with their outlines and parts (lod.affected_buildings), keeping every other building's meshes."""
+    conn, url, settings = ctx.conn, ctx.url, ctx.settings
+    changed = ctx.update and ctx.changed is not None
     t0 = time.perf_counter()
     srid = working_srid(conn)
     coverage = settings.outline_part_coverage
@@ -460,7 +451,9 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, changed: bool = 
         # cluster) PostgreSQL then writes the COPY without WAL, ~300 MB less on a 20k-building city
         only: list[int] | None = None
         if changed:
-            only = [i for (i,) in cur.execute(_AFFECTED)]
+            assert ctx.changed is not None
+            only = [i for (i,) in cur.execute("SELECT id FROM lod.affected_buildings(%s)",
+                                              (sorted(set(ctx.changed.buildings)),))]
             keys = [("W" if i > 0 else "R", abs(i)) for i in only]  # osm2pgsql ids: way id, or minus the relation's
             cur.execute("DELETE FROM lod.building_mesh WHERE building_id = ANY(%s) AND lod = ANY(%s)",
                         (only, list(LODS)))
@@ -550,12 +543,11 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, changed: bool = 
         **{f"triangles_per_building_lod{lod}": round(counts[f"triangles_lod{lod}"] / nb, 1) for lod in LODS},
         "lod2_closed_pct": round(100.0 * (1 - counts["lod2_not_closed"] / nb), 3),
     }
-    if changed:
-        result["dirty"] = Dirty()  # only the buildings ingest recorded (and their kin, reached through their group)
     summary(
         "lod", balance,
         f"{counts['pitched_roofs']:,} pitched roofs, LOD2 closed {result['lod2_closed_pct']}% | triangles LOD1 "
         f"{counts['triangles_lod1']:,}, LOD2 {counts['triangles_lod2']:,}, LOD3 {counts['triangles_lod3']:,}",
         wall, total,
     )
-    return result
+    # an update: only the buildings ingest recorded (and their kin, reached through their group)
+    return Result(result, Changes() if changed else None)

@@ -46,12 +46,13 @@ import psycopg
 from psycopg.rows import class_row, dict_row
 
 from core.camera import distance_for_pixels
-from core.changes import Dirty, tiles_since
+from core.changes import Changes, reach
 from core.db import analyze, connect, shares, thread_map
 from core.fingerprint import Fingerprint, run_seed
 from core.progress import Balance, Progress, summary
 from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
+from core.stage import Context, Result
 from core.wkb import decode_triangles
 from core.workers import Lost, imap_isolated
 from etl.textures import atlas as A
@@ -96,7 +97,7 @@ class Tile:
 
 
 @dataclass
-class Result:
+class TileResult:
     tile: Tile
     rho: float
     distance: float
@@ -253,14 +254,14 @@ def fingerprints(url: str, tiles: list[Tile], seed: str, settings: Settings,
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
-              store: bool, rows: list[Feature] | None = None, encode: bool = True, jobs: int = 1) -> Result:
+              store: bool, rows: list[Feature] | None = None, encode: bool = True, jobs: int = 1) -> TileResult:
     """Texture ``tile``. ``encode`` False: only draw it, for the charts it adds to ``cache`` (its pages are
     kept from the last run, so neither encoded nor returned). ``jobs``: basisu processes for its pages (the
     cores this unit has to itself)."""
     t0 = time.perf_counter()
     rho, distance = resolution(tile.geometric_error, settings)
     pad = padding_for(rho, settings)
-    res = Result(tile, rho, distance, pad)
+    res = TileResult(tile, rho, distance, pad)
     params = X.Params(page_size=settings.tex_page_size, padding=pad, packer=settings.tex_packer,
                       min_chart_texels=settings.tex_min_chart_texels,
                       xatlas_min_planes=settings.tex_xatlas_min_planes)
@@ -330,7 +331,7 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     return res
 
 
-def _write(cur: psycopg.Cursor, res: Result) -> None:
+def _write(cur: psycopg.Cursor, res: TileResult) -> None:
     for table, cols, types, rows in (("page", _PAGE_COLUMNS, _PAGE_TYPES, res.pages),
                                      ("feature_uv", _UV_COLUMNS, _UV_TYPES, res.uvs),
                                      ("failure", _FAIL_COLUMNS, _FAIL_TYPES, res.failures)):
@@ -356,7 +357,7 @@ def _init_worker(url: str, settings: Settings, jobs: int = 1) -> None:
 Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, dict[tuple[int, int, int], str]]
 
 
-def _do_unit(item: Unit) -> list[Result]:
+def _do_unit(item: Unit) -> list[TileResult]:
     """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. In an update
     (the unit changed: run() keeps a unit whose fingerprints are all the last ones without sending it here) every
     tile is textured again but the leaves whose input is unchanged: those are only drawn, for the charts the
@@ -380,7 +381,7 @@ def _do_unit(item: Unit) -> list[Result]:
     return results
 
 
-def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> Iterator[list[Result] | Lost]:
+def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> Iterator[list[TileResult] | Lost]:
     """Results of every unit, in order; a unit whose worker hung or died comes back as a Lost. Worker
     processes, not threads: most of the time is numpy on arrays of a few thousand elements and Python between
     them, which threads serialise on the GIL (2 threads were no faster than 1, measured); each process reads
@@ -399,12 +400,12 @@ def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> 
                              (url, settings, jobs))
 
 
-def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[Result]:
+def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[TileResult]:
     """A lost unit's features, every one in tex.failure (they keep their vertex colours)."""
     out = []
     for t in unit:
         rho, distance = resolution(t.geometric_error, settings)
-        res = Result(t, rho, distance, padding_for(rho, settings))
+        res = TileResult(t, rho, distance, padding_for(rho, settings))
         rows = _features(conn, t, _FEATURE_IDS)
         res.features = len(rows)
         detail = f"the unit of tile {t.level}/{t.x}/{t.y}: {lost.detail}"
@@ -444,7 +445,7 @@ def _kept_counts(conn: psycopg.Connection) -> dict[str, dict[Key, object]]:
             for what, q in (("pages", _KEPT_PAGES), ("uvs", _KEPT_UVS), ("fails", _KEPT_FAILS))}
 
 
-def _fill_kept(res: Result, counts: dict[str, dict[Key, object]]) -> None:
+def _fill_kept(res: TileResult, counts: dict[str, dict[Key, object]]) -> None:
     key = (res.tile.level, res.tile.x, res.tile.y)
     texels, webp, ktx2, content = counts["pages"].get(key, ((), (), (), 0))  # type: ignore[misc]
     res.stats = {"content_texels": round(content or 0)}  # as its pages' utilizations say: for the summary
@@ -456,11 +457,11 @@ def _fill_kept(res: Result, counts: dict[str, dict[Key, object]]) -> None:
                  for t, b, k in zip(texels, webp, ktx2, strict=True)]
 
 
-def _kept_result(t: Tile, fingerprint: str, features: int, settings: Settings) -> Result:
+def _kept_result(t: Tile, fingerprint: str, features: int, settings: Settings) -> TileResult:
     """A tile of a unit whose input did not change (``features``: as tex.input_digests counted them): its rows
     stay as the last run wrote them."""
     rho, distance = resolution(t.geometric_error, settings)
-    return Result(t, rho, distance, padding_for(rho, settings), features=features, fingerprint=fingerprint,
+    return TileResult(t, rho, distance, padding_for(rho, settings), features=features, fingerprint=fingerprint,
                   kept=True)
 
 
@@ -475,19 +476,18 @@ def _drop_tile(cur: psycopg.Cursor, key: Key) -> None:
 
 def _seed(settings: Settings, code: str) -> str:
     """What every fingerprint of this run starts from: the settings and ``code``, a digest of the stage's code
-    (the command line passes the one etl/dag.py records, so new code never keeps old textures)."""
+    (the command line passes the one etl/staleness.py records, so new code never keeps old textures)."""
     return run_seed(settings.as_dict(), code)
 
 
-def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = False,
-        code: str = "", reached: bool = False) -> dict[str, object]:
-    """Texture every tile; with ``keep`` (an update), leave the textures of the units whose input did not change
-    as they are, and replace only the others' rows, instead of texturing every tile again. ``code``: see
-    _seed. ``reached`` (an update whose stages were current before it): only the tiles the update's runs
-    reached are fingerprinted (core/changes.py); the others' input is what it was, and they keep the fingerprint
-    the last run recorded."""
+def run(ctx: Context) -> Result:
+    """Texture every tile; in an update, leave the textures of the units whose input did not change as they are,
+    and replace only the others' rows, instead of texturing every tile again. When the update knows what
+    changed since the last run (``ctx.changed``), only the tiles that reaches are fingerprinted; the others'
+    input is what it was, and they keep the fingerprint the last run recorded."""
+    conn, url, settings, keep, code = ctx.conn, ctx.url, ctx.settings, ctx.update, ctx.code
     t0 = time.perf_counter()
-    since = tiles_since(conn, "textures") if keep and reached else None
+    since = reach(conn, ctx.changed) if keep and ctx.changed is not None else None
     if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
         raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
     K.binary()  # no encoder is an installation problem, not a bad page: stop before any work ("run make setup")
@@ -619,10 +619,10 @@ def run(conn: psycopg.Connection, url: str, settings: Settings, keep: bool = Fal
         seconds,
         buildings,
     )
-    return {**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
-            "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
-            "tiles_fingerprinted": len(todo),  # the others no run of the update reached (core/changes.py)
-            **({} if since is None else {"dirty": Dirty(tiles=made)}),
-            "workers": workers, "utilization": round(util, 4), "encode_seconds": round(encode_seconds, 3),
-            "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
-            "buildings_per_s": round(buildings / seconds, 1) if seconds else None}
+    return Result({**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
+                   "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
+                   "tiles_fingerprinted": len(todo),  # the others no run of the update reached (core/changes.py)
+                   "workers": workers, "utilization": round(util, 4), "encode_seconds": round(encode_seconds, 3),
+                   "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
+                   "buildings_per_s": round(buildings / seconds, 1) if seconds else None},
+                  None if since is None else Changes(tiles=made))

@@ -5,20 +5,18 @@ from __future__ import annotations
 
 import time
 
-import psycopg
-
-from core.changes import Dirty, differing
+from core.changes import Changes, differing
 from core.progress import Balance, summary
-from core.settings import Settings
+from core.stage import Context, Result
 
 #: a tile's row as this stage writes it, and a building's placement, to compare before and after (the tiles and
 #: placements that differ are what the run changed: core/changes.py)
-_TILE_ROW = "SELECT level, x, y, md5(ROW(is_leaf, n_features, n_triangles, cell, mesh_region, content_uri, height, " \
-            "gen_level)::text) FROM tiles.tile"
+_TILE_ROW = "SELECT * FROM tiles.tile_digests()"
 _PLACED = "SELECT building_id, level, x, y, group_id FROM tiles.building_tile"
 
 
-def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
+def run(ctx: Context) -> Result:
+    conn, settings = ctx.conn, ctx.settings
     t0 = time.perf_counter()
     with conn.transaction():
         conn.execute(f"CREATE TEMP TABLE _tile_was ON COMMIT DROP AS {_TILE_ROW}")
@@ -49,5 +47,5 @@ def run(conn: psycopg.Connection, settings: Settings) -> dict[str, object]:
         f"{n_leaves:,} leaf tiles ({n_tiles:,} tiles, depth {depth}, largest leaf {max_leaf:,} features)",
         seconds, n_features,
     )
-    return {**balance.counts(), "features": n_features, "tiles": n_tiles, "leaves": n_leaves, "depth": depth,
-            "max_leaf_features": max_leaf, "seconds": round(seconds, 3), "dirty": Dirty(tiles=changed)}
+    return Result({**balance.counts(), "features": n_features, "tiles": n_tiles, "leaves": n_leaves, "depth": depth,
+                   "max_leaf_features": max_leaf, "seconds": round(seconds, 3)}, Changes(tiles=changed))

@@ -32,7 +32,7 @@ import osmium.io
 import psycopg
 
 from core.settings import REPO
-from etl.ingest.stage import ChangeIds
+from etl.ingest.read import ChangeIds
 from etl.runs import sha256_file
 
 STATE_DIR = REPO / "build" / "osm"

@@ -16,9 +16,10 @@ import psycopg
 import pytest
 
 from benchmarks.update_bench import TABLES, Reader, table_rows
-from core.changes import tiles_since
+from core import changes
 from core.db import analyze
 from core.settings import Settings
+from core.stage import Context
 from etl.ingest import stage as ingest
 from etl.update import osc as update
 from etl.update.osc import ChangeFileError, apply_changes, count_change, state_path
@@ -417,9 +418,13 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     with psycopg.connect(inc, autocommit=True) as conn:
         # the runs carried over changed nothing; a run that recorded no change set (it died after its commit, or
         # ran before migration 0043) may have changed anything: the stages after it read every tile again
-        assert tiles_since(conn, "generalize") == set() and tiles_since(conn, "textures") == set()
+        def reached(stage: str) -> set[tuple[int, int, int]] | None:
+            since = changes.since(conn, stage, changes.last_ok_run(conn, stage))
+            return None if since is None else changes.reach(conn, since)
+
+        assert reached("generalize") == set() and reached("textures") == set()
         conn.execute("INSERT INTO meta.pipeline_run (stage, status, finished_at) VALUES ('tiles', 'failed', now())")
-        assert tiles_since(conn, "generalize") is None and tiles_since(conn, "textures") is None
+        assert reached("generalize") is None and reached("textures") is None
 
 
 @pytest.mark.db
@@ -437,7 +442,9 @@ def test_an_update_reads_only_what_its_change_touched(fixtures_city: City, new_d
     run_etl(inc, "ingest", "--osm", str(base))
     with psycopg.connect(inc) as conn:
         (n_before,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
-        counts = ingest.run(conn, state, Settings.from_env(), "x", update=True, changed=update.change_ids([change]))
+        ctx = Context(conn, inc, Settings.from_env(), 0, mode="update",
+                      options=ingest.Input(state, "x", update.change_ids([change])))
+        counts = ingest.run(ctx).counts
         changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
     assert counts["partial"] and counts["staged"] < n_before / 2, counts
     # the parts of the outline that went are unchanged ways, linked again (to nothing); the L's new part is linked

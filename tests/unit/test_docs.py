@@ -23,7 +23,10 @@ STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "expo
 
 
 def make_targets(makefile: str) -> set[str]:
-    return set(re.findall(r"^([A-Za-z][\w-]*)\s*:(?!=)", makefile, re.M))
+    """The Makefile's targets and those it includes from the stage graph (core/pipeline.py)."""
+    from core.pipeline import make_rules
+
+    return set(re.findall(r"^([A-Za-z][\w-]*)\s*:(?!=)", makefile + make_rules(), re.M))
 
 
 def etl_commands() -> set[str]:

@@ -1,31 +1,36 @@
-"""The import graph points one way: core <- stages (etl) <- exporter/server <- CLI <- benchmarks.
+"""The import graph points one way: core <- exporter <- etl (the stages, the update, the command line on top)
+<- benchmarks, and every stage's package stands alone.
 
 Every import of the project's own modules is read from the source (function-level imports included, since a
-lazy import is still a dependency; the reader is etl/dag.py's, which decides what code a stage runs) and checked
-against the layers, and the module graph must have no cycle.
+lazy import is still a dependency; the reader is etl/staleness.py's, which decides what code a stage runs) and
+checked against the layers, and the module graph must have no cycle.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from etl.dag import module_imports, project_modules
+from core.pipeline import STAGES
+from etl.staleness import module_imports, project_modules
 
 REPO = Path(__file__).resolve().parents[2]
-PACKAGES = ("core", "etl", "exporter", "benchmarks")
-CLI = {"etl.__main__", "exporter.__main__"}
+PACKAGES = ("core", "etl", "exporter", "benchmarks", "tests/support")
+CLI = {"etl.__main__"}
+#: the packages of the stages under etl/ (etl.ingest, ...), each its stage's Python
+STAGE_PACKAGES = {".".join(s.module.split(".")[:2]) for s in STAGES if s.module.startswith("etl.")}
 
 
 def layer(module: str) -> int:
-    """0 core (settings, db, cluster, geodesy, camera, semantics, wkb, progress), 1 stages and their pure code,
-    2 exporter and server, 3 the command lines, 4 benchmarks and reports."""
-    if module in CLI:
+    """0 core (what every layer shares: settings, db, the stage graph and contract, the worker pool, change
+    tracking), 1 exporter (export, writers, publish, server), 2 etl (the stages and the update), 3 the command
+    line and the helpers tests share, 4 benchmarks and reports."""
+    if module in CLI or module.startswith("tests."):
         return 3
-    return {"core": 0, "etl": 1, "exporter": 2, "benchmarks": 4}[module.split(".")[0]]
+    return {"core": 0, "exporter": 1, "etl": 2, "benchmarks": 4}[module.split(".")[0]]
 
 
 def graph() -> dict[str, set[str]]:
-    """Module -> the project modules it imports (etl/dag.py's reader, which also decides what code a stage
+    """Module -> the project modules it imports (etl/staleness.py's reader, which also decides what code a stage
     runs)."""
     mods = project_modules(REPO, PACKAGES)
     known = set(mods)
@@ -34,9 +39,26 @@ def graph() -> dict[str, set[str]]:
 
 def test_imports_point_down_the_layers() -> None:
     g = graph()
-    assert {"core.settings", "core.db", "core.geodesy", "core.camera", "core.semantics"} <= set(g)
+    assert {"core.settings", "core.db", "core.pipeline", "core.workers", "core.changes", "exporter.export",
+            "etl.update.run", "tests.support.servers"} <= set(g)
     upward = sorted(f"{a} -> {b}" for a, deps in g.items() for b in deps if layer(b) > layer(a))
     assert not upward, "imports against the layers:\n" + "\n".join(upward)
+    # core imports no other package of ours, the exporter nothing of etl
+    assert not [(a, b) for a, deps in g.items() for b in deps if a.startswith("core") and not b.startswith("core")]
+    assert not [(a, b) for a, deps in g.items() for b in deps if a.startswith("exporter") and b.startswith("etl")]
+
+
+def stage_package(module: str) -> str | None:
+    return next((p for p in STAGE_PACKAGES if module == p or module.startswith(p + ".")), None)
+
+
+def test_a_stage_imports_no_other_stage() -> None:
+    # what two stages share lives in etl/geom or core; only the update (and the command line) drive the stages
+    g = graph()
+    assert len(STAGE_PACKAGES) == 6
+    across = sorted(f"{a} -> {b}" for a, deps in g.items() for b in deps
+                    if stage_package(a) and stage_package(b) and stage_package(a) != stage_package(b))
+    assert not across, "stages importing each other:\n" + "\n".join(across)
 
 
 def cycles(g: dict[str, set[str]]) -> list[list[str]]:
@@ -67,10 +89,11 @@ def test_no_import_cycles() -> None:
 def test_the_checker_sees_a_cycle_and_an_upward_import(tmp_path) -> None:
     # the two rules above on a made-up module pair, so a broken parser cannot pass them vacuously
     a = tmp_path / "a.py"
-    a.write_text("from exporter import serve\nimport core.db\n")
-    known = {"etl.a", "exporter", "exporter.serve", "core.db"}
-    assert module_imports("etl.a", a, known) == {"exporter.serve", "core.db"}
-    assert layer("exporter.serve") > layer("etl.a")
+    a.write_text("from etl import runner\nimport core.db\n")
+    known = {"exporter.a", "etl", "etl.runner", "core.db"}
+    assert module_imports("exporter.a", a, known) == {"etl.runner", "core.db"}
+    assert layer("etl.runner") > layer("exporter.a") > layer("core.db")
+    assert stage_package("etl.lod.roofs") == "etl.lod" and stage_package("etl.geom.check") is None
     rel = tmp_path / "b.py"
     rel.write_text("def f():\n    from ..geom import check\n    from .. import fetch\n")
     assert module_imports("etl.textures.b", rel, {"etl.geom.check", "etl.fetch", "etl.geom", "etl"}) == {

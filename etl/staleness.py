@@ -1,4 +1,4 @@
-"""The stage graph and whether a stage is current (``python -m etl <stage> --if-stale``, what make runs).
+"""Whether a stage is current (``python -m etl <stage> --if-stale``, what make runs).
 
 A stage is current when its last successful run in ``meta.pipeline_run`` recorded the same ``inputs`` it would
 record now:
@@ -33,23 +33,13 @@ from pathlib import Path
 
 import psycopg
 
+from core.pipeline import GRAPH, STAGES, ancestors
 from core.settings import REPO, Settings
 from core.tiles3d import tileset_files
 from etl.migrate import discover_sql
 
-#: stage -> the stages whose tables it reads, in pipeline order. Export reads the textures only for the
-#: generalized hierarchy; ``export --lod`` reads ("generalize",) (see cmd_export).
-GRAPH: dict[str, tuple[str, ...]] = {
-    "ingest": (),
-    "lod": ("ingest",),                    # osm.building
-    "landmarks": ("lod",),                 # osm.building, lod.building_mesh
-    "tiles": ("lod",),                     # lod.building_mesh
-    "generalize": ("tiles", "landmarks"),  # tiles.*, meshes, osm.building.protected (set by landmarks)
-    "textures": ("generalize",),           # tiles.tile errors, api.buildings_for_tile (gen.*, lm.building)
-    "export": ("textures",),               # api.buildings_for_tile, lm.building, tex.*
-}
 #: The module that defines each stage; its import closure is the stage's Python code.
-MODULES = {s: f"etl.{s}.stage" for s in GRAPH if s != "export"} | {"export": "exporter.export"}
+MODULES = {s.name: s.module for s in STAGES}
 _PACKAGES = ("core", "etl", "exporter")
 #: Settings that say where the database is, or how the work is spread (the output is the same whatever their
 #: values), not how a stage's output is made.
@@ -59,18 +49,6 @@ _NOT_INPUTS = frozenset({"pg_port", "pg_database", "lod_workers", "lod_batch_siz
 _SETTINGS_MODULE = "core.settings"
 _QUALIFIED = re.compile(r"\b([a-z_][a-z0-9_]*)\.([a-z_][a-z0-9_]*)\b")
 _SQL_COMMENT = re.compile(r"--[^\n]*")
-
-
-def ancestors(reads: Iterable[str]) -> list[str]:
-    """Every stage ``reads`` names and every stage those read, in pipeline order."""
-    seen: set[str] = set()
-    todo = list(reads)
-    while todo:
-        s = todo.pop()
-        if s not in seen:
-            seen.add(s)
-            todo.extend(GRAPH[s])
-    return [s for s in GRAPH if s in seen]
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -257,21 +235,17 @@ class LastRun:
     finished_at: str
     inputs: dict[str, object] | None
     output: dict[str, object] | None
+    counts: dict[str, object] | None
 
 
 def last_run(conn: psycopg.Connection, stage: str, out: str | None = None) -> LastRun | None:
     """The last successful run of ``stage`` (of export: into ``out``, since each directory holds its own)."""
     row = conn.execute(
-        """SELECT run_id, to_char(finished_at AT TIME ZONE 'UTC', 'YYYY-MM-DD HH24:MI:SS'), inputs, output
+        """SELECT run_id, to_char(finished_at AT TIME ZONE 'UTC', 'YYYY-MM-DD HH24:MI:SS'), inputs, output, counts
            FROM meta.pipeline_run
            WHERE stage = %s AND status = 'ok' AND (%s::text IS NULL OR inputs -> 'options' ->> 'out' = %s)
            ORDER BY run_id DESC LIMIT 1""", (stage, out, out)).fetchone()
     return LastRun(*row) if row else None
-
-
-def tileset_output(out: Path) -> dict[str, object]:
-    """What export records of the directory it wrote."""
-    return {"tileset_sha256": sha256_bytes((out / "tileset.json").read_bytes())}
 
 
 def output_problems(out: Path, recorded: dict[str, object] | None) -> list[str]:

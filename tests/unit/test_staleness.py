@@ -1,6 +1,6 @@
 """What makes a stage stale, without a database: the stage graph, the code and settings each stage is defined by
 (read from the sources under a root, so an edit in a copy of the tree shows which stages it touches), and the
-comparison of recorded inputs (etl/dag.py)."""
+comparison of recorded inputs (etl/staleness.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from etl.dag import GRAPH, StageCode, ancestors, differences, python_closure, stage_code
+from core.pipeline import GRAPH, ancestors
+from etl.staleness import StageCode, differences, python_closure, stage_code
 from tests.conftest import REPO
 
 
@@ -29,7 +30,7 @@ def test_each_stage_is_its_module_closure_its_sql_and_its_settings() -> None:
     assert {"exporter/export.py", "exporter/gltf.py"} <= export.python.keys()
     for code in map(stage_code, GRAPH):
         # the command line and the bookkeeping are not a stage's code; the settings' values are compared instead
-        assert not {"etl/__main__.py", "etl/runs.py", "etl/dag.py", "core/settings.py",
+        assert not {"etl/__main__.py", "etl/runs.py", "etl/staleness.py", "core/settings.py",
                     "exporter/serve/app.py"} & code.python.keys()
         assert "pg_port" not in code.settings
     assert "sql/lod/outline_remainder.sql" in lod.sql
@@ -103,14 +104,3 @@ def test_differences_name_what_changed() -> None:
     assert differences(rec, {**rec, "settings": {"level_height_m": 3.5}}) == ["settings level_height_m 3.0 -> 3.5"]
     assert differences(rec, {**rec, "code": {"a.py": "y", "b.sql": "z"}}) == ["code changed: a.py, b.sql"]
     assert differences(rec, {**rec, "file": {"path": "/a.osm", "sha256": "s2"}}) == ["file sha256 s1 -> s2"]
-
-
-def test_an_update_runs_at_once_only_stages_that_read_nothing_of_each_other() -> None:
-    from etl.__main__ import _UPDATE_STEPS
-
-    order = [stage for step in _UPDATE_STEPS for stage in step]
-    assert order == list(GRAPH)[1:-1]  # every stage between ingest and the export, in pipeline order
-    for step in _UPDATE_STEPS:
-        for stage in step:
-            assert not set(ancestors(GRAPH[stage])) & set(step), (stage, step)
-    assert ("landmarks", "tiles") in _UPDATE_STEPS

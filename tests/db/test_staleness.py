@@ -1,6 +1,6 @@
 """Make is a DAG over the database: `make export` on a fresh database runs every stage, a second `make export`
 runs none, and a changed input (a setting, the OSM file, a re-ingest, sql/, the output directory or its files,
-FORCE=1) reruns exactly the stages it feeds and everything below them (etl/dag.py, the Makefile's stage targets).
+FORCE=1) reruns exactly the stages it feeds and everything below them (etl/staleness.py, the Makefile's stage targets).
 
 The spine fixtures are built once with `make export`; each test that changes something works on a copy of that
 database (CREATE DATABASE ... TEMPLATE) with its own output directory, and counts the meta.pipeline_run rows
@@ -24,7 +24,7 @@ import pytest
 from psycopg import sql
 from psycopg.conninfo import conninfo_to_dict
 
-from etl.dag import GRAPH
+from core.pipeline import GRAPH
 from etl.migrate import SQL_DIR, reload_sql
 from tests.conftest import ETL_TIMEOUT, KEEP, PREFIX, REPO, SPINE_FILES, _with_db, merge_osm, run_etl
 
