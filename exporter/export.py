@@ -46,7 +46,7 @@ from exporter.content import DEFAULT_ROOF, DEFAULT_WALL, SEM_UNKNOWN, ContentArr
 from exporter.gltf import Image, Primitive, Property, class_schema, plan_quantization, read_glb, write_glb
 from exporter.meshopt import CompressionError
 from exporter.publish import check_name, publish
-from exporter.reuse import TileKey, copy_unchanged, live_keys, published_inputs, recipe, tile_keys, unchanged
+from exporter.reuse import Glbs, copy_unchanged, plan_glbs, recipe
 from exporter.stream import COMPACT, StreamOptions
 from exporter.tileset import TileRecord, build, node_matrix, region_centre
 
@@ -562,20 +562,9 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     tiles = [r for r in records if r.is_leaf or lod is None]
     expected = sum(r.n_features if lod else r.content_features for r in tiles)  # type: ignore[misc]
     # a published tileset: the tiles whose input is what its live generation was built from are copied
-    keys: dict[str, TileKey] = {}
-    same: dict[str, bytes] = {}
     seed = recipe(code, lod, stream, root_region)
-    fingerprinted = 0  # tiles whose api.export_digest was read
-    if publish_as is not None and code:
-        with connect(url) as conn:
-            published = published_inputs(conn, publish_as)
-            # the tiles no run reached since the live generation was published (core/changes.py), made with the same
-            # recipe: their input is the one it was built from, and they keep its key (no fingerprint read)
-            known = live_keys(conn, publish_as, seed, tiles, published, lod) if reached else {}
-        todo = [r for r in tiles if r.content_uri not in known]
-        fingerprinted = len(todo)
-        keys = {**(tile_keys(url, todo, seed, lod, stream) if todo else {}), **known}
-        same = unchanged(keys, published)
+    glbs = plan_glbs(url, publish_as, seed, tiles, lod, stream, reached) if publish_as is not None and code else Glbs()
+    same = glbs.copy
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
@@ -587,7 +576,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     features_built = n_features
     if same:
         t, b = copy_unchanged(url, same, out, partial)
-        n_features += sum(keys[p].n_features for p in same)  # as api.export_features counts them now
+        n_features += sum(glbs.n_features[p] for p in same)  # as api.export_features counts them now
         n_triangles, n_bytes = n_triangles + t, n_bytes + b
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
@@ -599,7 +588,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     published: dict[str, object] = {}
     if publish_as is not None:
         pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict(), "recipe": seed}, run_id,
-                      settings.publish_keep, {p: k.key for p, k in keys.items()})
+                      settings.publish_keep, glbs.keys)
         published = {"published_as": publish_as, **pub.as_dict()}
     swap_in(partial, out)
     seconds = time.perf_counter() - t0
@@ -620,7 +609,7 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
             "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
             "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
-            "glb_copied": len(same), "glb_built": len(tiles) - len(same), "glb_fingerprinted": fingerprinted,
+            "glb_copied": len(same), "glb_built": len(tiles) - len(same), "glb_fingerprinted": glbs.fingerprinted,
             # what building those glbs handled: an update's share of the export's work
             "features_built": features_built,
             "triangles": n_triangles, "bytes": n_bytes,

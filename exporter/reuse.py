@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import psycopg
@@ -24,6 +23,7 @@ import psycopg
 from core.changes import reach, since
 from core.db import connect, shares, thread_map
 from core.fingerprint import run_seed
+from core.reuse import plan
 from exporter.gltf import read_glb
 from exporter.stream import StreamOptions
 from exporter.tileset import TileRecord
@@ -34,44 +34,40 @@ _DIGESTS = ("SELECT t.level, t.x, t.y, d.digest, d.n_features FROM unnest(%s::in
             "AS t(level, x, y) CROSS JOIN LATERAL api.export_digest(t.level, t.x, t.y, %s, %s) d")
 
 
-@dataclass(frozen=True)
-class TileKey:
-    key: str         # sha256 hex: the recipe, the tile's record, api.export_digest
-    n_features: int  # the features api.export_features gives the tile
-
-
 def recipe(code: str, lod: int | None, stream: StreamOptions, root_region: tuple[float, ...]) -> str:
     """What every tile's key starts from: ``code`` (the export's Python and SQL and the settings they read, as
-    the command line has etl/staleness.py record them), the options, and the root region (every glb is placed in its
-    frame)."""
+    its run records them), the options, and the root region (every glb is placed in its frame)."""
     return run_seed(code, lod, stream.as_dict(), list(root_region))
 
 
-def tile_key(seed: str, rec: TileRecord, digest: str) -> str:
-    return hashlib.sha256(json.dumps([seed, dataclasses.astuple(rec), digest], default=str).encode()).hexdigest()
+@dataclass
+class Glbs:
+    """Which glbs an export copies from the live generation of its tileset, and every tile's key."""
+
+    #: content URI -> the tile's key this run (pub.file.input_digest)
+    keys: dict[str, str] = field(default_factory=dict)
+    #: content URI -> sha256 of the published glb to copy: its key is the published one
+    copy: dict[str, bytes] = field(default_factory=dict)
+    #: content URI -> the features api.export_features gives the tile now
+    n_features: dict[str, int] = field(default_factory=dict)
+    #: the tiles whose api.export_digest was read
+    fingerprinted: int = 0
 
 
-def tile_keys(url: str, tiles: list[TileRecord], seed: str, lod: int | None,
-              stream: StreamOptions) -> dict[str, TileKey]:
-    """Every tile's key by content URI; the digests are read by threads with a connection each (the SQL runs in
-    separate backends), each over a share of the tiles in one statement."""
+def _digests(url: str, tiles: list[TileRecord], lod: int | None,
+             stream: StreamOptions) -> dict[tuple[int, int, int], tuple[str, int]]:
+    """api.export_digest of every tile (digest, features), read by threads with a connection each (the SQL runs
+    in separate backends), each over a share of the tiles in one statement."""
     textures = stream.textures if lod is None else None
     threads = min(4, os.cpu_count() or 1)
-    by_place = {(r.level, r.x, r.y): r for r in tiles}
 
     def one(conn: psycopg.Connection, share: list[TileRecord]) -> list[tuple]:
         return conn.execute(_DIGESTS, ([r.level for r in share], [r.x for r in share], [r.y for r in share], lod,
                                        textures)).fetchall()
 
-    keys: dict[str, TileKey] = {}
     largest_first = sorted(tiles, key=lambda r: -(r.content_features or 0))
     with thread_map(url, one, shares(largest_first, threads), threads) as got:
-        for part in got:
-            for level, x, y, digest, n in part:
-                rec = by_place[(level, x, y)]
-                assert rec.content_uri is not None
-                keys[rec.content_uri] = TileKey(tile_key(seed, rec, digest), int(n))
-    return keys
+        return {(lv, x, y): (d, int(n)) for part in got for lv, x, y, d, n in part}
 
 
 def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str, bytes]]:
@@ -81,28 +77,44 @@ def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str
         "(SELECT max(generation) FROM pub.generation WHERE tileset = %s)", (name,))}
 
 
-def live_keys(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRecord],
-              published: dict[str, tuple[str, bytes]], lod: int | None) -> dict[str, TileKey]:
-    """The keys of the tiles whose input is, without reading it, the one the live generation of ``name`` was
-    built from: made with the same recipe (``seed``, recorded in its options), and reached by no run of the
-    stages since the export that published it (core/changes.py): their features, pages and record are as they were.
-    Empty when that is not known (another recipe, a run since that recorded no change set)."""
+def _reached(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRecord]) -> set[str] | None:
+    """The content URIs of the tiles some run reached since the export that published the live generation of
+    ``name`` (core/changes.py); the others' features, pages and record are as they were. None when that is not
+    known (no such generation, another recipe, a run since that recorded no change set)."""
     live = conn.execute("SELECT run_id, options->>'recipe' FROM pub.generation WHERE tileset = %s "
                         "ORDER BY generation DESC LIMIT 1", (name,)).fetchone()
     if live is None or live[0] is None or live[1] != seed:
-        return {}
+        return None
     changed = since(conn, "export", int(live[0]))
     if changed is None:
-        return {}
-    reached = reach(conn, changed)
-    return {r.content_uri: TileKey(published[r.content_uri][0], r.n_features if lod else r.content_features or 0)
-            for r in tiles
-            if r.content_uri is not None and r.content_uri in published and (r.level, r.x, r.y) not in reached}
+        return None
+    at = reach(conn, changed)
+    return {r.content_uri for r in tiles if r.content_uri is not None and (r.level, r.x, r.y) in at}
 
 
-def unchanged(keys: dict[str, TileKey], published: dict[str, tuple[str, bytes]]) -> dict[str, bytes]:
-    """path -> sha256 of the published glb, for every tile whose key is the published one."""
-    return {p: published[p][1] for p, k in keys.items() if p in published and published[p][0] == k.key}
+def plan_glbs(url: str, name: str, seed: str, tiles: list[TileRecord], lod: int | None, stream: StreamOptions,
+              reached: bool) -> Glbs:
+    """Which glbs of ``tiles`` to copy from the live generation of tileset ``name`` (core/reuse.py): a tile's
+    key is made of ``seed``, its record in the tree and api.export_digest. With ``reached`` (an update's
+    export) only the tiles some run reached since that generation are fingerprinted; the others keep its key."""
+    out = Glbs()
+    by_uri = {r.content_uri: r for r in tiles if r.content_uri is not None}
+    with connect(url) as conn:
+        published = published_inputs(conn, name)
+        at = _reached(conn, name, seed, tiles) if reached else None
+
+    def parts(uris: list[str]) -> dict[str, tuple[object, ...]]:
+        got = _digests(url, [by_uri[u] for u in uris], lod, stream)
+        out.n_features.update({u: got[(r.level, r.x, r.y)][1] for u, r in ((u, by_uri[u]) for u in uris)})
+        return {u: (dataclasses.astuple(r), got[(r.level, r.x, r.y)][0]) for u, r in ((u, by_uri[u]) for u in uris)}
+
+    p = plan(list(by_uri), seed, {u: d for u, (d, _) in published.items()}, parts, reached=at)
+    for u in by_uri.keys() - set(p.read):  # as api.export_features counts them
+        r = by_uri[u]
+        out.n_features[u] = r.n_features if lod else r.content_features or 0
+    out.keys, out.fingerprinted = p.prints, len(p.read)
+    out.copy = {u: published[u][1] for u in p.keep}
+    return out
 
 
 def glb_triangles(glb: bytes) -> int:

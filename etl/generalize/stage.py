@@ -71,9 +71,10 @@ from psycopg.types.json import Jsonb
 
 from core.changes import Changes, reach, tile_arrays
 from core.db import analyze, connect, thread_map, working_srid
-from core.fingerprint import Fingerprint, run_seed
+from core.fingerprint import run_seed
 from core.geodesy import region_box
 from core.progress import Balance, Progress, summary
+from core.reuse import decide, fingerprint, plan
 from core.settings import Settings
 from core.stage import Context, Result
 from core.wkb import decode_triangles, encode_triangles_batch
@@ -328,33 +329,24 @@ def _whole(cur: psycopg.Cursor, units: _Units, ids: dict[Unit, list[int]]) -> se
 def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, digests: list[tuple]
           ) -> tuple[dict[Unit, str], dict[Unit, list[int]]]:
     """(the fingerprint of every unit to compute, every unit's ids) from the step's gen.*_unit_digests rows
-    (unit, ids, digest). A unit whose fingerprint and row count are the last run's and whose rows are all there
-    is noted in ``units.kept`` instead: its rows stay as they are. In an update every unit's ids are noted in
-    _gen_seen (_drop_unseen)."""
-    prints: dict[Unit, str] = {}
-    ids: dict[Unit, list[int]] = {}
-    for lv, x, y, members, digest in digests:
-        f = Fingerprint(seed)
-        f.put(digest)
-        prints[(int(lv), int(x), int(y))] = f.hexdigest()
-        ids[(int(lv), int(x), int(y))] = [int(i) for i in members]
-    if kept is None:
-        return prints, ids
-    with cur.copy("COPY _gen_seen (building_id) FROM STDIN") as copy:
-        for b in ids.values():
-            for i in b:
-                copy.write_row((i,))
-    last = {u: kept.get((units.step, u)) for u in prints}
-    same = {u: old for u, old in last.items() if old is not None and old[0] == prints[u] and old[1] == len(ids[u])}
-    whole = _whole(cur, units, {u: ids[u] for u in same}) if same else set()
-    todo = {}
-    for u, p in prints.items():
-        if u in whole:
-            units.kept.append((u, same[u]))
-        else:
-            todo[u] = p
-            units.computed += ids[u]
-    return todo, ids
+    (unit, ids, digest), through core/reuse.py. A unit whose fingerprint and row count are the last run's and
+    whose rows are all there is noted in ``units.kept`` instead: its rows stay as they are. In an update every
+    unit's ids are noted in _gen_seen (_drop_unseen)."""
+    ids = {(int(lv), int(x), int(y)): [int(i) for i in members] for lv, x, y, members, _ in digests}
+    digest = {(int(lv), int(x), int(y)): d for lv, x, y, _, d in digests}
+    recorded = None
+    if kept is not None:
+        with cur.copy("COPY _gen_seen (building_id) FROM STDIN") as copy:
+            for b in ids.values():
+                for i in b:
+                    copy.write_row((i,))
+        recorded = {u: old[0] for u in ids if (old := kept.get((units.step, u))) is not None and old[1] == len(ids[u])}
+    p = plan(list(ids), seed, recorded, lambda us: {u: (digest[u],) for u in us},
+             whole=lambda same: _whole(cur, units, {u: ids[u] for u in same}))
+    if kept is not None:
+        units.kept += [(u, kept[(units.step, u)]) for u in p.keep]
+        units.computed += [i for u in p.make for i in ids[u]]
+    return {u: p.prints[u] for u in p.make}, ids
 
 
 def _todo_rows(src: psycopg.Cursor, todo: dict[Unit, str], ids: dict[Unit, list[int]], key: str,
@@ -543,11 +535,7 @@ def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
     out: dict[Unit, str] = {}
     for lv, x, y, g, is_leaf in tiles:  # children (deeper levels) first
         key = (int(lv), int(x), int(y))
-        f = Fingerprint(seed)
-        f.put((key, g, is_leaf, leaf.get(key)))
-        for d in sorted(below.pop(key, [])):
-            f.put(d)
-        out[key] = f.hexdigest()
+        out[key] = fingerprint(seed, (key, g, is_leaf, leaf.get(key)), *sorted(below.pop(key, [])))
         if lv > 0:
             below[(lv - 1, x >> 1, y >> 1)].append(out[key])
     band = {(int(lv), int(x), int(y)): g for lv, x, y, g, _ in tiles}
@@ -555,21 +543,21 @@ def block_digests(conn: psycopg.Connection, seed: str) -> dict[Unit, str]:
 
 
 def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> tuple[list[Unit], list[Unit]]:
-    """(tiles to make, tiles whose blocks stay as they are): a tile is kept when the last run recorded its
-    fingerprint and gen.block still holds every block it made."""
+    """(tiles to make, tiles whose blocks stay as they are), through core/reuse.py: a tile is kept when the last
+    run recorded its fingerprint and gen.block still holds every block it made."""
     if reuse.kept is None:
         return tiles, []
-    counts = {(int(lv), int(x), int(y)): int(n) for lv, x, y, n in cur.execute(
-        "SELECT level, x, y, count(*) FROM gen.block WHERE (level, x, y) IN "
-        "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[])) GROUP BY 1, 2, 3",
-        ([t[0] for t in tiles], [t[1] for t in tiles], [t[2] for t in tiles]))}
-    keep = []
-    for t in tiles:
-        old = reuse.kept.get(("blocks", t))
-        if old is not None and old[0] == reuse.digests.get(t) and counts.get(t, 0) == old[1]:
-            keep.append(t)
-    kept = set(keep)
-    return [t for t in tiles if t not in kept], keep
+    recorded = {t: old for t in tiles if (old := reuse.kept.get(("blocks", t))) is not None}
+
+    def whole(same: list[Unit]) -> set[Unit]:
+        counts = {(int(lv), int(x), int(y)): int(n) for lv, x, y, n in cur.execute(
+            "SELECT level, x, y, count(*) FROM gen.block WHERE (level, x, y) IN "
+            "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[])) GROUP BY 1, 2, 3",
+            ([t[0] for t in same], [t[1] for t in same], [t[2] for t in same]))}
+        return {t for t in same if counts.get(t, 0) == recorded[t][1]}
+
+    keep, make = decide(tiles, reuse.digests, {t: old[0] for t, old in recorded.items()}, whole)
+    return make, keep
 
 
 def _keep_blocks(reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:

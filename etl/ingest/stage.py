@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import LiteralString
 
 import psycopg
 
@@ -49,8 +50,9 @@ class Input:
     also: Callable[[psycopg.Cursor, int], None] | None = None
 
 
-def _copy_rows(cur: psycopg.Cursor, statement: str, rows: Iterable[tuple[object, ...]], progress: Progress) -> None:
-    with cur.copy(statement) as copy:  # type: ignore[arg-type]
+def _copy_rows(cur: psycopg.Cursor, statement: LiteralString, rows: Iterable[tuple[object, ...]],
+               progress: Progress) -> None:
+    with cur.copy(statement) as copy:
         for row in rows:
             copy.write_row(row)
             progress.update()
@@ -94,8 +96,8 @@ def _stage_candidates(cur: psycopg.Cursor, inp: Input, settings: Settings, count
     with reading(inp.path):
         _copy_rows(cur, COPY_IMPORT, read_buildings(inp.path, settings, counts, inp.touched if partial else None),
                    progress)
-    if partial and inp.touched is not None and not cur.execute(
-            "SELECT osm.extent_kept(%s)", (sorted(inp.touched.ways),)).fetchone()[0]:  # type: ignore[index]
+    if partial and inp.touched is not None and not _one(
+            cur, "SELECT osm.extent_kept(%s)", (sorted(inp.touched.ways),))[0]:
         print("  ingest: the change reaches the edge of the data: every candidate is read again", file=sys.stderr)
         partial, counts = False, IngestCounts(building_relations=counts.building_relations)
         cur.execute("TRUNCATE osm.building_import")
@@ -124,7 +126,7 @@ def run(ctx: Context) -> Result:
             cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'ingest'")
         print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
               file=sys.stderr, flush=True)
-        (staged,) = cur.execute("SELECT count(*) FROM osm.building_import").fetchone()  # type: ignore[misc]
+        (staged,) = _one(cur, "SELECT count(*) FROM osm.building_import")
         ways = sorted(inp.touched.ways) if partial and inp.touched is not None else None
         cur.execute("CALL osm.finish_ingest(%s, %s, %s, %s, %s)",
                     (settings.min_area_m2, str(inp.path), inp.sha256, update, ways))
@@ -139,53 +141,63 @@ def run(ctx: Context) -> Result:
     return Result(result, changed if update else None)
 
 
-def _figures(cur: psycopg.Cursor) -> dict[str, object]:
+@dataclass(frozen=True)
+class _Figures:
     """What the database holds after osm.finish_ingest, for the counts."""
-    loaded = cur.execute("SELECT count(*) FROM osm.building").fetchone()
-    rejected = cur.execute(
-        "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason"
-    ).fetchall()
-    by_kind = dict(cur.execute("SELECT kind, count(*) FROM osm.building GROUP BY kind").fetchall())
-    repaired = cur.execute("SELECT count(*) FROM osm.building WHERE repaired").fetchone()
-    srid = cur.execute("SELECT srid, srid_name FROM meta.dataset").fetchone()
-    changes = dict(cur.execute("SELECT change, count(*) FROM osm.building_change GROUP BY change").fetchall())
-    assert loaded is not None and repaired is not None and srid is not None
-    return {"loaded": int(loaded[0]), "rejected": [(r, int(n)) for r, n in rejected], "by_kind": by_kind,
-            "repaired": int(repaired[0]), "srid": srid, "changes": changes}
+
+    loaded: int
+    rejected: list[tuple[str, int]]
+    by_kind: dict[str, int]
+    repaired: int
+    srid: tuple[int, str]
+    changes: dict[str, int]
 
 
-def _result(f: dict[str, object], counts: IngestCounts, staged: int, partial: bool, update: bool,
+def _one(cur: psycopg.Cursor, query: LiteralString, params: tuple = ()) -> tuple:
+    row = cur.execute(query, params).fetchone()
+    assert row is not None
+    return row
+
+
+def _figures(cur: psycopg.Cursor) -> _Figures:
+    return _Figures(
+        loaded=int(_one(cur, "SELECT count(*) FROM osm.building")[0]),
+        rejected=[(r, int(n)) for r, n in cur.execute(
+            "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason")],
+        by_kind={k: int(n) for k, n in cur.execute("SELECT kind, count(*) FROM osm.building GROUP BY kind")},
+        repaired=int(_one(cur, "SELECT count(*) FROM osm.building WHERE repaired")[0]),
+        srid=(int((s := _one(cur, "SELECT srid, srid_name FROM meta.dataset"))[0]), str(s[1])),
+        changes={c: int(n) for c, n in cur.execute("SELECT change, count(*) FROM osm.building_change GROUP BY change")},
+    )
+
+
+def _result(f: _Figures, counts: IngestCounts, staged: int, partial: bool, update: bool,
             seconds: float) -> dict[str, object]:
-    rejected: list[tuple[str, int]] = f["rejected"]  # type: ignore[assignment]
-    by_kind: dict[str, int] = f["by_kind"]  # type: ignore[assignment]
-    srid: tuple[int, str] = f["srid"]  # type: ignore[assignment]
-    loaded = int(f["loaded"])  # type: ignore[call-overload]
-    n_rejected = sum(n for _, n in rejected)
+    n_rejected = sum(n for _, n in f.rejected)
     # a partial update read only some candidates: the others' rows are as they were, so the balance is the
     # database's (every candidate a building or a reject, as a full ingest checks it)
-    n_in = loaded + n_rejected if partial else staged
-    balance = Balance("buildings and parts", n_in, {"loaded": loaded}, n_rejected)
+    n_in = f.loaded + n_rejected if partial else staged
+    balance = Balance("buildings and parts", n_in, {"loaded": f.loaded}, n_rejected)
     result: dict[str, object] = {
         **balance.counts(),
-        "loaded": loaded,
-        "repaired": f["repaired"],
-        "buildings": int(by_kind.get("building", 0)),
-        "parts": int(by_kind.get("part", 0)),
+        "loaded": f.loaded,
+        "repaired": f.repaired,
+        "buildings": f.by_kind.get("building", 0),
+        "parts": f.by_kind.get("part", 0),
         "from_ways": counts.ways,
         "from_relations": counts.relations,
         "building_relations": counts.building_relations,
         "building_nodes_skipped": counts.nodes_skipped,
-        "rejected_by_reason": dict(rejected),
-        "srid": int(srid[0]),
+        "rejected_by_reason": dict(f.rejected),
+        "srid": f.srid[0],
         "seconds": round(seconds, 3),
     }
     if update:
-        changes: dict[str, int] = f["changes"]  # type: ignore[assignment]
-        result["changed"] = {k: int(changes.get(k, 0)) for k in ("added", "modified", "deleted")}
+        result["changed"] = {k: f.changes.get(k, 0) for k in ("added", "modified", "deleted")}
         result["partial"] = partial  # only the candidates the change touched were read again
         result["staged"] = staged
-    reasons = ", ".join(f"{r} {n}" for r, n in rejected) or "none"
-    print(f"  working CRS: EPSG:{srid[0]} ({srid[1]}); rejects: {reasons}", file=sys.stderr)
-    summary("ingest", balance, f"{by_kind.get('building', 0):,} buildings, {by_kind.get('part', 0):,} parts, "
-            f"{f['repaired']:,} repaired", seconds, n_in)
+    reasons = ", ".join(f"{r} {n}" for r, n in f.rejected) or "none"
+    print(f"  working CRS: EPSG:{f.srid[0]} ({f.srid[1]}); rejects: {reasons}", file=sys.stderr)
+    summary("ingest", balance, f"{f.by_kind.get('building', 0):,} buildings, {f.by_kind.get('part', 0):,} parts, "
+            f"{f.repaired:,} repaired", seconds, n_in)
     return result

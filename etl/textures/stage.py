@@ -48,8 +48,9 @@ from psycopg.rows import class_row, dict_row
 from core.camera import distance_for_pixels
 from core.changes import Changes, reach
 from core.db import analyze, connect, shares, thread_map
-from core.fingerprint import Fingerprint, run_seed
+from core.fingerprint import run_seed
 from core.progress import Balance, Progress, summary
+from core.reuse import plan
 from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
 from core.stage import Context, Result
@@ -94,6 +95,11 @@ class Tile:
     geometric_error: float
     is_leaf: bool
     features: int
+
+
+Key = tuple[int, int, int]
+#: A unit of work: its tiles, the fingerprints of their last textures (in an update; else None) and this run's.
+Unit = tuple[list[Tile], dict[Key, str] | None, dict[Key, str]]
 
 
 @dataclass
@@ -226,31 +232,55 @@ def _features(conn: psycopg.Connection, tile: Tile, query: str) -> list[Feature]
         return cur.execute(query, (tile.level, tile.x, tile.y)).fetchall()  # type: ignore[arg-type]
 
 
-def tile_fingerprint(seed: str, tile: Tile, settings: Settings, digest: str) -> str:
-    """sha256 of what texturing reads for ``tile``: ``seed`` (the stage's settings and code), the tile's place,
-    band, resolution (its geometric error matters through that alone) and count, and ``digest``, the
-    tex.input_digests md5 of its feature rows (every column, in order) and its LOD2 buildings' openings."""
-    f = Fingerprint(seed)
-    f.put((tile.level, tile.x, tile.y, tile.gen_level, resolution(tile.geometric_error, settings), tile.is_leaf,
-           tile.features))
-    f.put(digest)
-    return f.hexdigest()
-
-
-def fingerprints(url: str, tiles: list[Tile], seed: str, settings: Settings,
-                 threads: int) -> tuple[dict[Key, str], dict[Key, int]]:
-    """This run's fingerprint of every tile (tile_fingerprint) and the features it has, the digests computed in
-    the database by ``threads`` connections, each over a share of the tiles in one statement: no mesh is sent
-    here."""
+def _input_digests(url: str, tiles: list[Tile], threads: int) -> dict[Key, tuple[str, int]]:
+    """tex.input_digests of every tile (the md5 of its feature rows, every column in order, and of its LOD2
+    buildings' openings; its features), computed in the database by ``threads`` connections, each over a share
+    of the tiles in one statement: no mesh is sent here."""
     def one(conn: psycopg.Connection, share: list[Tile]) -> list[tuple]:
         return conn.execute("SELECT level, x, y, digest, n_features FROM tex.input_digests(%s::int[], %s::int[], "
                             "%s::int[])",
                             ([t.level for t in share], [t.x for t in share], [t.y for t in share])).fetchall()
 
     with thread_map(url, one, shares(tiles, threads), threads) as got:  # largest first, from units()
-        digests = {(int(lv), int(x), int(y)): (d, int(n)) for part in got for lv, x, y, d, n in part}
-    return ({(t.level, t.x, t.y): tile_fingerprint(seed, t, settings, digests[(t.level, t.x, t.y)][0]) for t in tiles},
-            {k: n for k, (_, n) in digests.items()})
+        return {(int(lv), int(x), int(y)): (d, int(n)) for part in got for lv, x, y, d, n in part}
+
+
+@dataclass
+class Plan:
+    """Which units to texture again (with their tiles' fingerprints, recorded and now) and which to keep."""
+
+    work: list[Unit]
+    same: list[list[Tile]]  # units whose every tile has its last fingerprint: their rows stay as they are
+    prints: dict[Key, str]
+    counts: dict[Key, int]  # the features of every tile
+    fingerprinted: int  # tiles whose input was read
+
+
+def plan_units(url: str, all_units: list[list[Tile]], seed: str, settings: Settings,
+               recorded: dict[Key, str] | None, reached: set[Key] | None, threads: int) -> Plan:
+    """The fingerprint of every tile (core/reuse.py): ``seed`` (the stage's settings and code), the tile's place,
+    band, resolution (its geometric error matters through that alone) and count, and its input digest; a tile
+    no change reached keeps its recorded one unread. A unit is kept when every tile of it is."""
+    by_key = {(t.level, t.x, t.y): t for u in all_units for t in u}
+    counts: dict[Key, int] = {k: t.features for k, t in by_key.items()}
+
+    def parts(keys: list[Key]) -> dict[Key, tuple[object, ...]]:
+        got = _input_digests(url, [by_key[k] for k in keys], threads)
+        counts.update({k: n for k, (_, n) in got.items()})
+        return {k: ((t.level, t.x, t.y, t.gen_level, resolution(t.geometric_error, settings), t.is_leaf,
+                     t.features), got[k][0]) for k, t in ((k, by_key[k]) for k in keys)}
+
+    p = plan(list(by_key), seed, recorded, parts, reached=reached)
+    kept = set(p.keep)
+    out = Plan([], [], p.prints, counts, len(p.read))
+    for u in all_units:
+        keys = [(t.level, t.x, t.y) for t in u]
+        if recorded is not None and all(k in kept for k in keys):
+            out.same.append(u)
+        else:
+            last = None if recorded is None else {k: recorded[k] for k in keys if k in recorded}
+            out.work.append((u, last, {k: p.prints[k] for k in keys}))
+    return out
 
 
 def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
@@ -353,8 +383,6 @@ def _init_worker(url: str, settings: Settings, jobs: int = 1) -> None:
     atexit.register(_WORKER["conn"].close)
 
 
-#: A unit of work: its tiles, the fingerprints of their last textures (in an update; else None) and this run's.
-Unit = tuple[list[Tile], dict[tuple[int, int, int], str] | None, dict[tuple[int, int, int], str]]
 
 
 def _do_unit(item: Unit) -> list[TileResult]:
@@ -436,7 +464,6 @@ _KEPT_PAGES = ("SELECT level, x, y, array_agg(width * height ORDER BY page_no), 
 _KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.feature_uv GROUP BY 1, 2, 3"
 _KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.failure GROUP BY 1, 2, 3"
 
-Key = tuple[int, int, int]
 
 
 def _kept_counts(conn: psycopg.Connection) -> dict[str, dict[Key, object]]:
@@ -505,20 +532,8 @@ def run(ctx: Context) -> Result:
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
     all_units = units(tiles)
     # a tile no run reached, with its rows whole, keeps its fingerprint; the others' are computed
-    known = {} if since is None or kept is None else {k: f for k, f in kept.items() if k not in since}
-    todo = [t for u in all_units for t in u if (t.level, t.x, t.y) not in known]
-    prints, counts = fingerprints(url, todo, seed, settings, workers) if todo else ({}, {})
-    prints.update(known)
-    counts.update({(t.level, t.x, t.y): t.features for t in tiles if (t.level, t.x, t.y) in known})
-    work: list[Unit] = []
-    same: list[list[Tile]] = []  # units whose every tile has its last fingerprint: their rows stay as they are
-    for u in all_units:
-        now = {(t.level, t.x, t.y): prints[(t.level, t.x, t.y)] for t in u}
-        last = None if kept is None else {k: kept[k] for k in now if k in kept}
-        if last is not None and last == now:
-            same.append(u)
-        else:
-            work.append((u, last, now))
+    pl = plan_units(url, all_units, seed, settings, kept, since, workers)
+    work, same, prints, counts = pl.work, pl.same, pl.prints, pl.counts
     progress = Progress("textures", "features", total=expected)
     by_band: dict[int, dict[str, float]] = {}
     lost = 0
@@ -621,7 +636,7 @@ def run(ctx: Context) -> Result:
     )
     return Result({**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
                    "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
-                   "tiles_fingerprinted": len(todo),  # the others no run of the update reached (core/changes.py)
+                   "tiles_fingerprinted": pl.fingerprinted,  # the others no run of the update reached (core/changes.py)
                    "workers": workers, "utilization": round(util, 4), "encode_seconds": round(encode_seconds, 3),
                    "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
                    "buildings_per_s": round(buildings / seconds, 1) if seconds else None},
