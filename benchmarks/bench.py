@@ -33,6 +33,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -630,7 +631,7 @@ def default_files() -> list[Path]:
     return files
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m benchmarks.bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--write", metavar="PATH", help="write the markdown report here (e.g. BENCHMARKS.md)")
     p.add_argument("--repeat", type=int, default=3, help="runs per stage; the median is reported (default 3)")
@@ -659,17 +660,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="skip the Scale section (the pipeline on the benchmark extract and its 6x replica, ~10 min)")
     p.add_argument("--no-scale", action="store_true",
                    help="skip api.lod_for_view at ~100k/~1M buildings (its cached databases take ~15 min to build)")
-    args = p.parse_args(argv)
-    if args.repeat < 1:
-        p.error("--repeat must be at least 1")
+    return p
 
-    files = [f.resolve() for f in args.files] if args.files else default_files()
-    missing = [str(f) for f in files if not f.exists()]
-    if missing:
-        p.error("missing input: " + ", ".join(missing))
 
-    cluster.ensure()  # starts the local cluster when DATABASE_URL is unset
-    admin_url = cluster.database_url("postgres")
+def _command(args: argparse.Namespace) -> str:
+    """The command line the report names: how to measure it again."""
     command = "python -m benchmarks.bench" + (f" --write {args.write}" if args.write else "")
     if args.repeat != 3:
         command += f" --repeat {args.repeat}"
@@ -686,12 +681,33 @@ def main(argv: list[str] | None = None) -> int:
         command += f" --soak-json {args.soak_json}"
     if args.update_json:
         command += f" --update-json {args.update_json}"
+    return command
 
+
+def _section(given: Path | None, skip: bool, head: Path | None, measure: Callable[[], dict[str, Any]]
+             ) -> dict[str, Any] | None:
+    """A section's figures: read from the JSON of a run elsewhere (``given``), measured on the headline extract,
+    or none."""
+    if given:
+        return json.loads(given.read_text())
+    return measure() if head is not None and not skip else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = _parser()
+    args = p.parse_args(argv)
+    if args.repeat < 1:
+        p.error("--repeat must be at least 1")
+
+    files = [f.resolve() for f in args.files] if args.files else default_files()
+    missing = [str(f) for f in files if not f.exists()]
+    if missing:
+        p.error("missing input: " + ", ".join(missing))
+
+    cluster.ensure()  # starts the local cluster when DATABASE_URL is unset
+    admin_url = cluster.database_url("postgres")
+    command = _command(args)
     results: list[ExtractResult] = []
-    scale: dict[str, Any] | None = None
-    scale_stages: dict[str, Any] | None = None
-    soak: dict[str, Any] | None = None
-    update: dict[str, Any] | None = None
     t0 = time.perf_counter()
     try:
         for f in files:
@@ -699,22 +715,11 @@ def main(argv: list[str] | None = None) -> int:
                                          stream=not args.no_stream, fidelity=not args.no_fidelity))
         mach = machine(cluster.database_url(BENCH_DB))
         head = next((f for f in files if extract_name(f) == HEADLINE), None)
-        if args.scale_stages_json:
-            scale_stages = json.loads(args.scale_stages_json.read_text())
-        elif head is not None and not args.no_scale_stages:
-            scale_stages = scale_bench.measure(head, [1, 6], admin_url)
-        if args.soak_json:
-            soak = json.loads(args.soak_json.read_text())
-        elif head is not None and not args.no_soak:
-            soak = soak_bench.measure(head, admin_url)
-        if args.update_json:
-            update = json.loads(args.update_json.read_text())
-        elif head is not None and not args.no_update:
-            update = update_bench.measure(head, admin_url)
-        if args.scale_json:
-            scale = json.loads(args.scale_json.read_text())
-        elif head is not None and not args.no_scale:
-            scale = view_bench.scale(admin_url, head)
+        scale_stages = _section(args.scale_stages_json, args.no_scale_stages, head,
+                                lambda: scale_bench.measure(head, [1, 6], admin_url))
+        soak = _section(args.soak_json, args.no_soak, head, lambda: soak_bench.measure(head, admin_url))
+        update = _section(args.update_json, args.no_update, head, lambda: update_bench.measure(head, admin_url))
+        scale = _section(args.scale_json, args.no_scale, head, lambda: view_bench.scale(admin_url, head))
     finally:
         if not args.keep:
             for db in (BENCH_DB, O2P_DB, soak_bench.SOAK_DB, update_bench.UPDATE_DB):
@@ -733,6 +738,7 @@ def main(argv: list[str] | None = None) -> int:
         print(report)
     log(f"done in {time.perf_counter() - t0:.0f} s")
     return 0
+
 
 
 if __name__ == "__main__":

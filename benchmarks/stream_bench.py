@@ -489,6 +489,15 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
     shown = [v for v in VARIANTS if any(v in r for _, r in results)]
     out = ["", "## Stream", "", NOTE.format(n=runs, ra=TARGET_ALL_RATIO, hb=TARGET_ALL_HEADLINE, l1=TARGET_LOD1,
                                             root=TARGET_ROOT // 1000, ex=TARGET_EXPORT_RATIO), ""]
+    out += _size_table(results, shown, headline)
+    out += _split_table(results, shown)
+    out += _client_tables(results, headline)
+    out += _pixel_table(results)
+    return out
+
+
+def _size_table(results: Sequence[tuple[str, dict[str, Any]]], shown: list[str], headline: str) -> list[str]:
+    """Bytes per building, root tile and export time of every stream against plain, with the targets."""
     rows = []
     for name, r in results:
         ok = judge(r, name == headline)
@@ -511,8 +520,12 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
     header = ["extract", "stream", "B/building all bands", "vs plain", f"≤ {TARGET_ALL_RATIO}×",
               "B/building LOD1 only", f"≤ {TARGET_LOD1} B", "root kB", f"≤ {TARGET_ROOT // 1000} kB", "export s",
               "vs plain", f"≤ {TARGET_EXPORT_RATIO}×", "buildings"]
-    out += markdown_table(header, rows, "llrrlrlrlrrlr")
+    return markdown_table(header, rows, "llrrlrlrlrrlr")
 
+
+
+def _split_table(results: Sequence[tuple[str, dict[str, Any]]], shown: list[str]) -> list[str]:
+    """Where the bytes go: geometry, property tables, textures, JSON."""
     rows = []
     for name, r in results:
         for v in shown:
@@ -525,11 +538,16 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
                          _mb(s["metadata"]), f"{_mb(s['texture'])} ({s['texture'] / tot:.0%})", _mb(s["json"]),
                          f"{s['tileset_json'] / 1e3:,.1f}", f"{s['subtree'] / 1e3:,.1f}",
                          f"{s['glb_files']:,}"])
-    out += ["", "### Geometry and texture bytes", "", SPLIT_NOTE, "",
+    return ["", "### Geometry and texture bytes", "", SPLIT_NOTE, "",
             *markdown_table(["extract", "stream", "MB", "geometry MB", "of which property tables MB",
                              "texture MB", "glb JSON MB", "tileset.json kB", "subtree kB", "glb files"],
                             rows, "llrrrrrrrr")]
 
+
+
+def _client_tables(results: Sequence[tuple[str, dict[str, Any]]], headline: str) -> list[str]:
+    """What CesiumJS loaded of each stream, per camera, and the GPU formats it detected."""
+    out: list[str] = []
     gpu = next((r[v]["client"]["gpu"] for _, r in results for v in CLIENT_VARIANTS
                 if isinstance(r[v].get("client"), dict) and r[v]["client"].get("gpu")), None)
     rows = []
@@ -551,23 +569,28 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
                              _mb(w["texturesByteLength"], 1), "–" if tex_ratio is None else f"{tex_ratio:.2f}×",
                              _mb(w["geometryByteLength"], 1), _mb(w.get("batchTableByteLength"), 1),
                              f"{w.get('tilesWithContent', 0):,} / {w.get('trianglesSelected', 0):,}", target])
-    if rows:
-        try:  # cesium is an npm package: its package.json says which
-            cesium = json.loads((REPO / "node_modules" / "cesium" / "package.json").read_text())["version"]
-        except (OSError, ValueError, KeyError):
-            cesium = "?"
-        out += ["", "### In CesiumJS", "", CLIENT_NOTE.format(cesium=cesium, tm=TARGET_TEXTURE_MEMORY), "",
-                *markdown_table(["extract", "stream", "camera", "status", "textures MB", "vs plain", "geometry MB",
-                                 "batch/metadata MB", "tiles with content / triangles drawn",
-                                 f"≤ {TARGET_TEXTURE_MEMORY}× (street)"], rows, "llllrrrrrl")]
-        if gpu:
-            fmts = ", ".join(f"{k.upper()} {'yes' if gpu.get(k) else 'no'}" for k in ("astc", "etc", "s3tc", "bc7"))
-            out += ["", f"GPU texture formats CesiumJS detects (what it transcodes KTX2 to): {fmts}; KTX2/Basis: "
-                        f"{'yes' if gpu.get('supportsBasis') else 'no'}; compressed-texture extensions the WebGL "
-                        "context exposes: "
-                        f"{', '.join(gpu.get('compressedExtensions') or []) or 'none'}; renderer: "
-                        f"{gpu.get('renderer')} (WebGL {'2' if gpu.get('webgl2') else '1'})."]
+    if not rows:
+        return []
+    try:  # cesium is an npm package: its package.json says which
+        cesium = json.loads((REPO / "node_modules" / "cesium" / "package.json").read_text())["version"]
+    except (OSError, ValueError, KeyError):
+        cesium = "?"
+    out += ["", "### In CesiumJS", "", CLIENT_NOTE.format(cesium=cesium, tm=TARGET_TEXTURE_MEMORY), "",
+            *markdown_table(["extract", "stream", "camera", "status", "textures MB", "vs plain", "geometry MB",
+                             "batch/metadata MB", "tiles with content / triangles drawn",
+                             f"≤ {TARGET_TEXTURE_MEMORY}× (street)"], rows, "llllrrrrrl")]
+    if gpu:
+        fmts = ", ".join(f"{k.upper()} {'yes' if gpu.get(k) else 'no'}" for k in ("astc", "etc", "s3tc", "bc7"))
+        out += ["", f"GPU texture formats CesiumJS detects (what it transcodes KTX2 to): {fmts}; KTX2/Basis: "
+                    f"{'yes' if gpu.get('supportsBasis') else 'no'}; compressed-texture extensions the WebGL "
+                    "context exposes: "
+                    f"{', '.join(gpu.get('compressedExtensions') or []) or 'none'}; renderer: "
+                    f"{gpu.get('renderer')} (WebGL {'2' if gpu.get('webgl2') else '1'})."]
+    return out
 
+
+def _pixel_table(results: Sequence[tuple[str, dict[str, Any]]]) -> list[str]:
+    """Compact against plain, pixel by pixel."""
     rows = []
     for name, r in results:
         for cam, p in (r.get("pixels") or {}).items():
@@ -579,11 +602,11 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
                     shots = shots.relative_to(REPO)
                 rows.append([name, cam, f"{p['mad']:.2f}", f"{100 * p['differing']:.2f} %",
                              f"{shots}/{{compact,plain}}/{cam}.png"])
-    if rows:
-        out += ["", "### Compact against plain, pixel by pixel", "", PIXEL_NOTE.format(t=DIFF_THRESHOLD), "",
+    if not rows:
+        return []
+    return ["", "### Compact against plain, pixel by pixel", "", PIXEL_NOTE.format(t=DIFF_THRESHOLD), "",
                 *markdown_table(["extract", "camera", "mean abs diff (0-255)", "pixels differing", "screenshots"],
                                 rows, "llrrl")]
-    return out
 
 
 # --- main ---------------------------------------------------------------------------------------------------

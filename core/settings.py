@@ -1,14 +1,16 @@
 """Every tunable of the pipeline in one place.
 
 Each field has a documented default; an environment variable ``CITYLOD_<FIELD>`` (upper case) overrides it.
-``python -m etl config`` prints the effective values. Stages record the values they used in
+``python -m etl config`` prints the effective value of each with its override. Stages record the values they used in
 ``meta.pipeline_run.params`` so a run can be reproduced.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -181,7 +183,7 @@ class Settings:
         env = dict(os.environ if env is None else env)
         kwargs: dict[str, object] = {}
         for f in dataclasses.fields(cls):
-            key = f"CITYLOD_{f.name.upper()}"
+            key = cls.env_name(f.name)
             if key not in env:
                 continue
             raw = env[key]
@@ -200,3 +202,22 @@ class Settings:
 
     def as_dict(self) -> dict[str, object]:
         return dataclasses.asdict(self)
+
+    @staticmethod
+    def env_name(field_name: str) -> str:
+        """The environment variable that overrides a setting."""
+        return f"CITYLOD_{field_name.upper()}"
+
+    def describe(self, env: dict[str, str] | None = None) -> list[str]:
+        """Every setting as a line a shell reads: ``CITYLOD_<FIELD>=<value>``, each followed by whether the
+        environment set it (``python -m etl config``)."""
+        env = dict(os.environ if env is None else env)
+        out = []
+        for f in dataclasses.fields(self):
+            key = self.env_name(f.name)
+            value = getattr(self, f.name)
+            if isinstance(value, dict | list | tuple):  # from_env reads scalars only
+                out.append(f"# {key}={shlex.quote(json.dumps(value))}  # not settable from the environment")
+                continue
+            out.append(f"{key}={shlex.quote(str(value))}  # {'set in the environment' if key in env else 'default'}")
+        return out

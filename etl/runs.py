@@ -45,11 +45,17 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def _count(v: object) -> int:
+    if not isinstance(v, int | float | str):
+        raise TypeError(f"not a count: {v!r}")
+    return int(v)
+
+
 def check_balance(stage: str, counts: dict[str, object]) -> None:
     """A run ends well only with its balance recorded and adding up: ``in = out + rejected``
     (core.progress.Balance.counts)."""
     try:
-        n_in, n_out, rejected = (int(counts[k]) for k in ("in", "out", "rejected"))  # type: ignore[call-overload]
+        n_in, n_out, rejected = (_count(counts[k]) for k in ("in", "out", "rejected"))
     except (KeyError, TypeError, ValueError):
         raise BalanceError(f"{stage} recorded no balance (in, out, rejected) in its counts") from None
     if n_in != n_out + rejected:

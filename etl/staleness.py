@@ -36,7 +36,7 @@ import psycopg
 from core.pipeline import GRAPH, STAGES, ancestors
 from core.settings import REPO, Settings
 from core.tiles3d import tileset_files
-from etl.migrate import discover_sql
+from etl.migrate import discover_sql, exists
 
 #: The module that defines each stage; its import closure is the stage's Python code.
 MODULES = {s.name: s.module for s in STAGES}
@@ -175,12 +175,12 @@ def last_ok_runs(conn: psycopg.Connection, stages: list[str]) -> dict[str, int]:
 def inputs(conn: psycopg.Connection, stage: str, settings: Settings, reads: tuple[str, ...] | None = None,
            file: dict[str, object] | None = None, options: dict[str, object] | None = None) -> dict[str, object]:
     """What a run of ``stage`` would record in meta.pipeline_run.inputs now."""
-    if conn.execute("SELECT to_regclass('meta.sql_object')").fetchone()[0] is None:  # type: ignore[index]
+    if not exists(conn, "meta.sql_object"):
         raise RuntimeError("the database is older than this code: run `python -m etl migrate` (make migrate)")
     ups = ancestors(GRAPH[stage] if reads is None else reads)
     last = last_ok_runs(conn, ups)
     code = stage_code(stage)
-    loaded = dict(conn.execute("SELECT path, sha256 FROM meta.sql_object WHERE path = ANY(%s)",
+    loaded: dict[str, str] = dict(conn.execute("SELECT path, sha256 FROM meta.sql_object WHERE path = ANY(%s)",
                                (list(code.sql),)).fetchall())
     migrations = "".join(f"{v}:{c}\n" for v, c in conn.execute(
         "SELECT version, checksum FROM meta.schema_migrations ORDER BY version"))
@@ -195,7 +195,7 @@ def inputs(conn: psycopg.Connection, stage: str, settings: Settings, reads: tupl
         out["file"] = file
     if options is not None:
         out["options"] = options
-    return _json(out)  # type: ignore[return-value]
+    return {k: _json(v) for k, v in out.items()}
 
 
 def _show(v: object) -> str:

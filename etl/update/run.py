@@ -153,7 +153,9 @@ def apply(settings: Settings, files: list[Path], export: ExportOptions | None = 
         osc.drop_previous_state(chain, state)  # the chain now ends at ``state``
         with connect(url, autocommit=True) as conn:
             same_srid = conn.execute("SELECT srid FROM meta.dataset").fetchone() == srid
-        if not any(counts["changed"].values()) and same_srid:  # type: ignore[union-attr]
+        changed = counts["changed"]
+        assert isinstance(changed, dict)
+        if not any(changed.values()) and same_srid:
             _carry(below, current, settings)
         else:
             _steps(current, settings)

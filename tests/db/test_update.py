@@ -260,6 +260,74 @@ def _check_input_digests(conn: psycopg.Connection) -> None:
         conn.rollback()
 
 
+#: row versions of the generalized rows, of the tiles' content rows, and of the blocks (a block's row, all but its
+#: version, its version, and whether it is omitted on its tile's error)
+_VERSIONS = "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL " \
+            "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
+_CONTENT = "SELECT (level, x, y, feature_kind, feature_id)::text, xmin::text FROM tiles.tile_content"
+_BLOCKS = "SELECT block_id, md5(k::text), xmin::text, built_error_m IS NOT NULL FROM gen.block k"
+_LAST_STATE = "SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1"
+
+
+def _last_counts(conn: psycopg.Connection, stage: str) -> dict:
+    (counts,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
+                             (stage,)).fetchone()
+    return counts
+
+
+def _wrote_only_what_changed(conn: psycopg.Connection, seq: int, before: tuple, base: Path) -> None:
+    """After change ``seq``: the state file left is gone, and only the rows the change reached were written."""
+    versions, content, blocks, left = before
+    after = {(t, k): v for t, k, v in conn.execute(_VERSIONS)}
+    # the state file the update left is removed (one copy of the city per change file would fill the disk of a
+    # service following minutely diffs); the base file and the new state stay
+    assert state_path(conn.execute(_LAST_STATE).fetchone()[0]).is_file() and base.is_file()
+    assert left is None or not state_path(left[0]).exists(), seq
+    # the rows of the batches the change missed stay where they are (the same row versions), the others are
+    # written anew: an update writes what changed, not the whole table again
+    same = sum(after[k] == v for k, v in versions.items() if k in after)
+    assert 0 < same < len(after), (seq, same, len(after))
+    # so do the tiles' content rows the change did not reach (the hierarchy writes the rows that differ)
+    after_content = dict(conn.execute(_CONTENT).fetchall())
+    same = sum(after_content.get(k) == v for k, v in content.items())
+    assert 0 < same < len(after_content), (seq, same, len(after_content))
+    # a block whose row did not change keeps its version, those omitted on their tile's error too (the omissions
+    # are decided again, and only the blocks whose omission changes are written)
+    after_blocks = {b: rest for b, *rest in conn.execute(_BLOCKS)}
+    unchanged = [b for b, (row, _, _) in blocks.items() if after_blocks.get(b, [None])[0] == row]
+    assert all(after_blocks[b][1] == blocks[b][1] for b in unchanged), seq
+    assert sum(blocks[b][2] for b in unchanged) > 0, "blocks omitted on tile error, unchanged"
+    changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
+    assert changed == EXPECTED_CHANGES[seq], f"change {seq}: only what it touched is replaced"
+
+
+def _stages_kept_their_work(conn: psycopg.Connection, seq: int) -> None:
+    """After change ``seq``: every stage redid only what the change reached, as its counts say."""
+    tex, gen = _last_counts(conn, "textures"), _last_counts(conn, "generalize")
+    assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
+    # the hierarchy measured and the textures fingerprinted again only where the change reached
+    # (core/changes.py); the first change adds a building beyond the others, which moves every tile's cell
+    (n_tiles,) = conn.execute("SELECT count(*) FROM tiles.tile").fetchone()
+    assert gen["hierarchy_tiles"] is not None and tex["tiles_fingerprinted"] > 0, (gen, tex)
+    if seq == 2:
+        assert gen["hierarchy_tiles"] < n_tiles and tex["tiles_fingerprinted"] < tex["tiles"], (gen, tex)
+    assert gen["batches"]["blocks_kept"] > 0, gen  # the blocks the change missed in the tiles it hit
+    for step in ("footprints", "decimation", "blocks"):  # the batches the change missed are kept, the rest made
+        assert gen["batches"][step]["kept"] > 0 and gen["batches"][step]["computed"] > 0, (step, gen)
+    exp = _last_counts(conn, "export")
+    assert exp["glb_built"] > 0 and exp["glb_copied"] == exp["glb"] - exp["glb_built"], exp
+    # the first change adds a building beyond the others: the root region, every glb's frame, grows
+    assert (exp["glb_copied"] > 0) == (seq == 2), exp
+    # the second: only the tiles it reached are fingerprinted (core/changes.py), the others keep their keys
+    assert (exp["glb_fingerprinted"] < exp["glb"]) == (seq == 2), exp
+    lod, ing = _last_counts(conn, "lod"), _last_counts(conn, "ingest")
+    (n,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
+    # the first change adds a building beyond the extent (a new working CRS may follow): every candidate is read
+    # again; the second reads only what it touched (every relation, of which the courtyard)
+    assert ing["partial"] == (seq == 2) and (ing["staged"] < n) == (seq == 2), ing
+    assert lod["changed_only"] and 0 < lod["in"] < n, "lod drew the changed buildings (and kin) alone"
+
+
 @pytest.mark.db
 def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str], str], tmp_path: Path) -> None:
     base = tmp_path / "base.osm"
@@ -270,75 +338,23 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
 
     inc = new_db("update_inc")
     build(inc, base, tmp_path / "inc")
-    versions = "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL " \
-               "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
-    content = "SELECT (level, x, y, feature_kind, feature_id)::text, xmin::text FROM tiles.tile_content"
-    # a block's row (all but its version) and version, and whether it is omitted on its tile's error
-    blocks = "SELECT block_id, md5(k::text), xmin::text, built_error_m IS NOT NULL FROM gen.block k"
-    last_state = "SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1"
     for seq, change in ((1, c1), (2, c2)):
         with psycopg.connect(inc) as conn:
-            before = {(t, k): v for t, k, v in conn.execute(versions)}
-            before_content = dict(conn.execute(content).fetchall())
-            before_blocks = {b: rest for b, *rest in conn.execute(blocks)}
-            left = conn.execute(last_state).fetchone()
+            before = ({(t, k): v for t, k, v in conn.execute(_VERSIONS)}, dict(conn.execute(_CONTENT).fetchall()),
+                      {b: rest for b, *rest in conn.execute(_BLOCKS)}, conn.execute(_LAST_STATE).fetchone())
         run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SMALL)
         with psycopg.connect(inc) as conn:
-            after = {(t, k): v for t, k, v in conn.execute(versions)}
-            # the state file the update left is removed (one copy of the city per change file would fill the
-            # disk of a service following minutely diffs); the base file and the new state stay
-            assert state_path(conn.execute(last_state).fetchone()[0]).is_file() and base.is_file()
-            assert left is None or not state_path(left[0]).exists(), seq
-            # the rows of the batches the change missed stay where they are (the same row versions), the others
-            # are written anew: an update writes what changed, not the whole table again
-            same = sum(after[k] == v for k, v in before.items() if k in after)
-            assert 0 < same < len(after), (seq, same, len(after))
-            # so do the tiles' content rows the change did not reach (the hierarchy writes the rows that differ)
-            after_content = dict(conn.execute(content).fetchall())
-            same = sum(after_content.get(k) == v for k, v in before_content.items())
-            assert 0 < same < len(after_content), (seq, same, len(after_content))
-            # a block whose row did not change keeps its version, those omitted on their tile's error too (the
-            # omissions are decided again, and only the blocks whose omission changes are written)
-            after_blocks = {b: rest for b, *rest in conn.execute(blocks)}
-            unchanged = [b for b, (row, _, _) in before_blocks.items() if after_blocks.get(b, [None])[0] == row]
-            assert all(after_blocks[b][1] == before_blocks[b][1] for b in unchanged), seq
-            assert sum(before_blocks[b][2] for b in unchanged) > 0, "blocks omitted on tile error, unchanged"
-            changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
-            assert changed == EXPECTED_CHANGES[seq], f"change {seq}: only what it touched is replaced"
-            (tex,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' "
-                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
-            assert 0 < tex["tiles_kept"] < tex["tiles"], "the textures of the tiles the change missed are kept"
-            (gen,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
-                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
-            # the hierarchy measured and the textures fingerprinted again only where the change reached
-            # (core/changes.py); the first change adds a building beyond the others, which moves every tile's cell
-            (n_tiles,) = conn.execute("SELECT count(*) FROM tiles.tile").fetchone()
-            assert gen["hierarchy_tiles"] is not None and tex["tiles_fingerprinted"] > 0, (gen, tex)
-            if seq == 2:
-                assert gen["hierarchy_tiles"] < n_tiles and tex["tiles_fingerprinted"] < tex["tiles"], (gen, tex)
-            assert gen["batches"]["blocks_kept"] > 0, gen  # the blocks the change missed in the tiles it hit
-            for step in ("footprints", "decimation", "blocks"):  # the batches the change missed are kept, the rest
-                assert gen["batches"][step]["kept"] > 0 and gen["batches"][step]["computed"] > 0, (step, gen)
-            (exp,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' "
-                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
-            assert exp["glb_built"] > 0 and exp["glb_copied"] == exp["glb"] - exp["glb_built"], exp
-            # the first change adds a building beyond the others: the root region, every glb's frame, grows
-            assert (exp["glb_copied"] > 0) == (seq == 2), exp
-            # the second: only the tiles it reached are fingerprinted (core/changes.py), the others keep their keys
-            assert (exp["glb_fingerprinted"] < exp["glb"]) == (seq == 2), exp
-            (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
-                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
-            (n,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
-            (ing,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'ingest' "
-                                  "ORDER BY run_id DESC LIMIT 1").fetchone()
-            # the first change adds a building beyond the extent (a new working CRS may follow): every candidate
-            # is read again; the second reads only what it touched (every relation, of which the courtyard)
-            assert ing["partial"] == (seq == 2) and (ing["staged"] < n) == (seq == 2), ing
-            assert lod["changed_only"] and 0 < lod["in"] < n, "lod drew the changed buildings (and kin) alone"
+            _wrote_only_what_changed(conn, seq, before, base)
+            _stages_kept_their_work(conn, seq)
+    state_sha = _equals_the_full_rebuild(inc, new_db("update_full"), base, [c1, c2], tmp_path)
+    _the_state_chain(inc, state_sha, base, c1, tmp_path)
 
+
+def _equals_the_full_rebuild(inc: str, full: str, base: Path, changes: list[Path], tmp_path: Path) -> str:
+    """The updated database and tileset are a full rebuild's of the merged file; returns the last state's sha256."""
+    c1, c2 = changes
     merged = tmp_path / "merged.osm.pbf"
     apply_changes(base, [c1, c2], merged)
-    full = new_db("update_full")
     build(full, merged, tmp_path / "full")
     with psycopg.connect(full) as conn:
         assert conn.execute("SELECT count(*) FROM tiles.tile WHERE is_leaf").fetchone()[0] > 3
@@ -365,7 +381,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     assert ta["asset"].pop("tilesetVersion") == hashlib.sha256(state_path(state_sha).read_bytes()).hexdigest()[:16]
     assert tb["asset"].pop("tilesetVersion") == hashlib.sha256(merged.read_bytes()).hexdigest()[:16]
     assert ta == tb
+    return state_sha
 
+
+def _the_state_chain(inc: str, state_sha: str, base: Path, c1: Path, tmp_path: Path) -> None:
+    """The state is made again when its file is gone, a change file applies once, a lost one stops the rebuild
+    of the state, and a full ingest starts a new chain."""
     # the state is made again from the base file and the recorded changes when its file is gone
     state_path(state_sha).unlink()
     c3 = tmp_path / "c3.osc"
@@ -425,6 +446,7 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
         assert reached("generalize") == set() and reached("textures") == set()
         conn.execute("INSERT INTO meta.pipeline_run (stage, status, finished_at) VALUES ('tiles', 'failed', now())")
         assert reached("generalize") is None and reached("textures") is None
+
 
 
 @pytest.mark.db

@@ -81,26 +81,31 @@ class _Conn:
         raise AssertionError("unreachable")
 
 
-def soak(base: str, stop: threading.Event, rate: float = RATE, threads: int = 16,
-         max_seconds: float = 3600.0) -> SoakResult:
-    """Request the tileset at ``base`` (http://host:port/) at ``rate`` per second until ``stop`` is set."""
-    u = urlsplit(base)
-    host, port = u.hostname or "127.0.0.1", u.port or 80
-    res = SoakResult()
-    lock = threading.Lock()
-    paths: list[str] = ["tileset.json"]
-    seen: set[str] = set()
-    etags: dict[str, str] = {}
-    jobs: queue.Queue[tuple[int, str] | None] = queue.Queue()
+class _Soak:
+    """One soak: the paths the tileset names now, the ETags seen, the jobs of the request threads."""
 
-    def record(status: int, ms: float, err: str | None = None) -> None:
-        with lock:
-            res.statuses[status] += 1
-            res.latencies_ms.append(ms)
-            if err and len(res.errors) < 50:
-                res.errors.append(err)
+    def __init__(self, base: str) -> None:
+        u = urlsplit(base)
+        self.host, self.port = u.hostname or "127.0.0.1", u.port or 80
+        self.res = SoakResult()
+        self.lock = threading.Lock()
+        self.paths: list[str] = ["tileset.json"]
+        self.seen: set[str] = set()
+        self.etags: dict[str, str] = {}
+        self.jobs: queue.Queue[tuple[int, str] | None] = queue.Queue()
 
-    def refresh(conn: _Conn) -> None:
+    def conn(self) -> _Conn:
+        return _Conn(self.host, self.port)
+
+    def record(self, status: int, ms: float, err: str | None = None) -> None:
+        with self.lock:
+            self.res.statuses[status] += 1
+            self.res.latencies_ms.append(ms)
+            if err and len(self.res.errors) < 50:
+                self.res.errors.append(err)
+
+    def refresh(self, conn: _Conn) -> None:
+        """The paths of the generation served now (tileset.json and everything it names, subtrees included)."""
         status, _, body = conn.get("/tiles/tileset.json", {"Accept-Encoding": "identity"})
         if status != 200:
             return
@@ -116,69 +121,84 @@ def soak(base: str, stop: threading.Event, rate: float = RATE, threads: int = 16
             uris = content_uris(json.loads(body), fetch)
         except (KeyError, ValueError):
             return  # the generation changed between the files: the next refresh
-        with lock:
-            if digest not in seen:
-                seen.add(digest)
-                res.generations += 1
-            paths[:] = ["tileset.json", *uris]
+        with self.lock:
+            if digest not in self.seen:
+                self.seen.add(digest)
+                self.res.generations += 1
+            self.paths[:] = ["tileset.json", *uris]
 
-    def worker() -> None:
-        conn = _Conn(host, port)
-        while (job := jobs.get()) is not None:
+    def worker(self) -> None:
+        """Requests the jobs' paths (every third one conditional on its ETag) and checks every body's ETag."""
+        conn = self.conn()
+        while (job := self.jobs.get()) is not None:
             n, path = job
             headers = {"Accept-Encoding": "gzip"}
-            if n % 3 == 0 and path in etags:
-                headers["If-None-Match"] = etags[path]
+            if n % 3 == 0 and path in self.etags:
+                headers["If-None-Match"] = self.etags[path]
             t0 = time.perf_counter()
             try:
                 status, hdrs, body = conn.get(f"/tiles/{path}", headers)
             except OSError as e:
-                record(-1, (time.perf_counter() - t0) * 1e3, f"{path}: {type(e).__name__}: {e}")
-                conn = _Conn(host, port)
+                self.record(-1, (time.perf_counter() - t0) * 1e3, f"{path}: {type(e).__name__}: {e}")
+                conn = self.conn()
                 continue
             ms = (time.perf_counter() - t0) * 1e3
-            record(status, ms, f"{path}: {status} {body[:120]!r}" if status >= 500 else None)
+            self.record(status, ms, f"{path}: {status} {body[:120]!r}" if status >= 500 else None)
             if status == 200 and "etag" in hdrs:
-                etags[path] = hdrs["etag"]
-                raw = gzip.decompress(body) if hdrs.get("content-encoding") == "gzip" else body
-                if hashlib.sha256(raw).hexdigest()[:32] != hdrs["etag"].strip('"').removesuffix("-gzip"):
-                    with lock:
-                        res.bad_etags += 1
+                self.check_etag(path, hdrs, body)
 
-    pool = [threading.Thread(target=worker, daemon=True) for _ in range(threads)]
-    for t in pool:
-        t.start()
-    refresh(_Conn(host, port))
+    def check_etag(self, path: str, hdrs: dict[str, str], body: bytes) -> None:
+        self.etags[path] = hdrs["etag"]
+        raw = gzip.decompress(body) if hdrs.get("content-encoding") == "gzip" else body
+        if hashlib.sha256(raw).hexdigest()[:32] != hdrs["etag"].strip('"').removesuffix("-gzip"):
+            with self.lock:
+                self.res.bad_etags += 1
 
-    def refresher() -> None:  # on its own thread: reading every subtree must not hold up the schedule
-        conn = _Conn(host, port)
+    def refresher(self, stop: threading.Event) -> None:
+        """On its own thread: reading every subtree must not hold up the schedule."""
+        conn = self.conn()
         while not stop.wait(REFRESH_S):
             try:
-                refresh(conn)
+                self.refresh(conn)
             except OSError:
-                conn = _Conn(host, port)
+                conn = self.conn()
 
-    threading.Thread(target=refresher, daemon=True).start()
-    rng = np.random.default_rng(0)
-    t_start = time.perf_counter()
-    n = 0
-    while not stop.is_set() and time.perf_counter() - t_start < max_seconds:
-        slot = t_start + n / rate
-        now = time.perf_counter()
-        if slot > now:
-            time.sleep(slot - now)
-        elif now - slot > 0.05:
-            res.late += 1
-        with lock:
-            path = paths[int(rng.integers(len(paths)))]
-        jobs.put((n, path))
-        n += 1
+    def schedule(self, stop: threading.Event, rate: float, max_seconds: float) -> float:
+        """A job every 1 / ``rate`` s on the clock (a slot missed by 50 ms counts as late), a random path of the
+        served generation each; returns when it started (perf_counter)."""
+        rng = np.random.default_rng(0)
+        t_start = time.perf_counter()
+        n = 0
+        while not stop.is_set() and time.perf_counter() - t_start < max_seconds:
+            slot = t_start + n / rate
+            now = time.perf_counter()
+            if slot > now:
+                time.sleep(slot - now)
+            elif now - slot > 0.05:
+                self.res.late += 1
+            with self.lock:
+                path = self.paths[int(rng.integers(len(self.paths)))]
+            self.jobs.put((n, path))
+            n += 1
+        return t_start
+
+
+def soak(base: str, stop: threading.Event, rate: float = RATE, threads: int = 16,
+         max_seconds: float = 3600.0) -> SoakResult:
+    """Request the tileset at ``base`` (http://host:port/) at ``rate`` per second until ``stop`` is set."""
+    s = _Soak(base)
+    pool = [threading.Thread(target=s.worker, daemon=True) for _ in range(threads)]
+    for t in pool:
+        t.start()
+    s.refresh(s.conn())
+    threading.Thread(target=s.refresher, args=(stop,), daemon=True).start()
+    t_start = s.schedule(stop, rate, max_seconds)
     for _ in pool:
-        jobs.put(None)
+        s.jobs.put(None)
     for t in pool:
         t.join(timeout=60)
-    res.seconds = time.perf_counter() - t_start
-    return res
+    s.res.seconds = time.perf_counter() - t_start
+    return s.res
 
 
 def main(argv: list[str] | None = None) -> int:
