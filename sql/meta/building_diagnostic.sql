@@ -15,3 +15,10 @@ FROM osm.reject r
 LEFT JOIN osm.building b ON b.osm_type = r.osm_type AND b.osm_id = r.osm_id;
 COMMENT ON VIEW meta.building_diagnostic IS
     'One row per finding per building: diagnostics (kept) and rejects (dropped). Example: SELECT code, count(*) FROM meta.building_diagnostic GROUP BY code;';
+COMMENT ON COLUMN meta.building_diagnostic.osm_type IS 'W = way, R = relation (meta.diagnostic.osm_type or osm.reject.osm_type, as text).';
+COMMENT ON COLUMN meta.building_diagnostic.osm_id IS 'OSM id of the way or relation.';
+COMMENT ON COLUMN meta.building_diagnostic.building_id IS 'osm.building.id of the element when osm.building has it (kept, or rejected by a stage after ingest, such as lod); NULL when it has none (ingest rejected it).';
+COMMENT ON COLUMN meta.building_diagnostic.stage IS 'Stage that recorded the finding (ingest, lod, ...).';
+COMMENT ON COLUMN meta.building_diagnostic.rejected IS 'false: a meta.diagnostic row (the building was kept); true: an osm.reject row (the stage dropped it).';
+COMMENT ON COLUMN meta.building_diagnostic.code IS 'Stable code: meta.diagnostic.code (invalid_tag, geometry_repaired, unit_converted, ...) or, for a reject, osm.reject.reason (too_small, invalid_geometry, ...).';
+COMMENT ON COLUMN meta.building_diagnostic.detail IS 'Human-readable detail: meta.diagnostic.detail or osm.reject.detail.';
