@@ -1,6 +1,7 @@
 """citylod exporter: tiles in PostGIS -> 3D Tiles 1.1 (tileset.json + glb), checks, and a viewer server.
 
-Pure modules (no database): geodesy, gltf, tileset, checks. Database side: export. ``python -m exporter``.
+Pure (no database): gltf, content, meshopt, tileset, subtree, stream, checks. Database side: export (the stage),
+publish and reuse; serve/ (the server) and viewer/. ``python -m exporter serve | check``. Imports core only.
 """
 
 __version__ = "0.1.0"
