@@ -29,7 +29,8 @@ same point computed twice (a cut crossing seen from two faces) is one vertex.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import shapely
@@ -122,6 +123,7 @@ class _Mesh:
         self.xy: list[tuple[float, float]] = []
         self.d: list[float] = []
         self.index: dict[tuple[float, float], int] = {}
+        self.note: str | None = None  # why the roof is not what its shape asks for (the skeleton engine says)
 
     def vid(self, x: float, y: float, d: float = 0.0) -> int:
         key = (float(x), float(y))
@@ -284,12 +286,57 @@ def _edge_frame(xy: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray]
     return p, np.array([-t[1], t[0]])  # inward normal (interior on the left)
 
 
+#: the end treatment of each shape whose skeleton roof is not hipped all round
+_END_TREATMENT = {"gabled": "gable", "gambrel": "gable", "round": "gable", "half-hipped": "half",
+                  "hipped-and-gabled": "gablet", "side_hipped": "side", "side_half-hipped": "side_half"}
+
+
+class _Hip(NamedTuple):
+    """A hip triangle (a, b, apex) of skeleton face ``face`` over footprint edge a->b, whose apex is an interior
+    skeleton node; ``side_a`` and ``side_b`` are the faces next to it at a and at b."""
+
+    length: float  # of the footprint edge
+    face: int
+    a: int
+    b: int
+    apex: int
+    side_a: int
+    side_b: int
+
+
+@dataclass
+class _Ends:
+    """How the end treatment reshapes the skeleton faces."""
+
+    after_a: dict[tuple[int, int], list[int]] = field(default_factory=dict)  # (a, N) -> vertices replacing N after a
+    before_b: dict[tuple[int, int], list[int]] = field(default_factory=dict)  # (N, b) -> vertices replacing N before b
+    removed: set[int] = field(default_factory=set)
+    new_faces: dict[int, list[int]] = field(default_factory=dict)
+    vertical: list[list[int]] = field(default_factory=list)
+
+
 def _skeleton_roof(poly: shapely.Polygon, arcs: np.ndarray, shape: str, direction: float | None
                    ) -> tuple[_Mesh, list[list[int]], list[list[int]]]:
     """Faces (roof) and vertical faces after the end treatment of ``shape``; mesh.d holds distances."""
     mesh, faces, contour = skeleton_faces(poly, arcs)
     xy = np.asarray(mesh.xy)
     frames = [_edge_frame(xy, a, b) for a, b in contour]
+    d = _distances(mesh, faces, frames)
+    treat = _END_TREATMENT.get(shape)
+    if treat is None:
+        return mesh, faces, []
+    chosen = _gable_ends(_hips(faces, xy, frames, direction))
+    if not chosen:
+        mesh.note = "no end of the skeleton is a triangle that can take a gable: drawn hipped"
+    ends = _Ends()
+    for hip, kind in _plan(chosen, treat):
+        _treat_end(mesh, ends, hip, kind, xy, d, frames)
+    return mesh, _reshaped(faces, ends), ends.vertical
+
+
+def _distances(mesh: _Mesh, faces: list[list[int]], frames: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Each vertex's distance to the footprint edges of its faces (their mean, at least 0), also into mesh.d."""
+    xy = np.asarray(mesh.xy)
     dsum = np.zeros(len(xy))
     dn = np.zeros(len(xy))
     for f, (p, n) in zip(faces, frames, strict=True):
@@ -299,12 +346,13 @@ def _skeleton_roof(poly: shapely.Polygon, arcs: np.ndarray, shape: str, directio
     d = np.where(dn > 0, dsum / np.maximum(dn, 1), 0.0)
     d[d < 0] = 0.0
     mesh.d = d.tolist()
-    treat = {"gabled": "gable", "gambrel": "gable", "round": "gable", "half-hipped": "half",
-             "hipped-and-gabled": "gablet", "side_hipped": "side", "side_half-hipped": "side_half"}.get(shape)
-    if treat is None:
-        return mesh, faces, []
+    return d
 
-    # hip triangles: faces (a, b, N) whose apex is an interior skeleton node
+
+def _hips(faces: list[list[int]], xy: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]],
+          direction: float | None) -> list[_Hip]:
+    """The hip triangles, shortest footprint edge first; among equal ones the end the roof looks towards last
+    (it stays hipped on side_* shapes), else the first face first."""
     face_of_half: dict[tuple[int, int], int] = {}
     for fi, f in enumerate(faces):
         for i in range(len(f)):
@@ -318,93 +366,119 @@ def _skeleton_roof(poly: shapely.Polygon, arcs: np.ndarray, shape: str, directio
         if fa is None or fb is None or fa == fb:
             continue
         length = float(np.linalg.norm(xy[b] - xy[a]))
-        cands.append((length, fi, a, b, nn, fa, fb))
+        cands.append(_Hip(length, fi, a, b, nn, fa, fb))
     if direction is not None:  # the end the roof looks towards is the hipped one (side_* shapes)
         g = np.array([math.sin(math.radians(direction)), math.cos(math.radians(direction))])
         cands.sort(key=lambda c: (round(c[0], 6), -float(-frames[c[1]][1] @ g)))
     else:
         cands.sort(key=lambda c: (round(c[0], 6), c[1]))
-    # a gable removes or reshapes its hip face, so that face must not also be reshaped as a neighbour
-    chosen, gables, neighbours = [], set(), set()
+    return cands
+
+
+def _gable_ends(cands: list[_Hip]) -> list[_Hip]:
+    """The hips that take a gable, in order: a gable removes or reshapes its hip face, so that face must not
+    also be reshaped as a neighbour of another."""
+    chosen: list[_Hip] = []
+    gables: set[int] = set()
+    neighbours: set[int] = set()
     for c in cands:
         if c[1] in neighbours or c[5] in gables or c[6] in gables:
             continue
         chosen.append(c)
         gables.add(c[1])
         neighbours.update((c[5], c[6]))
-    if not chosen:
-        mesh.note = "no end of the skeleton is a triangle that can take a gable: drawn hipped"  # type: ignore[attr-defined]
+    return chosen
+
+
+def _plan(chosen: list[_Hip], treat: str) -> list[tuple[_Hip, str]]:
+    """What each chosen end becomes: a gable, half-hip or gablet; on side_* shapes one end keeps its (half-)hip."""
     if treat in ("side", "side_half") and chosen:
         # one end keeps (half-)hip, the others get gables
         first, rest = chosen[0], chosen[1:]
-        plan = ([(first, "half")] if treat == "side_half" else []) + [(c, "gable") for c in rest]
-    else:
-        plan = [(c, treat) for c in chosen]
+        return ([(first, "half")] if treat == "side_half" else []) + [(c, "gable") for c in rest]
+    return [(c, treat) for c in chosen]
 
-    after_a: dict[tuple[int, int], list[int]] = {}  # (a, N) -> vertices replacing N after a
-    before_b: dict[tuple[int, int], list[int]] = {}  # (N, b) -> vertices replacing N before b
-    removed: set[int] = set()
-    new_faces: dict[int, list[int]] = {}
-    vertical: list[list[int]] = []
-    for (_, fi, a, b, nn, fa, fb), kind in plan:
-        pa, na = frames[fa]
-        pb, nb = frames[fb]
 
-        def ridge_hit(p0: np.ndarray, p1: np.ndarray, pa=pa, na=na, pb=pb, nb=nb) -> float | None:
-            den = float((p1 - p0) @ (na - nb))
-            if abs(den) < 1e-9:
-                return None
-            return float(((pa - p0) @ na - (pb - p0) @ nb) / den)
+def _ridge_hit(p0: np.ndarray, p1: np.ndarray, pa: np.ndarray, na: np.ndarray, pb: np.ndarray, nb: np.ndarray
+               ) -> float | None:
+    """Where on p0 -> p1 (0..1) the planes of the two faces with frames (pa, na) and (pb, nb) meet; None when
+    parallel to it."""
+    den = float((p1 - p0) @ (na - nb))
+    if abs(den) < 1e-9:
+        return None
+    return float(((pa - p0) @ na - (pb - p0) @ nb) / den)
 
-        A, B, N = xy[a], xy[b], xy[nn]
-        if kind == "gablet":
-            s = 0.5
-            q1 = _snap(A + s * (N - A))
-            q2 = _snap(B + s * (N - B))
-            t = ridge_hit(q1, q2)
-            if t is None or not 0.05 < t < 0.95:
-                continue
-            pp = _snap(q1 + t * (q2 - q1))
-            iq1, iq2 = mesh.vid(*q1, s * d[nn]), mesh.vid(*q2, s * d[nn])
-            ip = mesh.vid(*pp, float((pp - pa) @ na))
-            after_a[(a, nn)] = [iq1, ip]
-            before_b[(nn, b)] = [ip, iq2]
-            new_faces[fi] = [a, b, iq2, iq1]
-            vertical.append([iq1, iq2, ip])
-            continue
-        t = ridge_hit(A, B)
-        if t is None or not 0.05 < t < 0.95:
-            continue
-        pp = _snap(A + t * (B - A))
-        dp = float((pp - pa) @ na)
-        if kind == "gable":
-            ip = mesh.vid(*pp, dp)
-            after_a[(a, nn)] = [ip]
-            before_b[(nn, b)] = [ip]
-            removed.add(fi)
-        else:  # half: gable up to half the roof, a small hip above
-            s = 0.5
-            q1, q2 = _snap(A + s * (pp - A)), _snap(B + s * (pp - B))
-            r = _snap(pp + (1 - s) * (N - pp))
-            iq1, iq2 = mesh.vid(*q1, s * dp), mesh.vid(*q2, s * dp)
-            ir = mesh.vid(*r, float((r - pa) @ na))
-            after_a[(a, nn)] = [iq1, ir]
-            before_b[(nn, b)] = [ir, iq2]
-            new_faces[fi] = [iq1, iq2, ir]
+
+def _treat_end(mesh: _Mesh, ends: _Ends, hip: _Hip, kind: str, xy: np.ndarray, d: np.ndarray,
+               frames: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """One end into ``ends``: its hip face removed (gable), cut to a small hip (half) or a gablet, the apex moved
+    along the ridge; an end whose ridge meets the edge too near a corner is left hipped."""
+    if kind == "gablet":
+        _gablet(mesh, ends, hip, xy, d, frames)
+        return
+    _, fi, a, b, nn, fa, fb = hip
+    pa, na = frames[fa]
+    pb, nb = frames[fb]
+    A, B, N = xy[a], xy[b], xy[nn]
+    t = _ridge_hit(A, B, pa, na, pb, nb)
+    if t is None or not 0.05 < t < 0.95:
+        return
+    pp = _snap(A + t * (B - A))
+    dp = float((pp - pa) @ na)
+    if kind == "gable":
+        ip = mesh.vid(pp[0], pp[1], dp)
+        ends.after_a[(a, nn)] = [ip]
+        ends.before_b[(nn, b)] = [ip]
+        ends.removed.add(fi)
+    else:  # half: gable up to half the roof, a small hip above
+        s = 0.5
+        q1, q2 = _snap(A + s * (pp - A)), _snap(B + s * (pp - B))
+        r = _snap(pp + (1 - s) * (N - pp))
+        iq1, iq2 = mesh.vid(q1[0], q1[1], s * dp), mesh.vid(q2[0], q2[1], s * dp)
+        ir = mesh.vid(r[0], r[1], float((r - pa) @ na))
+        ends.after_a[(a, nn)] = [iq1, ir]
+        ends.before_b[(nn, b)] = [ir, iq2]
+        ends.new_faces[fi] = [iq1, iq2, ir]
+
+
+def _gablet(mesh: _Mesh, ends: _Ends, hip: _Hip, xy: np.ndarray, d: np.ndarray,
+            frames: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """A hipped-and-gabled end: the hip face cut at half its height, a small vertical gable above the cut."""
+    _, fi, a, b, nn, fa, fb = hip
+    pa, na = frames[fa]
+    pb, nb = frames[fb]
+    A, B, N = xy[a], xy[b], xy[nn]
+    s = 0.5
+    q1 = _snap(A + s * (N - A))
+    q2 = _snap(B + s * (N - B))
+    t = _ridge_hit(q1, q2, pa, na, pb, nb)
+    if t is None or not 0.05 < t < 0.95:
+        return
+    pp = _snap(q1 + t * (q2 - q1))
+    iq1, iq2 = mesh.vid(q1[0], q1[1], s * d[nn]), mesh.vid(q2[0], q2[1], s * d[nn])
+    ip = mesh.vid(pp[0], pp[1], float((pp - pa) @ na))
+    ends.after_a[(a, nn)] = [iq1, ip]
+    ends.before_b[(nn, b)] = [ip, iq2]
+    ends.new_faces[fi] = [a, b, iq2, iq1]
+    ends.vertical.append([iq1, iq2, ip])
+
+
+def _reshaped(faces: list[list[int]], ends: _Ends) -> list[list[int]]:
+    """The faces after the end treatment: removed, replaced, or with the vertices that replace a moved apex."""
     out = []
     for fi, f in enumerate(faces):
-        if fi in removed:
+        if fi in ends.removed:
             continue
-        if fi in new_faces:
-            out.append(new_faces[fi])
+        if fi in ends.new_faces:
+            out.append(ends.new_faces[fi])
             continue
         cyc = []
         for i, vtx in enumerate(f):
             prev, nxt = f[i - 1], f[(i + 1) % len(f)]
             # the apex stays (collinear on the ridge) so faces that are not reshaped still meet it
-            cyc += after_a.get((prev, vtx), []) + [vtx] + before_b.get((vtx, nxt), [])
+            cyc += ends.after_a.get((prev, vtx), []) + [vtx] + ends.before_b.get((vtx, nxt), [])
         out.append(cyc)
-    return mesh, out, vertical
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -535,6 +609,23 @@ def _field_roof(poly: shapely.Polygon, shape: str, axis: np.ndarray, height: flo
 # ---------------------------------------------------------------------------------------------------------
 # entry point
 # ---------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Pitch:
+    """The roof height of a slope: the tagged ``height``, else from ``angle`` or the shape's default pitch over
+    the slope's horizontal extent; never above ``max_height``."""
+
+    shape: str
+    height: float | None
+    angle: float | None
+    max_height: float
+
+    def of(self, extent: float) -> float:
+        """The height over a horizontal ``extent`` of the slope."""
+        a = self.angle if self.angle is not None else DEFAULT_PITCH.get(self.shape, 30.0)
+        h = self.height if self.height is not None else math.tan(math.radians(min(a, 89.0))) * extent
+        return float(min(h, self.max_height))
+
+
 def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, height: float | None,
                  angle: float | None, direction: float | None, orientation: str | None,
                  max_height: float) -> tuple[RoofSurface, float]:
@@ -552,12 +643,29 @@ def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, hei
     dir_vec = None
     if direction is not None:
         dir_vec = np.array([math.sin(math.radians(direction)), math.cos(math.radians(direction))])
+    pitch = _Pitch(shape, height, angle, max_height)
 
-    def pitch_height(extent: float) -> float:
-        a = angle if angle is not None else DEFAULT_PITCH.get(shape, 30.0)
-        h = height if height is not None else math.tan(math.radians(min(a, 89.0))) * extent
-        return float(min(h, max_height))
+    field_shape = _field_shape(poly, shape, axis, across, dir_vec)
+    if field_shape is not None:
+        return _field_surface(poly, field_shape, axis, across, dir_vec, pitch)
 
+    if shape in APEX_SHAPES:
+        centre = _star_centre(poly)
+        if centre is not None:
+            h = pitch.of(math.sqrt(poly.area / math.pi))  # the radius of a circle of the same area
+            v, t = _apex_roof(poly, centre, shape, h)
+            return RoofSurface(v, t, np.full(len(t), SEM_ROOF, np.uint8), "apex"), h
+        fallback = "not star-shaped or has holes: built from the straight skeleton"
+
+    if arcs is None or len(arcs) == 0:
+        raise RoofError("skeleton_missing", "the database returned no straight skeleton")
+    return _skeleton_surface(poly, _snap(arcs), shape, direction, pitch, fallback)
+
+
+def _field_shape(poly: shapely.Polygon, shape: str, axis: np.ndarray, across: bool, dir_vec: np.ndarray | None
+                 ) -> str | None:
+    """The height-field shape the roof is built as, None for another engine: the field shapes, and gabled
+    where the mapper put the ridge across the long axis of a boxy footprint."""
     field_shape = shape if shape in FIELD_SHAPES else None
     # a ridge across the long axis only exists as one ridge over the whole footprint: done so on footprints
     # that are (nearly) their minimum rectangle; L, T, U and courtyards keep the skeleton roof
@@ -566,41 +674,41 @@ def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, hei
         ridge = np.array([-dir_vec[1], dir_vec[0]]) if dir_vec is not None else None
         if across or (ridge is not None and abs(float(ridge @ axis)) < math.cos(math.radians(45))):
             field_shape = "gabled"  # the mapper put the ridge across the long axis: not a skeleton roof
-    if field_shape is not None:
-        sloped = ("skillion", "saltbox", "gabled_height_moved", "butterfly", "sawtooth")
-        if field_shape in sloped and dir_vec is not None:
-            ev = -dir_vec  # v runs against the direction the roof faces: high at the back
-            eu = np.array([ev[1], -ev[0]])
-        else:
-            eu = axis if not across else np.array([-axis[1], axis[0]])
-            if field_shape == "gabled" and dir_vec is not None:
-                eu = np.array([-dir_vec[1], dir_vec[0]])
-        ring_all = np.concatenate(_rings(poly))
-        ev = np.array([-eu[1], eu[0]])
-        extent = float(np.ptp(ring_all @ ev))
-        if field_shape in ("gabled", "saltbox", "gabled_height_moved", "butterfly", "crosspitched"):
-            extent *= 0.5
-        h = pitch_height(extent)
-        v, t = _field_roof(poly, field_shape, eu, h)
-        return RoofSurface(v, t, np.full(len(t), SEM_ROOF, np.uint8), "field"), h
+    return field_shape
 
-    if shape in APEX_SHAPES:
-        centre = _star_centre(poly)
-        if centre is not None:
-            h = pitch_height(math.sqrt(poly.area / math.pi))  # the radius of a circle of the same area
-            v, t = _apex_roof(poly, centre, shape, h)
-            return RoofSurface(v, t, np.full(len(t), SEM_ROOF, np.uint8), "apex"), h
-        fallback = "not star-shaped or has holes: built from the straight skeleton"
 
-    if arcs is None or len(arcs) == 0:
-        raise RoofError("skeleton_missing", "the database returned no straight skeleton")
-    mesh, faces, vertical = _skeleton_roof(poly, _snap(arcs), shape, direction)
-    fallback = getattr(mesh, "note", None) or fallback
+def _field_surface(poly: shapely.Polygon, field_shape: str, axis: np.ndarray, across: bool,
+                   dir_vec: np.ndarray | None, pitch: _Pitch) -> tuple[RoofSurface, float]:
+    """The height-field roof in its frame: v down the slope from roof:direction where the shape has one,
+    else across the ridge, which runs along the long axis (across it with roof:orientation=across)."""
+    sloped = ("skillion", "saltbox", "gabled_height_moved", "butterfly", "sawtooth")
+    if field_shape in sloped and dir_vec is not None:
+        ev = -dir_vec  # v runs against the direction the roof faces: high at the back
+        eu = np.array([ev[1], -ev[0]])
+    else:
+        eu = axis if not across else np.array([-axis[1], axis[0]])
+        if field_shape == "gabled" and dir_vec is not None:
+            eu = np.array([-dir_vec[1], dir_vec[0]])
+    ring_all = np.concatenate(_rings(poly))
+    ev = np.array([-eu[1], eu[0]])
+    extent = float(np.ptp(ring_all @ ev))
+    if field_shape in ("gabled", "saltbox", "gabled_height_moved", "butterfly", "crosspitched"):
+        extent *= 0.5
+    h = pitch.of(extent)
+    v, t = _field_roof(poly, field_shape, eu, h)
+    return RoofSurface(v, t, np.full(len(t), SEM_ROOF, np.uint8), "field"), h
+
+
+def _skeleton_surface(poly: shapely.Polygon, arcs: np.ndarray, shape: str, direction: float | None,
+                      pitch: _Pitch, fallback: str | None) -> tuple[RoofSurface, float]:
+    """The skeleton roof: its faces triangulated, cut where the shape's profile bends, lifted along it."""
+    mesh, faces, vertical = _skeleton_roof(poly, arcs, shape, direction)
+    fallback = mesh.note or fallback
     d = np.asarray(mesh.d)
     dmax = float(d.max()) if len(d) else 0.0
     if dmax <= 0:
         raise RoofError("skeleton_invalid", "the skeleton has no interior node")
-    h = pitch_height(dmax)
+    h = pitch.of(dmax)
     tris = _triangulate_faces(mesh, faces)
     sem = np.full(len(tris), SEM_ROOF, np.uint8)
     if vertical:
