@@ -129,6 +129,32 @@ def _panels(a: np.ndarray, u: np.ndarray, nrm: np.ndarray, wall: np.ndarray, s0:
     return np.take(c, np.array([[0, 1, 2], [0, 2, 3]]), axis=1)
 
 
+@dataclass(frozen=True)
+class _Walls:
+    """The walls a->b (one row per wall) as arrays, with their length, direction, outward normal and height."""
+
+    a: np.ndarray  # (w, 2)
+    owner: np.ndarray  # (w,) int64
+    zb: np.ndarray  # (w,) bottom
+    levels: np.ndarray  # (w,) storeys when given (NaN or <= 0: not)
+    ground: np.ndarray  # (w,) bool: the building stands on the ground
+    exterior: np.ndarray  # (w,) bool
+    length: np.ndarray
+    u: np.ndarray  # (w, 2) unit direction a->b
+    nrm: np.ndarray  # (w, 2) outward normal
+    height: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Openings:
+    """Windows or doors: the wall of each, its centre along the wall from a, its bottom and top."""
+
+    wall: np.ndarray
+    mid: np.ndarray
+    z0: np.ndarray
+    z1: np.ndarray
+
+
 def facades(
     a: np.ndarray,
     b: np.ndarray,
@@ -143,6 +169,54 @@ def facades(
 ) -> Facades:
     """Window and door boxes for the walls a->b (one row per wall) of n_buildings buildings."""
     p = params
+    w = _walls(a, b, owner, z_bottom, z_top, levels, ground, exterior, n_buildings)
+    windows = _windows(w, p)
+    door_wall = door_walls(w.length, w.height, w.owner, w.ground, w.exterior, p)
+    dz0 = w.zb[door_wall]
+    doors = _Openings(door_wall, w.length[door_wall] / 2, dz0, dz0 + p.door_height)
+    windows = _clear_of_doors(w, windows, doors, p)
+
+    # Windows then doors, reordered per box (not per triangle) so the output comes out sorted by owner.
+    win_wall = windows.wall
+    wall = np.concatenate([win_wall, door_wall])
+    mid = np.concatenate([windows.mid, doors.mid])
+    half = np.concatenate([np.full(win_wall.size, p.window_width / 2), np.full(door_wall.size, p.door_width / 2)])
+    z0 = np.concatenate([windows.z0, doors.z0])
+    z1 = np.concatenate([windows.z1, doors.z1])
+    sem = np.concatenate([np.full(win_wall.size, SEM_WINDOW, np.uint8), np.full(door_wall.size, SEM_DOOR, np.uint8)])
+    box_owner = w.owner[wall]
+    order = np.argsort(box_owner, kind="stable")
+    wall, mid, half, z0, z1, sem, box_owner = (x[order] for x in (wall, mid, half, z0, z1, sem, box_owner))
+
+    if p.style not in ("box", "panel"):
+        raise ValueError(f"unknown opening style {p.style!r} (box or panel)")
+    if p.style == "panel":  # the box's front face alone (cube triangles 10 and 11), `depth` proud of the wall
+        tris = _panels(w.a, w.u, w.nrm, wall, mid - half, mid + half, z0, z1, p.depth).reshape(-1, 3, 3)
+        per = 2
+    else:
+        tris = _boxes(w.a, w.u, w.nrm, wall, mid - half, mid + half, z0, z1, p.depth).reshape(-1, 3, 3)
+        per = 12
+    return Facades(
+        triangles=tris,
+        semantics=np.repeat(sem, per),
+        owner=np.repeat(box_owner, per),
+        n_windows=np.bincount(w.owner[win_wall], minlength=n_buildings).astype(np.int64),
+        n_doors=np.bincount(w.owner[door_wall], minlength=n_buildings).astype(np.int64),
+    )
+
+
+def _walls(
+    a: np.ndarray,
+    b: np.ndarray,
+    owner: np.ndarray,
+    z_bottom: np.ndarray,
+    z_top: np.ndarray,
+    levels: np.ndarray,
+    ground: np.ndarray,
+    exterior: np.ndarray,
+    n_buildings: int,
+) -> _Walls:
+    """The per-wall arrays of ``facades`` checked (one row per wall, owners in range) and measured."""
     a = np.asarray(a, dtype=np.float64).reshape(-1, 2)
     b = np.asarray(b, dtype=np.float64).reshape(-1, 2)
     owner = np.asarray(owner, dtype=np.int64)
@@ -161,8 +235,13 @@ def facades(
     u = delta / np.where(length > 0, length, 1.0)[:, None]
     nrm = np.column_stack([u[:, 1], -u[:, 0]])  # right-hand normal = outward
     height = zt - zb
+    return _Walls(a, owner, zb, levels, ground, exterior, length, u, nrm, height)
 
+
+def _storeys(w: _Walls, p: FacadeParams) -> tuple[np.ndarray, np.ndarray]:
+    """(storeys with windows, storey height) per wall; no storeys where a storey is too low for a window."""
     # Storeys: all storeys of a wall are equally high, so "tall enough for a window" is per wall.
+    height, levels = w.height, w.levels
     with np.errstate(invalid="ignore", divide="ignore"):
         given = np.isfinite(levels) & (levels > 0)
         lv = np.floor(np.where(given, levels, height / p.level_height) + 0.5)
@@ -171,67 +250,49 @@ def facades(
         h = np.where(lv > 0, height / lv, 0.0)
     storey_ok = (lv > 0) & (h + _EPS >= p.sill_height + p.window_height + 0.1)
     lv = np.where(storey_ok, lv, 0).astype(np.int64)  # cast only after absurd level counts were zeroed
+    return lv, h
 
-    usable = length - 2 * p.margin
+
+def _columns(w: _Walls, p: FacadeParams) -> tuple[np.ndarray, np.ndarray]:
+    """(windows per storey, their centre-to-centre distance) per wall."""
+    usable = w.length - 2 * p.margin
     with np.errstate(invalid="ignore"):
         count = np.floor(usable / p.window_spacing + _EPS)
         count = np.where(usable + _EPS >= p.window_width, np.maximum(count, 1.0), 0.0).astype(np.int64)
     pitch = np.where(count > 0, usable / np.maximum(count, 1), 0.0)
+    return count, pitch
 
+
+def _windows(w: _Walls, p: FacadeParams) -> _Openings:
+    """Every window of every wall and storey, wall by wall, storey by storey, column by column."""
+    lv, h = _storeys(w, p)
+    count, pitch = _columns(w, p)
     # Enumerate windows without a loop: window j of wall w is column j % count, storey j // count.
     per_wall = count * lv
-    win_wall = np.repeat(np.arange(len(a)), per_wall)
+    win_wall = np.repeat(np.arange(len(w.a)), per_wall)
     j = np.arange(win_wall.size) - np.repeat(np.cumsum(per_wall) - per_wall, per_wall)
     col = j % np.maximum(count[win_wall], 1)
     storey = j // np.maximum(count[win_wall], 1)
     centre = p.margin + (col + 0.5) * pitch[win_wall]
     hw = h[win_wall]
-    wz0 = zb[win_wall] + storey * hw + np.minimum(p.sill_height, hw - 0.05 - p.window_height)
+    wz0 = w.zb[win_wall] + storey * hw + np.minimum(p.sill_height, hw - 0.05 - p.window_height)
     wz1 = wz0 + p.window_height
+    return _Openings(win_wall, centre, wz0, wz1)
 
-    door_wall = door_walls(length, height, owner, ground, exterior, p)
-    door_mid = length[door_wall] / 2
-    dz0 = zb[door_wall]
-    dz1 = dz0 + p.door_height
 
-    # Drop windows whose box would intersect the door's: same wall, overlapping along it and vertically.
-    has_door = np.zeros(len(a), dtype=bool)
-    has_door[door_wall] = True
-    mid_of = np.zeros(len(a))
-    mid_of[door_wall] = door_mid
+def _clear_of_doors(w: _Walls, windows: _Openings, doors: _Openings, p: FacadeParams) -> _Openings:
+    """The windows whose box would not intersect the door's: on another wall, beside it or above it."""
+    win_wall, centre, wz0, wz1 = windows.wall, windows.mid, windows.z0, windows.z1
+    has_door = np.zeros(len(w.a), dtype=bool)
+    has_door[doors.wall] = True
+    mid_of = np.zeros(len(w.a))
+    mid_of[doors.wall] = doors.mid
     on_door_wall = has_door[win_wall]
     clash = (
         on_door_wall
         & (np.abs(centre - mid_of[win_wall]) < (p.window_width + p.door_width) / 2)
-        & (wz0 < zb[win_wall] + p.door_height)
-        & (wz1 > zb[win_wall])
+        & (wz0 < w.zb[win_wall] + p.door_height)
+        & (wz1 > w.zb[win_wall])
     )
     keep = ~clash
-    win_wall, centre, wz0, wz1 = win_wall[keep], centre[keep], wz0[keep], wz1[keep]
-
-    # Windows then doors, reordered per box (not per triangle) so the output comes out sorted by owner.
-    wall = np.concatenate([win_wall, door_wall])
-    mid = np.concatenate([centre, door_mid])
-    half = np.concatenate([np.full(win_wall.size, p.window_width / 2), np.full(door_wall.size, p.door_width / 2)])
-    z0 = np.concatenate([wz0, dz0])
-    z1 = np.concatenate([wz1, dz1])
-    sem = np.concatenate([np.full(win_wall.size, SEM_WINDOW, np.uint8), np.full(door_wall.size, SEM_DOOR, np.uint8)])
-    box_owner = owner[wall]
-    order = np.argsort(box_owner, kind="stable")
-    wall, mid, half, z0, z1, sem, box_owner = (x[order] for x in (wall, mid, half, z0, z1, sem, box_owner))
-
-    if p.style not in ("box", "panel"):
-        raise ValueError(f"unknown opening style {p.style!r} (box or panel)")
-    if p.style == "panel":  # the box's front face alone (cube triangles 10 and 11), `depth` proud of the wall
-        tris = _panels(a, u, nrm, wall, mid - half, mid + half, z0, z1, p.depth).reshape(-1, 3, 3)
-        per = 2
-    else:
-        tris = _boxes(a, u, nrm, wall, mid - half, mid + half, z0, z1, p.depth).reshape(-1, 3, 3)
-        per = 12
-    return Facades(
-        triangles=tris,
-        semantics=np.repeat(sem, per),
-        owner=np.repeat(box_owner, per),
-        n_windows=np.bincount(owner[win_wall], minlength=n_buildings).astype(np.int64),
-        n_doors=np.bincount(owner[door_wall], minlength=n_buildings).astype(np.int64),
-    )
+    return _Openings(win_wall[keep], centre[keep], wz0[keep], wz1[keep])
