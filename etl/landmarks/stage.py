@@ -23,8 +23,11 @@ a block of buildings at a time (etl.landmarks.saliency.neighbour_sums).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from typing import Any, LiteralString
 
 import numpy as np
+import psycopg
 import shapely
 
 from core.changes import Changes, differing
@@ -75,10 +78,71 @@ def landmark_min_level(level: np.ndarray, max_fraction: float) -> int:
     return int(ok[0]) + 1
 
 
+@dataclass(frozen=True)
+class _Scored:
+    """Every drawn building's measures, score, rank, hierarchy level and landmark role, in the input's order."""
+
+    ids: np.ndarray
+    xy: np.ndarray
+    radius: np.ndarray
+    height: np.ndarray
+    volume: np.ndarray
+    area: np.ndarray
+    relative: np.ndarray
+    shape: np.ndarray
+    semantic: np.ndarray
+    score: np.ndarray
+    rank: np.ndarray
+    level: np.ndarray
+    min_level: int
+    is_landmark: np.ndarray
+    lod2_band: np.ndarray
+    intervals: list[tuple[list[float] | None, list[float] | None]]
+    weights: dict[str, float]
+
+
 def run(ctx: Context) -> Result:
     conn, settings = ctx.conn, ctx.settings
     t0 = time.perf_counter()
     srid = working_srid(conn)
+    sc = _score(_read_units(conn), settings)
+    ids, level, is_landmark, min_level = sc.ids, sc.level, sc.is_landmark, sc.min_level
+    n = len(ids)
+    with conn.transaction(), conn.cursor() as cur:
+        cur.execute(f"CREATE TEMP TABLE _lm_was ON COMMIT DROP AS {_READ}")
+        cur.execute("DELETE FROM lm.building")  # not TRUNCATE: readers keep the rows of before until the commit
+        _copy_ranked(cur, sc, srid)
+        cur.execute("CALL lm.flag_landmarks()")
+        # every drawn building is scored (the lod stage recorded the ones it could not draw); checked before commit
+        drawn = _scalar(cur, "SELECT lod.drawn_buildings()")
+        scored = _scalar(cur, "SELECT count(*) FROM lm.building")
+        balance = Balance("drawn buildings", int(drawn), {"scored": int(scored)})
+        cur.execute("ANALYZE lm.building")
+        # each building's part in the exaggeration, stored once here: the exporter read it per feature per tile
+        cur.execute("CALL lm.fill_exaggeration()")
+        roles = _scalar(cur, "SELECT count(*) FROM lm.exaggeration")
+        cur.execute("ANALYZE lm.exaggeration")
+        changed = [int(i) for (i,) in cur.execute(_CHANGED)]
+    top = ids[np.argsort(sc.rank)[:10]].tolist()
+    seconds = time.perf_counter() - t0
+    n_lm = int(is_landmark.sum())
+    summary("landmarks", balance, f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
+            f"(level >= {min_level})", seconds, n)
+    return Result({**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)),
+                   "landmark_min_level": min_level, "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top,
+                   "weights": sc.weights, "seconds": round(seconds, 3),
+                   "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}, Changes(buildings=changed))
+
+
+def _scalar(cur: psycopg.Cursor[Any], query: LiteralString) -> Any:
+    """The first column of the one row ``query`` returns."""
+    row = cur.execute(query).fetchone()
+    assert row is not None
+    return row[0]
+
+
+def _read_units(conn: psycopg.Connection[Any]) -> dict[str, np.ndarray]:
+    """lm.building_measures as numpy columns by name."""
     # lm.building_measures (sql/lm/building_measures.sql), an inlined SQL function streamed into columns by name
     # Each batch becomes numpy columns at once: a list of Python objects per column and building cost ~15x
     # the memory of the arrays (a third of the stage's peak at 107k buildings).
@@ -90,7 +154,12 @@ def run(ctx: Context) -> Result:
         while rows := src.fetchmany(20_000):
             for (name, c), vals in zip(chunks.items(), zip(*rows, strict=True), strict=True):
                 c.append(np.array(vals, dtype=_DTYPE.get(name, np.float64)))
-    cols = {k: np.concatenate(v) if v else np.zeros(0, dtype=_DTYPE.get(k, np.float64)) for k, v in chunks.items()}
+    return {k: np.concatenate(v) if v else np.zeros(0, dtype=_DTYPE.get(k, np.float64)) for k, v in chunks.items()}
+
+
+def _score(cols: dict[str, np.ndarray], settings: Settings) -> _Scored:
+    """The measures of every building, its saliency score, rank and level in the voting hierarchy, and for the
+    landmarks their LOD2 band and exaggeration intervals."""
     ids = cols["building_id"]
     n = len(ids)
     xy = np.column_stack([cols["x"], cols["y"]]) if n else np.zeros((0, 2))
@@ -122,49 +191,39 @@ def run(ctx: Context) -> Result:
     # the top of the hierarchy, the city's landmark, in every band (the smallest band there can be)
     lod2_band = np.where(is_landmark, 2 - (level - min_level), 0)
     lod2_band[level == level.max(initial=0)] = EVERY_BAND
-    # the predefined exaggeration intervals (a loop over the landmarks, ~1 % of the buildings)
+    intervals = _intervals(height, level, min_level, is_landmark, settings)
+    return _Scored(ids, xy, radius, height, volume, area, relative, shape, semantic, score, rank, level, min_level,
+                   is_landmark, lod2_band, intervals, w)
+
+
+def _intervals(height: np.ndarray, level: np.ndarray, min_level: int, is_landmark: np.ndarray, settings: Settings
+               ) -> list[tuple[list[float] | None, list[float] | None]]:
+    """The predefined exaggeration intervals (boundaries, scales) of each landmark; (None, None) for the others."""
+    # a loop over the landmarks, ~1 % of the buildings
     from_m, top_scale = lm.exaggeration_intervals(
         height, level, min_level, min_screen_px=settings.lm_min_screen_px, step=settings.lm_scale_step,
         max_scale=settings.lm_max_scale)
-    intervals: list[tuple[list[float] | None, list[float] | None]] = [(None, None)] * n
+    intervals: list[tuple[list[float] | None, list[float] | None]] = [(None, None)] * len(height)
     for i in np.flatnonzero(is_landmark):
         b, s = lm.interval_arrays(float(from_m[i]), settings.lm_scale_step, float(top_scale[i]))
         intervals[i] = (b.tolist(), s.tolist())
+    return intervals
 
+
+def _copy_ranked(cur: psycopg.Cursor[Any], sc: _Scored, srid: int) -> None:
+    """lm.building, COPYed in rank order (as analysts read it), the points as EWKB in the working CRS."""
+    n = len(sc.ids)
     # the points as EWKB in the working CRS: what ST_SetSRID(ST_MakePoint(x, y), srid) would make of them
-    centroids = shapely.to_wkb(shapely.set_srid(shapely.points(xy), srid), include_srid=True) if n else []
-    band = [int(b) if lm_ else None for b, lm_ in zip(lod2_band.tolist(), is_landmark.tolist(), strict=True)]
-    with conn.transaction(), conn.cursor() as cur:
-        cur.execute(f"CREATE TEMP TABLE _lm_was ON COMMIT DROP AS {_READ}")
-        cur.execute("DELETE FROM lm.building")  # not TRUNCATE: readers keep the rows of before until the commit
-        with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
-            copy.set_types(list(_TYPES))
-            # in rank order, as analysts read it; each column made a list at once (numpy scalars row by row took
-            # 0.36 s against 0.09 s for 106k rows of synthetic columns, measured alone)
-            order = np.argsort(rank)
-            at = order.tolist()
-            ranked = [c[order].tolist() for c in (ids, height, volume, area, relative, shape, semantic, score, rank,
-                                                 level, is_landmark)]
-            for row in zip(ranked[0], [centroids[i] for i in at], *ranked[1:], [band[i] for i in at],
-                           radius[order].tolist(), *zip(*[intervals[i] for i in at], strict=True), strict=True):
-                copy.write_row(row)
-        cur.execute("CALL lm.flag_landmarks()")
-        # every drawn building is scored (the lod stage recorded the ones it could not draw); checked before commit
-        drawn = cur.execute("SELECT lod.drawn_buildings()").fetchone()[0]  # type: ignore[index]
-        scored = cur.execute("SELECT count(*) FROM lm.building").fetchone()[0]  # type: ignore[index]
-        balance = Balance("drawn buildings", int(drawn), {"scored": int(scored)})
-        cur.execute("ANALYZE lm.building")
-        # each building's part in the exaggeration, stored once here: the exporter read it per feature per tile
-        cur.execute("CALL lm.fill_exaggeration()")
-        roles = cur.execute("SELECT count(*) FROM lm.exaggeration").fetchone()[0]  # type: ignore[index]
-        cur.execute("ANALYZE lm.exaggeration")
-        changed = [int(i) for (i,) in cur.execute(_CHANGED)]
-    top = ids[np.argsort(rank)[:10]].tolist()
-    seconds = time.perf_counter() - t0
-    n_lm = int(is_landmark.sum())
-    summary("landmarks", balance, f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
-            f"(level >= {min_level})", seconds, n)
-    return Result({**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)),
-                   "landmark_min_level": min_level, "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top,
-                   "weights": w, "seconds": round(seconds, 3),
-                   "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}, Changes(buildings=changed))
+    centroids = shapely.to_wkb(shapely.set_srid(shapely.points(sc.xy), srid), include_srid=True) if n else []
+    band = [int(b) if lm_ else None for b, lm_ in zip(sc.lod2_band.tolist(), sc.is_landmark.tolist(), strict=True)]
+    with cur.copy(f"COPY lm.building ({', '.join(_COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
+        copy.set_types(list(_TYPES))
+        # in rank order, as analysts read it; each column made a list at once (numpy scalars row by row took
+        # 0.36 s against 0.09 s for 106k rows of synthetic columns, measured alone)
+        order = np.argsort(sc.rank)
+        at = order.tolist()
+        ranked = [c[order].tolist() for c in (sc.ids, sc.height, sc.volume, sc.area, sc.relative, sc.shape,
+                                             sc.semantic, sc.score, sc.rank, sc.level, sc.is_landmark)]
+        for row in zip(ranked[0], [centroids[i] for i in at], *ranked[1:], [band[i] for i in at],
+                       sc.radius[order].tolist(), *zip(*[sc.intervals[i] for i in at], strict=True), strict=True):
+            copy.write_row(row)
