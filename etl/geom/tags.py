@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 FOOT = 0.3048
 INCH = 0.0254
+_T = TypeVar("_T")
 
 _NUM = r"[+-]?(?:\d+(?:[.,]\d*)?|[.,]\d+)(?:[eE][+-]?\d+)?"
 _LENGTH = re.compile(rf"^({_NUM})\s*(m|meters?|metres?|ft|feet|foot|'|cm|km)?$", re.IGNORECASE)
@@ -228,7 +230,8 @@ def parse_building_tags(
                        part=None if part and part.lower() == "no" else part)
     out.name = _text(tags.get("name"))
 
-    def take(key: str, fn, *args):  # type: ignore[no-untyped-def]
+    def take(key: str, fn: Callable[..., _T], *args: object) -> _T | None:
+        """``fn`` of the tag's value (None when untagged or blank); a value it refuses becomes an issue."""
         raw = tags.get(key)
         if raw is None or not raw.strip():
             return None

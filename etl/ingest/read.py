@@ -19,9 +19,11 @@ import html
 import json
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import osmium
 import osmium.geom
@@ -95,10 +97,13 @@ def read_building_relations(path: Path) -> Iterator[tuple[int, dict[str, str], l
         osmium.filter.TagFilter(("type", "building"))
     )
     for rel in fp:
+        assert isinstance(rel, osmium.osm.Relation)  # the processor reads relations alone
         members = [(_TYPE_CHAR[m.type], m.ref, m.role) for m in rel.members]
         yield rel.id, {t.k: t.v for t in rel.tags}, members
 
 
+#: opens an OSM XML file (plain, .gz or .bz2) for its lines as bytes
+_Opener = Callable[[Path, Literal["rb"]], AbstractContextManager[Iterable[bytes]]]
 _MAX_STRING = 1024  # libosmium's osmium::max_osm_string_length: longer keys, values, roles, user names are refused
 _XML_TOKEN = re.compile(rb'<(node|way|relation)\b[^>]*?\bid="(-?\d+)"|\b(k|v|role|user)="([^"]*)"')
 
@@ -108,7 +113,8 @@ def locate_long_string(path: Path) -> str:
     3, way 7: the value of tag 'note' has 10,000 bytes"; '' for other formats or when none is found. libosmium refuses
     the whole file on such a string without saying where, so the user could not find it to fix or filter it."""
     name = path.name.lower()
-    opener = {".gz": gzip.open, ".bz2": bz2.open}.get(path.suffix.lower(), open)
+    openers: dict[str, _Opener] = {".gz": gzip.open, ".bz2": bz2.open}
+    opener = openers.get(path.suffix.lower(), open)
     if not re.search(r"\.(osm|xml|osc)(\.gz|\.bz2)?$", name):
         return ""
     obj, key = "the file header", ""
@@ -151,17 +157,18 @@ def negative_node_locations(path: Path) -> dict[int, tuple[float, float]]:
     """(lon, lat) of every node with a negative id (JOSM writes unsaved objects so); one pass over the nodes."""
     out: dict[int, tuple[float, float]] = {}
     for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
+        assert isinstance(n, osmium.osm.Node)  # the processor reads nodes alone
         if n.id < 0 and n.location.valid():
             out[n.id] = (n.location.lon, n.location.lat)
     return out
 
 
-def _line_from(nodes: object, negative: dict[int, tuple[float, float]]) -> str | None:
+def _line_from(nodes: osmium.osm.WayNodeList, negative: dict[int, tuple[float, float]]) -> str | None:
     """The way's linestring as libosmium's WKB hex (little-endian, no SRID), its positive nodes from the
     location index and its negative ones from ``negative``; None when a node is still missing. Consecutive
     repeated nodes are dropped, as libosmium does."""
     coords: list[tuple[float, float]] = []
-    for n in nodes:  # type: ignore[attr-defined]
+    for n in nodes:
         if n.location.valid():
             xy = (n.location.lon, n.location.lat)
         elif n.ref in negative:
@@ -297,13 +304,13 @@ def read_buildings(
     )
     b = _PassB(path, settings, counts, changed)
     for obj in fp:
-        if obj.is_area():
+        if isinstance(obj, osmium.osm.Area):
             yield from b.area(obj)
-        elif obj.is_way():
+        elif isinstance(obj, osmium.osm.Way):
             yield from b.way(obj)
-        elif obj.is_node():
+        elif isinstance(obj, osmium.osm.Node):
             counts.nodes_skipped += 1  # building=* on a node has no footprint; not a candidate
-        elif obj.is_relation():
+        elif isinstance(obj, osmium.osm.Relation):
             yield from b.relation(obj)
     yield from b.unassembled()
 

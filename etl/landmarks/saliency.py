@@ -351,7 +351,7 @@ def exaggeration_intervals(height: np.ndarray, level: np.ndarray, min_level: int
     lv = np.asarray(level, dtype=np.float64)
     top = lv.max(initial=min_level)
     k = top - min_level + 1
-    from_m = distance_for_pixels(h, min_screen_px, np.radians(fov_deg), viewport_px)
+    from_m = np.asarray(distance_for_pixels(h, min_screen_px, np.radians(fov_deg), viewport_px))  # float only for 0-d h
     top_scale = 1 + (max_scale - 1) * np.clip(lv - min_level + 1, 0, k) / k
     return from_m, top_scale
 

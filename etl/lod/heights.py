@@ -16,7 +16,9 @@ height does not exceed the bottom, the building is rejected (min_height_ge_heigh
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import SupportsFloat
 
 import numpy as np
 
@@ -34,25 +36,25 @@ class Heights:
     invalid: np.ndarray  # bool: explicit height <= bottom
 
 
-def floats(a: object) -> np.ndarray:
+def floats(a: Iterable[SupportsFloat | None]) -> np.ndarray:
     """None -> NaN float array."""
-    return np.array([np.nan if v is None else float(v) for v in a], dtype=np.float64)  # type: ignore[union-attr]
+    return np.array([np.nan if v is None else float(v) for v in a], dtype=np.float64)
 
 
 def resolve(
-    height: object,
-    min_height: object,
-    levels: object,
-    min_level: object,
-    roof_levels: object,
-    roof_height: object,
-    building_type: object,
+    height: Iterable[SupportsFloat | None],
+    min_height: Iterable[SupportsFloat | None],
+    levels: Iterable[SupportsFloat | None],
+    min_level: Iterable[SupportsFloat | None],
+    roof_levels: Iterable[SupportsFloat | None],
+    roof_height: Iterable[SupportsFloat | None],
+    building_type: Iterable[object],
     settings: Settings,
 ) -> Heights:
     """Vectorised over buildings; every argument is a sequence (None = untagged)."""
     h, mh, lv, ml, rl, rh = (floats(a) for a in (height, min_height, levels, min_level, roof_levels, roof_height))
     lh = settings.level_height_m
-    types = list(building_type)  # type: ignore[call-overload]
+    types = list(building_type)
     type_levels = np.array(
         [np.nan if t is None else settings.default_levels_by_type.get(str(t).lower(), np.nan) for t in types]
     )

@@ -4,6 +4,9 @@ counted on LOD3, the largest mesh of each building, so a tileset exported at any
 from __future__ import annotations
 
 import time
+from typing import Any, LiteralString
+
+import psycopg
 
 from core.changes import Changes, differing
 from core.progress import Balance, summary
@@ -13,6 +16,13 @@ from core.stage import Context, Result
 #: placements that differ are what the run changed: core/changes.py)
 _TILE_ROW = "SELECT * FROM tiles.tile_digests()"
 _PLACED = "SELECT building_id, level, x, y, group_id FROM tiles.building_tile"
+
+
+def _one(conn: psycopg.Connection[Any], query: LiteralString) -> tuple[Any, ...]:
+    """The one row ``query`` returns."""
+    row = conn.execute(query).fetchone()
+    assert row is not None
+    return row
 
 
 def run(ctx: Context) -> Result:
@@ -29,13 +39,11 @@ def run(ctx: Context) -> Result:
             (3, settings.tile_max_features, settings.tile_max_triangles, settings.tile_max_level,
              settings.base_height_m),
         )
-        n_tiles, n_leaves, depth = conn.execute(
-            "SELECT count(*), count(*) FILTER (WHERE is_leaf), max(level) FROM tiles.tile"
-        ).fetchone()  # type: ignore[misc]
-        n_features, max_leaf = conn.execute(
-            "SELECT count(*), (SELECT max(n_features) FROM tiles.tile WHERE is_leaf) FROM tiles.building_tile"
-        ).fetchone()  # type: ignore[misc]
-        meshes = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 3").fetchone()[0]  # type: ignore[index]
+        n_tiles, n_leaves, depth = _one(
+            conn, "SELECT count(*), count(*) FILTER (WHERE is_leaf), max(level) FROM tiles.tile")
+        n_features, max_leaf = _one(
+            conn, "SELECT count(*), (SELECT max(n_features) FROM tiles.tile WHERE is_leaf) FROM tiles.building_tile")
+        (meshes,) = _one(conn, "SELECT count(*) FROM lod.building_mesh WHERE lod = 3")
         # every feature (a drawn building or part, its LOD3 mesh) in exactly one leaf; checked before commit
         balance = Balance("features", int(meshes), {"in leaf tiles": int(n_features)})
         changed = [(int(lv), int(x), int(y)) for lv, x, y in conn.execute(
