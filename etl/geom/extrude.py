@@ -113,8 +113,13 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
 
     triangles = np.concatenate([bottom_caps, top_caps, walls])
     owner = np.concatenate([tri_owner, tri_owner, walls_owner])
-    sem = np.concatenate([np.full(len(tri_owner), SEM_GROUND, np.uint8), np.full(len(tri_owner), SEM_ROOF, np.uint8),
-                          np.full(len(walls_owner), SEM_WALL, np.uint8)])
+    sem = np.concatenate(
+        [
+            np.full(len(tri_owner), SEM_GROUND, np.uint8),
+            np.full(len(tri_owner), SEM_ROOF, np.uint8),
+            np.full(len(walls_owner), SEM_WALL, np.uint8),
+        ]
+    )
     keep = ok[owner]
     triangles, owner, sem = triangles[keep], owner[keep], sem[keep]
     order = np.argsort(owner, kind="stable")
@@ -122,8 +127,14 @@ def extrude(geoms: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> Extrusion
     counts = np.bincount(owner, minlength=n)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
-    return Extrusion(triangles=triangles, offsets=offsets, ok=ok, volume=signed_volume(triangles, offsets),
-                     semantics=sem, walls=Walls(a2, b2, wall_owner, ring_exterior[wall_ring]))
+    return Extrusion(
+        triangles=triangles,
+        offsets=offsets,
+        ok=ok,
+        volume=signed_volume(triangles, offsets),
+        semantics=sem,
+        walls=Walls(a2, b2, wall_owner, ring_exterior[wall_ring]),
+    )
 
 
 def _area(tri2d: np.ndarray) -> np.ndarray:

@@ -115,8 +115,17 @@ def _boxes(
     return np.take(corners, _CUBE, axis=1)  # far faster than corners[:, _CUBE], which comes out strided
 
 
-def _panels(a: np.ndarray, u: np.ndarray, nrm: np.ndarray, wall: np.ndarray, s0: np.ndarray, s1: np.ndarray,
-            z0: np.ndarray, z1: np.ndarray, depth: float) -> np.ndarray:
+def _panels(
+    a: np.ndarray,
+    u: np.ndarray,
+    nrm: np.ndarray,
+    wall: np.ndarray,
+    s0: np.ndarray,
+    s1: np.ndarray,
+    z0: np.ndarray,
+    z1: np.ndarray,
+    depth: float,
+) -> np.ndarray:
     """(k, 2, 3, 3): the front faces of _boxes without building the boxes (same corners, same winding)."""
     base = a[wall] + depth * nrm[wall]  # (k, 2)
     p0 = base + s0[:, None] * u[wall]

@@ -23,8 +23,18 @@ _NUM = r"[+-]?(?:\d+(?:[.,]\d*)?|[.,]\d+)(?:[eE][+-]?\d+)?"
 _LENGTH = re.compile(rf"^({_NUM})\s*(m|meters?|metres?|ft|feet|foot|'|cm|km)?$", re.IGNORECASE)
 _FEET_INCHES = re.compile(r"^(\d+(?:\.\d+)?)\s*(?:'|ft)\s*(\d+(?:\.\d+)?)\s*(?:\"|''|in)$", re.IGNORECASE)
 _UNIT_FACTOR = {
-    None: 1.0, "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0,
-    "ft": FOOT, "feet": FOOT, "foot": FOOT, "'": FOOT, "cm": 0.01, "km": 1000.0,
+    None: 1.0,
+    "m": 1.0,
+    "meter": 1.0,
+    "meters": 1.0,
+    "metre": 1.0,
+    "metres": 1.0,
+    "ft": FOOT,
+    "feet": FOOT,
+    "foot": FOOT,
+    "'": FOOT,
+    "cm": 0.01,
+    "km": 1000.0,
 }
 _NUMBER = re.compile(rf"^({_NUM})$")
 _ANGLE = re.compile(rf"^({_NUM})\s*(°|deg|degrees?)?$", re.IGNORECASE)
@@ -39,21 +49,68 @@ CARDINAL = {
 
 #: Colour names mappers use on building:colour / roof:colour (CSS names plus common OSM spellings).
 NAMED_COLOURS = {
-    "black": "#000000", "white": "#ffffff", "grey": "#808080", "gray": "#808080",
-    "lightgrey": "#d3d3d3", "lightgray": "#d3d3d3", "darkgrey": "#a9a9a9", "darkgray": "#a9a9a9",
-    "dimgray": "#696969", "dimgrey": "#696969", "silver": "#c0c0c0", "gainsboro": "#dcdcdc",
-    "red": "#ff0000", "darkred": "#8b0000", "maroon": "#800000", "brown": "#a52a2a", "sienna": "#a0522d",
-    "saddlebrown": "#8b4513", "chocolate": "#d2691e", "peru": "#cd853f", "tan": "#d2b48c",
-    "burlywood": "#deb887", "wheat": "#f5deb3", "beige": "#f5f5dc", "ivory": "#fffff0", "linen": "#faf0e6",
-    "cream": "#fffdd0", "orange": "#ffa500", "darkorange": "#ff8c00", "coral": "#ff7f50",
-    "salmon": "#fa8072", "pink": "#ffc0cb", "yellow": "#ffff00", "gold": "#ffd700", "khaki": "#f0e68c",
-    "olive": "#808000", "green": "#008000", "darkgreen": "#006400", "lime": "#00ff00",
-    "lightgreen": "#90ee90", "teal": "#008080", "cyan": "#00ffff", "aqua": "#00ffff",
-    "blue": "#0000ff", "navy": "#000080", "darkblue": "#00008b", "lightblue": "#add8e6",
-    "skyblue": "#87ceeb", "steelblue": "#4682b4", "purple": "#800080", "violet": "#ee82ee",
-    "magenta": "#ff00ff", "fuchsia": "#ff00ff", "terracotta": "#e2725b", "sandybrown": "#f4a460",
-    "lightyellow": "#ffffe0", "whitesmoke": "#f5f5f5", "snow": "#fffafa", "slategray": "#708090",
-    "slategrey": "#708090", "darkslategray": "#2f4f4f", "darkslategrey": "#2f4f4f",
+    "black": "#000000",
+    "white": "#ffffff",
+    "grey": "#808080",
+    "gray": "#808080",
+    "lightgrey": "#d3d3d3",
+    "lightgray": "#d3d3d3",
+    "darkgrey": "#a9a9a9",
+    "darkgray": "#a9a9a9",
+    "dimgray": "#696969",
+    "dimgrey": "#696969",
+    "silver": "#c0c0c0",
+    "gainsboro": "#dcdcdc",
+    "red": "#ff0000",
+    "darkred": "#8b0000",
+    "maroon": "#800000",
+    "brown": "#a52a2a",
+    "sienna": "#a0522d",
+    "saddlebrown": "#8b4513",
+    "chocolate": "#d2691e",
+    "peru": "#cd853f",
+    "tan": "#d2b48c",
+    "burlywood": "#deb887",
+    "wheat": "#f5deb3",
+    "beige": "#f5f5dc",
+    "ivory": "#fffff0",
+    "linen": "#faf0e6",
+    "cream": "#fffdd0",
+    "orange": "#ffa500",
+    "darkorange": "#ff8c00",
+    "coral": "#ff7f50",
+    "salmon": "#fa8072",
+    "pink": "#ffc0cb",
+    "yellow": "#ffff00",
+    "gold": "#ffd700",
+    "khaki": "#f0e68c",
+    "olive": "#808000",
+    "green": "#008000",
+    "darkgreen": "#006400",
+    "lime": "#00ff00",
+    "lightgreen": "#90ee90",
+    "teal": "#008080",
+    "cyan": "#00ffff",
+    "aqua": "#00ffff",
+    "blue": "#0000ff",
+    "navy": "#000080",
+    "darkblue": "#00008b",
+    "lightblue": "#add8e6",
+    "skyblue": "#87ceeb",
+    "steelblue": "#4682b4",
+    "purple": "#800080",
+    "violet": "#ee82ee",
+    "magenta": "#ff00ff",
+    "fuchsia": "#ff00ff",
+    "terracotta": "#e2725b",
+    "sandybrown": "#f4a460",
+    "lightyellow": "#ffffe0",
+    "whitesmoke": "#f5f5f5",
+    "snow": "#fffafa",
+    "slategray": "#708090",
+    "slategrey": "#708090",
+    "darkslategray": "#2f4f4f",
+    "darkslategrey": "#2f4f4f",
 }
 _HEX = re.compile(r"^#?([0-9a-f]{6}|[0-9a-f]{3})$", re.IGNORECASE)
 
@@ -226,8 +283,9 @@ def parse_building_tags(
         return None
     part = _text(tags.get("building:part"))
     # building:part=no on an outline says "not a part": keep the column NULL so the outline rule ignores it
-    out = BuildingTags(kind=kind, building=_text(tags.get("building")),
-                       part=None if part and part.lower() == "no" else part)
+    out = BuildingTags(
+        kind=kind, building=_text(tags.get("building")), part=None if part and part.lower() == "no" else part
+    )
     out.name = _text(tags.get("name"))
 
     def take(key: str, fn: Callable[..., _T], *args: object) -> _T | None:

@@ -32,10 +32,32 @@ from core.settings import Settings
 from etl.geom.tags import BuildingTags, building_kind, parse_building_tags
 
 _IMPORT_COLUMNS = (
-    "osm_type", "osm_id", "kind", "building", "part", "name", "height", "min_height", "levels", "min_level",
-    "roof_levels", "roof_height", "roof_angle", "roof_shape", "roof_direction", "roof_orientation",
-    "building_colour", "roof_colour", "building_material", "roof_material", "tags", "tag_issues",
-    "geom_kind", "geom", "reject_reason", "reject_detail",
+    "osm_type",
+    "osm_id",
+    "kind",
+    "building",
+    "part",
+    "name",
+    "height",
+    "min_height",
+    "levels",
+    "min_level",
+    "roof_levels",
+    "roof_height",
+    "roof_angle",
+    "roof_shape",
+    "roof_direction",
+    "roof_orientation",
+    "building_colour",
+    "roof_colour",
+    "building_material",
+    "roof_material",
+    "tags",
+    "tag_issues",
+    "geom_kind",
+    "geom",
+    "reject_reason",
+    "reject_detail",
 )
 COPY_IMPORT = f"COPY osm.building_import ({', '.join(_IMPORT_COLUMNS)}) FROM STDIN"
 
@@ -72,14 +94,33 @@ def _row(
 ) -> tuple[object, ...]:
     issues = json.dumps([i.as_dict() for i in parsed.issues]) if parsed.issues else None
     return (
-        osm_type, osm_id, parsed.kind, parsed.building, parsed.part, parsed.name, parsed.height,
-        parsed.min_height, parsed.levels, parsed.min_level, parsed.roof_levels, parsed.roof_height,
-        parsed.roof_angle, parsed.roof_shape, parsed.roof_direction, parsed.roof_orientation,
-        parsed.building_colour, parsed.roof_colour, parsed.building_material, parsed.roof_material,
-        json.dumps(tags, ensure_ascii=False), issues, geom_kind,
+        osm_type,
+        osm_id,
+        parsed.kind,
+        parsed.building,
+        parsed.part,
+        parsed.name,
+        parsed.height,
+        parsed.min_height,
+        parsed.levels,
+        parsed.min_level,
+        parsed.roof_levels,
+        parsed.roof_height,
+        parsed.roof_angle,
+        parsed.roof_shape,
+        parsed.roof_direction,
+        parsed.roof_orientation,
+        parsed.building_colour,
+        parsed.roof_colour,
+        parsed.building_material,
+        parsed.roof_material,
+        json.dumps(tags, ensure_ascii=False),
+        issues,
+        geom_kind,
         # EWKB hex with SRID 4326, which the geometry column's input function accepts as text.
         None if geom_hex is None else _ewkb_4326(geom_hex),
-        reject[0] if reject else None, reject[1] if reject else None,
+        reject[0] if reject else None,
+        reject[1] if reject else None,
     )
 
 
@@ -93,9 +134,7 @@ def _ewkb_4326(wkb_hex: str) -> str:
 
 def read_building_relations(path: Path) -> Iterator[tuple[int, dict[str, str], list[tuple[str, int, str]]]]:
     """Pass A: (relation id, tags, members) of every type=building relation."""
-    fp = osmium.FileProcessor(str(path), osmium.osm.RELATION).with_filter(
-        osmium.filter.TagFilter(("type", "building"))
-    )
+    fp = osmium.FileProcessor(str(path), osmium.osm.RELATION).with_filter(osmium.filter.TagFilter(("type", "building")))
     for rel in fp:
         assert isinstance(rel, osmium.osm.Relation)  # the processor reads relations alone
         members = [(_TYPE_CHAR[m.type], m.ref, m.role) for m in rel.members]
@@ -128,8 +167,12 @@ def locate_long_string(path: Path) -> str:
                 if attr == "k" and len(raw) <= _MAX_STRING:
                     key = raw.decode()
                 elif len(raw) > _MAX_STRING:
-                    what = {"k": "a tag key", "v": f"the value of tag {key!r}", "role": "a member role",
-                            "user": "the user name"}[attr]
+                    what = {
+                        "k": "a tag key",
+                        "v": f"the value of tag {key!r}",
+                        "role": "a member role",
+                        "user": "the user name",
+                    }[attr]
                     return f"line {lineno}, {obj}: {what} has {len(raw):,} bytes"
     return ""
 
@@ -147,8 +190,11 @@ def reading(path: Path) -> Iterator[None]:
         msg = f"cannot read {path}: {e}"
         if "too long" in str(e):
             where = locate_long_string(path)
-            msg += (f" ({where}; libosmium reads at most {_MAX_STRING:,} bytes)" if where else
-                    f" (libosmium reads at most {_MAX_STRING:,} bytes in a key, value, role or user name)")
+            msg += (
+                f" ({where}; libosmium reads at most {_MAX_STRING:,} bytes)"
+                if where
+                else f" (libosmium reads at most {_MAX_STRING:,} bytes in a key, value, role or user name)"
+            )
             msg += ": shorten or drop that tag first (README: bad input)"
         raise RuntimeError(msg) from e
 
@@ -179,8 +225,11 @@ def _line_from(nodes: osmium.osm.WayNodeList, negative: dict[int, tuple[float, f
             coords.append(xy)
     if len(coords) < 2:
         return None
-    return (b"\x01" + struct.pack("<II", 2, len(coords)) + struct.pack(f"<{2 * len(coords)}d",
-                                                                      *(c for xy in coords for c in xy))).hex()
+    return (
+        b"\x01"
+        + struct.pack("<II", 2, len(coords))
+        + struct.pack(f"<{2 * len(coords)}d", *(c for xy in coords for c in xy))
+    ).hex()
 
 
 class _PassB:
@@ -226,8 +275,9 @@ class _PassB:
         if len(nodes) < 2 or not obj.is_closed():
             first = nodes[0].ref if len(nodes) else None
             last = nodes[-1].ref if len(nodes) else None
-            yield _reject("W", obj.id, parsed, tags, "unclosed_way",
-                          f"{len(nodes)} nodes, first node {first} != last node {last}")
+            yield _reject(
+                "W", obj.id, parsed, tags, "unclosed_way", f"{len(nodes)} nodes, first node {first} != last node {last}"
+            )
             return
         try:
             line = self.wkb.create_linestring(obj)
@@ -236,8 +286,9 @@ class _PassB:
             return
         yield _row("W", obj.id, parsed, tags, "L", line)
 
-    def _broken_way(self, obj: osmium.osm.Way, parsed: BuildingTags, tags: dict[str, str],
-                    e: Exception) -> tuple[object, ...]:
+    def _broken_way(
+        self, obj: osmium.osm.Way, parsed: BuildingTags, tags: dict[str, str], e: Exception
+    ) -> tuple[object, ...]:
         """A way libosmium made no linestring of: the nodes are only walked in Python for the rare way that
         needs it; with every node missing libosmium says "need at least two points", as it does for a ring of
         one repeated point."""
@@ -254,8 +305,14 @@ class _PassB:
             missing = [n.ref for n in nodes if not n.location.valid() and n.ref not in self.negative]
         if missing:
             shown = ", ".join(str(r) for r in missing[:10]) + (" …" if len(missing) > 10 else "")
-            return _reject("W", obj.id, parsed, tags, "missing_nodes",
-                           f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}")
+            return _reject(
+                "W",
+                obj.id,
+                parsed,
+                tags,
+                "missing_nodes",
+                f"{len(missing)} of {len(nodes)} nodes not in the file: {shown}",
+            )
         # e.g. every node at one spot: no linestring, let alone a ring
         return _reject("W", obj.id, parsed, tags, "degenerate_ring", str(e))
 
@@ -273,16 +330,28 @@ class _PassB:
         if rtype in ("multipolygon", "boundary"):  # the two types libosmium assembles
             self.mp_candidates[obj.id] = (parsed, tags)
         else:
-            yield _reject("R", obj.id, parsed, tags, "unsupported_relation",
-                          f"type={rtype!r}: only multipolygon relations have a building geometry")
+            yield _reject(
+                "R",
+                obj.id,
+                parsed,
+                tags,
+                "unsupported_relation",
+                f"type={rtype!r}: only multipolygon relations have a building geometry",
+            )
 
     def unassembled(self) -> Iterator[tuple[object, ...]]:
         """Multipolygon relations libosmium could not assemble (missing members, rings that do not close, ...)."""
         for rid in sorted(set(self.mp_candidates) - self.assembled):
             parsed, tags = self.mp_candidates[rid]
-            yield _reject("R", rid, parsed, tags, "multipolygon_assembly_failed",
-                          "libosmium could not assemble the rings (member ways missing from the file, "
-                          "or rings that do not close)")
+            yield _reject(
+                "R",
+                rid,
+                parsed,
+                tags,
+                "multipolygon_assembly_failed",
+                "libosmium could not assemble the rings (member ways missing from the file, "
+                "or rings that do not close)",
+            )
         # areas seen for relations that were not candidates cannot happen (same key filter); keep counts honest
         stray = self.assembled - set(self.mp_candidates)
         if stray:
@@ -316,6 +385,11 @@ def read_buildings(
 
 
 def _reject(
-    osm_type: str, osm_id: int, parsed: BuildingTags, tags: dict[str, str], reason: str, detail: str,
+    osm_type: str,
+    osm_id: int,
+    parsed: BuildingTags,
+    tags: dict[str, str],
+    reason: str,
+    detail: str,
 ) -> tuple[object, ...]:
     return _row(osm_type, osm_id, parsed, tags, None, None, (reason, detail))

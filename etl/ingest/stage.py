@@ -50,8 +50,9 @@ class Input:
     also: Callable[[psycopg.Cursor, int], None] | None = None
 
 
-def _copy_rows(cur: psycopg.Cursor, statement: LiteralString, rows: Iterable[tuple[object, ...]],
-               progress: Progress) -> None:
+def _copy_rows(
+    cur: psycopg.Cursor, statement: LiteralString, rows: Iterable[tuple[object, ...]], progress: Progress
+) -> None:
     with cur.copy(statement) as copy:
         for row in rows:
             copy.write_row(row)
@@ -65,8 +66,10 @@ def _clear(cur: psycopg.Cursor, update: bool) -> None:
         cur.execute("DELETE FROM osm.building_relation")  # its members with it (ON DELETE CASCADE)
         return
     # downstream tables hold derived data of the previous dataset; they are rebuilt by later stages
-    cur.execute("TRUNCATE osm.building_import, osm.building, osm.building_relation, osm.building_relation_member,"
-                " lod.building_mesh, tiles.building_tile, tiles.tile, tiles.grid CASCADE")
+    cur.execute(
+        "TRUNCATE osm.building_import, osm.building, osm.building_relation, osm.building_relation_member,"
+        " lod.building_mesh, tiles.building_tile, tiles.tile, tiles.grid CASCADE"
+    )
     cur.execute("TRUNCATE osm.reject, meta.diagnostic RESTART IDENTITY")
     cur.execute("DELETE FROM meta.osm_change")  # a new base file: no change applied to it yet
 
@@ -88,16 +91,21 @@ def _stage_relations(cur: psycopg.Cursor, path: Path) -> int:
     return len(rels)
 
 
-def _stage_candidates(cur: psycopg.Cursor, inp: Input, settings: Settings, counts: IngestCounts,
-                      partial: bool) -> tuple[bool, IngestCounts, Progress]:
+def _stage_candidates(
+    cur: psycopg.Cursor, inp: Input, settings: Settings, counts: IngestCounts, partial: bool
+) -> tuple[bool, IngestCounts, Progress]:
     """Pass B into osm.building_import: only the candidates the change touched when ``partial``, unless that
     does not keep the extent (then every candidate). Returns (partial still, the counts, the progress)."""
     progress = Progress("ingest", "buildings")
     with reading(inp.path):
-        _copy_rows(cur, COPY_IMPORT, read_buildings(inp.path, settings, counts, inp.touched if partial else None),
-                   progress)
-    if partial and inp.touched is not None and not _one(
-            cur, "SELECT osm.extent_kept(%s)", (sorted(inp.touched.ways),))[0]:
+        _copy_rows(
+            cur, COPY_IMPORT, read_buildings(inp.path, settings, counts, inp.touched if partial else None), progress
+        )
+    if (
+        partial
+        and inp.touched is not None
+        and not _one(cur, "SELECT osm.extent_kept(%s)", (sorted(inp.touched.ways),))[0]
+    ):
         print("  ingest: the change reaches the edge of the data: every candidate is read again", file=sys.stderr)
         partial, counts = False, IngestCounts(building_relations=counts.building_relations)
         cur.execute("TRUNCATE osm.building_import")
@@ -119,17 +127,21 @@ def run(ctx: Context) -> Result:
     with conn.transaction(), conn.cursor() as cur:
         _clear(cur, update)
         counts.building_relations = _stage_relations(cur, inp.path)
-        partial, counts, progress = _stage_candidates(cur, inp, settings, counts,
-                                                      update and inp.touched is not None)
+        partial, counts, progress = _stage_candidates(cur, inp, settings, counts, update and inp.touched is not None)
         if update and not partial:
             cur.execute("DELETE FROM osm.reject WHERE stage = 'ingest'")
             cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'ingest'")
-        print(f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
-              file=sys.stderr, flush=True)
+        print(
+            f"  ingest: read {progress.count:,} candidates in {progress.elapsed:.2f} s, building in SQL…",
+            file=sys.stderr,
+            flush=True,
+        )
         (staged,) = _one(cur, "SELECT count(*) FROM osm.building_import")
         ways = sorted(inp.touched.ways) if partial and inp.touched is not None else None
-        cur.execute("CALL osm.finish_ingest(%s, %s, %s, %s, %s)",
-                    (settings.min_area_m2, str(inp.path), inp.sha256, update, ways))
+        cur.execute(
+            "CALL osm.finish_ingest(%s, %s, %s, %s, %s)",
+            (settings.min_area_m2, str(inp.path), inp.sha256, update, ways),
+        )
         figures = _figures(cur)
         changed = Changes(buildings=[int(i) for (i,) in cur.execute("SELECT id FROM osm.building_change")])
         if inp.also is not None:
@@ -162,8 +174,12 @@ def _one(cur: psycopg.Cursor, query: LiteralString, params: tuple = ()) -> tuple
 def _figures(cur: psycopg.Cursor) -> _Figures:
     return _Figures(
         loaded=int(_one(cur, "SELECT count(*) FROM osm.building")[0]),
-        rejected=[(r, int(n)) for r, n in cur.execute(
-            "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason")],
+        rejected=[
+            (r, int(n))
+            for r, n in cur.execute(
+                "SELECT reason, count(*) FROM osm.reject WHERE stage = 'ingest' GROUP BY reason ORDER BY reason"
+            )
+        ],
         by_kind={k: int(n) for k, n in cur.execute("SELECT kind, count(*) FROM osm.building GROUP BY kind")},
         repaired=int(_one(cur, "SELECT count(*) FROM osm.building WHERE repaired")[0]),
         srid=(int((s := _one(cur, "SELECT srid, srid_name FROM meta.dataset"))[0]), str(s[1])),
@@ -171,8 +187,9 @@ def _figures(cur: psycopg.Cursor) -> _Figures:
     )
 
 
-def _result(f: _Figures, counts: IngestCounts, staged: int, partial: bool, update: bool,
-            seconds: float) -> dict[str, object]:
+def _result(
+    f: _Figures, counts: IngestCounts, staged: int, partial: bool, update: bool, seconds: float
+) -> dict[str, object]:
     n_rejected = sum(n for _, n in f.rejected)
     # a partial update read only some candidates: the others' rows are as they were, so the balance is the
     # database's (every candidate a building or a reject, as a full ingest checks it)
@@ -198,6 +215,11 @@ def _result(f: _Figures, counts: IngestCounts, staged: int, partial: bool, updat
         result["staged"] = staged
     reasons = ", ".join(f"{r} {n}" for r, n in f.rejected) or "none"
     print(f"  working CRS: EPSG:{f.srid[0]} ({f.srid[1]}); rejects: {reasons}", file=sys.stderr)
-    summary("ingest", balance, f"{f.by_kind.get('building', 0):,} buildings, {f.by_kind.get('part', 0):,} parts, "
-            f"{f.repaired:,} repaired", seconds, n_in)
+    summary(
+        "ingest",
+        balance,
+        f"{f.by_kind.get('building', 0):,} buildings, {f.by_kind.get('part', 0):,} parts, {f.repaired:,} repaired",
+        seconds,
+        n_in,
+    )
     return result

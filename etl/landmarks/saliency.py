@@ -64,8 +64,9 @@ def radius_neighbours(xy: np.ndarray, radius: float) -> tuple[np.ndarray, np.nda
     return indptr, cols[order]
 
 
-def neighbour_sums(xy: np.ndarray, radius: float, values: np.ndarray,
-                   block: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+def neighbour_sums(
+    xy: np.ndarray, radius: float, values: np.ndarray, block: int = 4096
+) -> tuple[np.ndarray, np.ndarray]:
     """``(count (n,), sums (n, m))``: per point, how many other points lie within ``radius`` and the sum of their
     ``values`` rows, what the CSR lists of ``radius_neighbours`` give, without them: the pairs of ``block`` query
     points at a time are found, summed and dropped. Duplicates of a point count as its neighbours."""
@@ -91,8 +92,14 @@ def neighbour_sums(xy: np.ndarray, radius: float, values: np.ndarray,
     return count, sums
 
 
-def relative_height(heights: np.ndarray, indptr: np.ndarray | None = None, indices: np.ndarray | None = None,
-                    min_height: float = 1.0, *, sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+def relative_height(
+    heights: np.ndarray,
+    indptr: np.ndarray | None = None,
+    indices: np.ndarray | None = None,
+    min_height: float = 1.0,
+    *,
+    sums: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """(n,) height / mean height of the building's neighbours: > 1 stands out, ~1 blends in.
 
     A building without neighbours gets 1.0 (nothing to stand out from). The mean is floored at ``min_height``
@@ -113,8 +120,9 @@ def relative_height(heights: np.ndarray, indptr: np.ndarray | None = None, indic
     return np.where(count > 0, rel, 1.0)
 
 
-def shape_descriptors(area: np.ndarray, perimeter: np.ndarray, mrr_area: np.ndarray,
-                      n_vertices: np.ndarray) -> np.ndarray:
+def shape_descriptors(
+    area: np.ndarray, perimeter: np.ndarray, mrr_area: np.ndarray, n_vertices: np.ndarray
+) -> np.ndarray:
     """(n, 4) footprint descriptors for ``shape_distinctiveness``: compactness 4*pi*A/P^2 (1 for a disc),
     rectangularity A / area of the minimum rotated rectangle (1 for a rectangle), log(vertex count) and
     log(area); logs because counts and areas are heavy-tailed and a 2x difference should weigh the same at any
@@ -138,10 +146,15 @@ def fill_descriptors(descriptors: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(x), np.nanmean(x, axis=0), x)
 
 
-def shape_distinctiveness(descriptors: np.ndarray, indptr: np.ndarray | None = None,
-                          indices: np.ndarray | None = None, min_neighbours: int = 3,
-                          min_std_fraction: float = 0.1, *,
-                          sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+def shape_distinctiveness(
+    descriptors: np.ndarray,
+    indptr: np.ndarray | None = None,
+    indices: np.ndarray | None = None,
+    min_neighbours: int = 3,
+    min_std_fraction: float = 0.1,
+    *,
+    sums: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """(n,) how unusual each footprint is among its neighbours: the root mean square of the per-descriptor
     z-scores of its descriptor row against the mean and standard deviation of its neighbours' rows.
 
@@ -335,9 +348,17 @@ def _adjacency(indptr: np.ndarray, indices: np.ndarray, n: int) -> sparse.csr_ar
 # exaggeration and displacement
 
 
-def exaggeration_intervals(height: np.ndarray, level: np.ndarray, min_level: int, *, min_screen_px: float,
-                           step: float, max_scale: float, fov_deg: float = 60.0, viewport_px: float = 1080.0
-                           ) -> tuple[np.ndarray, np.ndarray]:
+def exaggeration_intervals(
+    height: np.ndarray,
+    level: np.ndarray,
+    min_level: int,
+    *,
+    min_screen_px: float,
+    step: float,
+    max_scale: float,
+    fov_deg: float = 60.0,
+    viewport_px: float = 1080.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Per landmark, where its exaggeration starts and how far it goes: ``(from_m, top_scale)``.
 
     ``from_m`` is the distance at which the landmark's ``height`` (m) would fill fewer than ``min_screen_px``
@@ -366,8 +387,9 @@ def interval_arrays(from_m: float, step: float, top_scale: float) -> tuple[np.nd
     return from_m * step**i, np.minimum(step ** (i + 1), top_scale)
 
 
-def exaggeration_scale(distance: np.ndarray | float, boundaries: np.ndarray, scales: np.ndarray,
-                       ramp: float = 0.0) -> np.ndarray:
+def exaggeration_scale(
+    distance: np.ndarray | float, boundaries: np.ndarray, scales: np.ndarray, ramp: float = 0.0
+) -> np.ndarray:
     """Scale factor of a landmark seen from ``distance`` (metres), piecewise constant over predefined intervals:
     1.0 below ``boundaries[0]``, ``scales[i]`` from ``boundaries[i]`` up to ``boundaries[i + 1]``, ``scales[-1]``
     beyond the last boundary (boundaries strictly increasing, one scale per boundary).
@@ -400,9 +422,16 @@ def exaggeration_scale(distance: np.ndarray | float, boundaries: np.ndarray, sca
     return np.where(np.isnan(d), np.nan, out)
 
 
-def displacement(landmark_xy: np.ndarray, landmark_radius: np.ndarray | float, scale: np.ndarray | float,
-                 others_xy: np.ndarray, others_radius: np.ndarray | float, *,
-                 combine: Literal["max", "sum"] = "max", only_growth: bool = False) -> np.ndarray:
+def displacement(
+    landmark_xy: np.ndarray,
+    landmark_radius: np.ndarray | float,
+    scale: np.ndarray | float,
+    others_xy: np.ndarray,
+    others_radius: np.ndarray | float,
+    *,
+    combine: Literal["max", "sum"] = "max",
+    only_growth: bool = False,
+) -> np.ndarray:
     """(m, 2) offset moving each surrounding building out of the way of the scaled landmark(s); footprints are
     approximated by circles (centre, radius).
 

@@ -43,18 +43,56 @@ _READ = "SELECT * FROM lm.tile_inputs()"
 _CHANGED = f"SELECT DISTINCT building_id FROM ({differing(_READ, '_lm_was')}) d"
 
 #: Semantic measure: weight of each tag flag (sum 1). A flag holds when the outline or any of its parts has it.
-SEMANTIC = {"worship": 0.2, "religious_building": 0.2, "tower": 0.15, "historic": 0.15, "wikidata": 0.15,
-            "tourism": 0.1, "name": 0.05}
+SEMANTIC = {
+    "worship": 0.2,
+    "religious_building": 0.2,
+    "tower": 0.15,
+    "historic": 0.15,
+    "wikidata": 0.15,
+    "tourism": 0.1,
+    "name": 0.05,
+}
 EVERY_BAND = -32768  # lm.building.lod2_band of the top landmark: LOD2 in every band
 RELIGIOUS = ["cathedral", "church", "chapel", "mosque", "temple", "synagogue", "shrine", "monastery", "basilica"]
 TOWERS = ["tower", "lighthouse", "water_tower", "communications_tower"]
 
 # lm.building, COPYed in rank order; centroid as EWKB (geometry_recv takes it as it is)
-_COLUMNS = ("building_id", "centroid", "height_m", "volume_m3", "area_m2", "relative_height",
-            "shape_distinctiveness", "semantic", "score", "rank", "level", "is_landmark", "lod2_band", "radius_m",
-            "scale_distances_m", "scale_factors")
-_TYPES = ("int8", "bytea", "float4", "float8", "float8", "float4", "float4", "float4", "float4",
-          "int4", "int2", "bool", "int2", "float4", "float4[]", "float4[]")
+_COLUMNS = (
+    "building_id",
+    "centroid",
+    "height_m",
+    "volume_m3",
+    "area_m2",
+    "relative_height",
+    "shape_distinctiveness",
+    "semantic",
+    "score",
+    "rank",
+    "level",
+    "is_landmark",
+    "lod2_band",
+    "radius_m",
+    "scale_distances_m",
+    "scale_factors",
+)
+_TYPES = (
+    "int8",
+    "bytea",
+    "float4",
+    "float8",
+    "float8",
+    "float4",
+    "float4",
+    "float4",
+    "float4",
+    "int4",
+    "int2",
+    "bool",
+    "int2",
+    "float4",
+    "float4[]",
+    "float4[]",
+)
 
 
 _BOOL = ("worship", "religious", "tower", "historic", "wikidata", "tourism", "named")
@@ -62,9 +100,14 @@ _DTYPE: dict[str, type] = {"building_id": np.int64, **dict.fromkeys(_BOOL, np.bo
 
 
 def weights(settings: Settings) -> dict[str, float]:
-    return {"height": settings.lm_w_height, "volume": settings.lm_w_volume, "area": settings.lm_w_area,
-            "relative_height": settings.lm_w_relative_height, "shape": settings.lm_w_shape,
-            "semantic": settings.lm_w_semantic}
+    return {
+        "height": settings.lm_w_height,
+        "volume": settings.lm_w_volume,
+        "area": settings.lm_w_area,
+        "relative_height": settings.lm_w_relative_height,
+        "shape": settings.lm_w_shape,
+        "semantic": settings.lm_w_semantic,
+    }
 
 
 def landmark_min_level(level: np.ndarray, max_fraction: float) -> int:
@@ -126,12 +169,28 @@ def run(ctx: Context) -> Result:
     top = ids[np.argsort(sc.rank)[:10]].tolist()
     seconds = time.perf_counter() - t0
     n_lm = int(is_landmark.sum())
-    summary("landmarks", balance, f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks "
-            f"(level >= {min_level})", seconds, n)
-    return Result({**balance.counts(), "buildings": n, "levels": int(level.max(initial=0)),
-                   "landmark_min_level": min_level, "landmarks": n_lm, "exaggeration_roles": int(roles), "top10": top,
-                   "weights": sc.weights, "seconds": round(seconds, 3),
-                   "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None}, Changes(buildings=changed))
+    summary(
+        "landmarks",
+        balance,
+        f"{int(level.max(initial=0))} hierarchy levels, {n_lm:,} landmarks (level >= {min_level})",
+        seconds,
+        n,
+    )
+    return Result(
+        {
+            **balance.counts(),
+            "buildings": n,
+            "levels": int(level.max(initial=0)),
+            "landmark_min_level": min_level,
+            "landmarks": n_lm,
+            "exaggeration_roles": int(roles),
+            "top10": top,
+            "weights": sc.weights,
+            "seconds": round(seconds, 3),
+            "buildings_per_s": round(n / seconds, 1) if seconds > 0 else None,
+        },
+        Changes(buildings=changed),
+    )
 
 
 def _scalar(cur: psycopg.Cursor[Any], query: LiteralString) -> Any:
@@ -164,7 +223,8 @@ def _score(cols: dict[str, np.ndarray], settings: Settings) -> _Scored:
     n = len(ids)
     xy = np.column_stack([cols["x"], cols["y"]]) if n else np.zeros((0, 2))
     area, perimeter, mrr, nverts, height, volume = (
-        cols[k] for k in ("area", "perimeter", "envelope_area", "n_points", "height", "volume"))
+        cols[k] for k in ("area", "perimeter", "envelope_area", "n_points", "height", "volume")
+    )
     flags = np.column_stack([cols[k] for k in _BOOL]) if n else np.zeros((0, len(SEMANTIC)), bool)
     radius = cols["radius"]
 
@@ -172,14 +232,21 @@ def _score(cols: dict[str, np.ndarray], settings: Settings) -> _Scored:
     # relative height, sums of descriptors and of their squares for the shape
     raw = lm.shape_descriptors(area, perimeter, mrr, nverts)
     desc = lm.fill_descriptors(raw)
-    count, sums = lm.neighbour_sums(xy, settings.lm_neighbour_radius_m,
-                                    np.column_stack([height, desc, desc**2]) if n else np.zeros((0, 9)))
+    count, sums = lm.neighbour_sums(
+        xy, settings.lm_neighbour_radius_m, np.column_stack([height, desc, desc**2]) if n else np.zeros((0, 9))
+    )
     relative = lm.relative_height(height, sums=(count, sums[:, 0]))
     shape = lm.shape_distinctiveness(raw, sums=(count, sums[:, 1:]))  # its global spread from the raw values
     semantic = flags.astype(float) @ np.array(list(SEMANTIC.values()))
     # volume, area and relative height are heavy-tailed: logs, so one hangar does not squash the city to ~0
-    measures = {"height": height, "volume": np.log1p(volume), "area": np.log1p(area),
-                "relative_height": np.log(np.maximum(relative, 1e-3)), "shape": shape, "semantic": semantic}
+    measures = {
+        "height": height,
+        "volume": np.log1p(volume),
+        "area": np.log1p(area),
+        "relative_height": np.log(np.maximum(relative, 1e-3)),
+        "shape": shape,
+        "semantic": semantic,
+    }
     w = weights(settings)
     score = lm.saliency(measures, w) if n else np.zeros(0)
     level = lm.voting_hierarchy(xy, score)
@@ -192,17 +259,40 @@ def _score(cols: dict[str, np.ndarray], settings: Settings) -> _Scored:
     lod2_band = np.where(is_landmark, 2 - (level - min_level), 0)
     lod2_band[level == level.max(initial=0)] = EVERY_BAND
     intervals = _intervals(height, level, min_level, is_landmark, settings)
-    return _Scored(ids, xy, radius, height, volume, area, relative, shape, semantic, score, rank, level, min_level,
-                   is_landmark, lod2_band, intervals, w)
+    return _Scored(
+        ids,
+        xy,
+        radius,
+        height,
+        volume,
+        area,
+        relative,
+        shape,
+        semantic,
+        score,
+        rank,
+        level,
+        min_level,
+        is_landmark,
+        lod2_band,
+        intervals,
+        w,
+    )
 
 
-def _intervals(height: np.ndarray, level: np.ndarray, min_level: int, is_landmark: np.ndarray, settings: Settings
-               ) -> list[tuple[list[float] | None, list[float] | None]]:
+def _intervals(
+    height: np.ndarray, level: np.ndarray, min_level: int, is_landmark: np.ndarray, settings: Settings
+) -> list[tuple[list[float] | None, list[float] | None]]:
     """The predefined exaggeration intervals (boundaries, scales) of each landmark; (None, None) for the others."""
     # a loop over the landmarks, ~1 % of the buildings
     from_m, top_scale = lm.exaggeration_intervals(
-        height, level, min_level, min_screen_px=settings.lm_min_screen_px, step=settings.lm_scale_step,
-        max_scale=settings.lm_max_scale)
+        height,
+        level,
+        min_level,
+        min_screen_px=settings.lm_min_screen_px,
+        step=settings.lm_scale_step,
+        max_scale=settings.lm_max_scale,
+    )
     intervals: list[tuple[list[float] | None, list[float] | None]] = [(None, None)] * len(height)
     for i in np.flatnonzero(is_landmark):
         b, s = lm.interval_arrays(float(from_m[i]), settings.lm_scale_step, float(top_scale[i]))
@@ -222,8 +312,29 @@ def _copy_ranked(cur: psycopg.Cursor[Any], sc: _Scored, srid: int) -> None:
         # 0.36 s against 0.09 s for 106k rows of synthetic columns, measured alone)
         order = np.argsort(sc.rank)
         at = order.tolist()
-        ranked = [c[order].tolist() for c in (sc.ids, sc.height, sc.volume, sc.area, sc.relative, sc.shape,
-                                             sc.semantic, sc.score, sc.rank, sc.level, sc.is_landmark)]
-        for row in zip(ranked[0], [centroids[i] for i in at], *ranked[1:], [band[i] for i in at],
-                       sc.radius[order].tolist(), *zip(*[sc.intervals[i] for i in at], strict=True), strict=True):
+        ranked = [
+            c[order].tolist()
+            for c in (
+                sc.ids,
+                sc.height,
+                sc.volume,
+                sc.area,
+                sc.relative,
+                sc.shape,
+                sc.semantic,
+                sc.score,
+                sc.rank,
+                sc.level,
+                sc.is_landmark,
+            )
+        ]
+        for row in zip(
+            ranked[0],
+            [centroids[i] for i in at],
+            *ranked[1:],
+            [band[i] for i in at],
+            sc.radius[order].tolist(),
+            *zip(*[sc.intervals[i] for i in at], strict=True),
+            strict=True,
+        ):
             copy.write_row(row)

@@ -50,7 +50,9 @@ class Meshes:
     offsets: np.ndarray
 
     def of(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        return self.triangles[self.offsets[k]:self.offsets[k + 1]], self.semantics[self.offsets[k]:self.offsets[k + 1]]
+        return self.triangles[self.offsets[k] : self.offsets[k + 1]], self.semantics[
+            self.offsets[k] : self.offsets[k + 1]
+        ]
 
 
 def _areas(m: Meshes, n: int) -> np.ndarray:
@@ -82,7 +84,7 @@ def _replace(base: Meshes, own: dict[int, tuple[np.ndarray, np.ndarray]], n: int
     tri[dest], sem[dest] = base.triangles[kept], base.semantics[kept]
     for j in keys.tolist():
         t, s_ = own[j]
-        tri[offsets[j]:offsets[j + 1]], sem[offsets[j]:offsets[j + 1]] = t, s_
+        tri[offsets[j] : offsets[j + 1]], sem[offsets[j] : offsets[j + 1]] = t, s_
     return Meshes(tri, sem, offsets)
 
 
@@ -90,14 +92,26 @@ def _subset(m: Meshes, keys: np.ndarray) -> Meshes:
     """The meshes of buildings ``keys``, in that order."""
     parts = [m.of(int(j)) for j in keys]
     counts = [len(t) for t, _ in parts]
-    return Meshes(np.concatenate([t for t, _ in parts]), np.concatenate([s_ for _, s_ in parts]),
-                  np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
+    return Meshes(
+        np.concatenate([t for t, _ in parts]),
+        np.concatenate([s_ for _, s_ in parts]),
+        np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+    )
 
 
-def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, bottom: float, top: float,
-                   roof_tagged: float | None, included: bool, angle: float | None, direction: float | None,
-                   orientation: str | None, roof_only: bool
-                   ) -> tuple[np.ndarray, np.ndarray, float, float, str, str | None]:
+def _pitched_solid(
+    geom: shapely.Geometry,
+    arcs_wkb: bytes | None,
+    shape: str,
+    bottom: float,
+    top: float,
+    roof_tagged: float | None,
+    included: bool,
+    angle: float | None,
+    direction: float | None,
+    orientation: str | None,
+    roof_only: bool,
+) -> tuple[np.ndarray, np.ndarray, float, float, str, str | None]:
     """LOD2 solid of one footprint: (triangles, semantics, roof height, top, engine, fallback note)."""
     polys = list(shapely.get_parts(geom))
     arcs_all = None
@@ -126,16 +140,20 @@ def _pitched_solid(geom: shapely.Geometry, arcs_wkb: bytes | None, shape: str, b
         parts.append((tri, sem))
         h_used, engine, note = max(h_used, h), surf.engine, surf.fallback or note
     top2 = top if included else top + h_used
-    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), h_used, top2, engine,
-            note)
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), h_used, top2, engine, note)
 
 
 def hidden_outline(out: Batch, r: dict[str, Any]) -> None:
     """Row ``r``, an outline without a footprint of its own, is drawn by its parts: counted and diagnosed."""
     out.hidden += 1
-    out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_hidden_by_parts",
-                            "the parts leave only slivers (< 1 m²) of the outline uncovered"))
-
+    out.diagnostics.append(
+        (
+            r["osm_type"],
+            r["osm_id"],
+            "outline_hidden_by_parts",
+            "the parts leave only slivers (< 1 m²) of the outline uncovered",
+        )
+    )
 
 
 @dataclass(frozen=True)
@@ -239,9 +257,14 @@ def _drawn_rows(rows: list[dict[str, Any]], out: Batch) -> list[dict[str, Any]]:
             hidden_outline(out, r)
             continue
         if r["has_parts"]:
-            out.diagnostics.append((r["osm_type"], r["osm_id"], "outline_reduced_by_parts",
-                                    f"parts cover {100 * (r['part_coverage'] or 0):.0f}% of the outline; "
-                                    "the rest is drawn"))
+            out.diagnostics.append(
+                (
+                    r["osm_type"],
+                    r["osm_id"],
+                    "outline_reduced_by_parts",
+                    f"parts cover {100 * (r['part_coverage'] or 0):.0f}% of the outline; the rest is drawn",
+                )
+            )
         drawn.append(r)
     return drawn
 
@@ -251,23 +274,39 @@ def _lod1(drawn: list[dict[str, Any]], settings: Settings, out: Batch) -> _Lod1:
     cols = {k: [r[k] for r in drawn] for k in drawn[0]}  # column name -> values, in batch order
     osm_types, osm_ids = cols["osm_type"], cols["osm_id"]
     ids = np.asarray(cols["id"], dtype=np.int64)
-    hs = heights_mod.resolve(cols["height"], cols["min_height"], cols["levels"], cols["min_level"],
-                             cols["roof_levels"], cols["roof_height"], cols["building"], settings)
+    hs = heights_mod.resolve(
+        cols["height"],
+        cols["min_height"],
+        cols["levels"],
+        cols["min_level"],
+        cols["roof_levels"],
+        cols["roof_height"],
+        cols["building"],
+        settings,
+    )
     geoms = shapely.from_wkb(cols["footprint"])
     out.rejects += [
         (osm_types[k], osm_ids[k], "min_height_ge_height", f"height {hs.top[k]:g} m <= bottom {hs.bottom[k]:g} m")
         for k in np.flatnonzero(hs.invalid)
     ]
     out.diagnostics += [
-        (osm_types[k], osm_ids[k], "top_raised_above_min",
-         f"no height tagged and the default top lay below the bottom {hs.bottom[k]:g} m; top set to {hs.top[k]:g} m")
+        (
+            osm_types[k],
+            osm_ids[k],
+            "top_raised_above_min",
+            f"no height tagged and the default top lay below the bottom {hs.bottom[k]:g} m; top set to {hs.top[k]:g} m",
+        )
         for k in np.flatnonzero(hs.raised)
     ]
     sel = np.flatnonzero(~hs.invalid)
     ex = extrude(geoms[sel], hs.bottom[sel], hs.top[sel])
     out.rejects += [
-        (osm_types[sel[j]], osm_ids[sel[j]], "triangulation_failed",
-         "the cap triangulation does not cover the footprint")
+        (
+            osm_types[sel[j]],
+            osm_ids[sel[j]],
+            "triangulation_failed",
+            "the cap triangulation does not cover the footprint",
+        )
         for j in np.flatnonzero(~ex.ok)
     ]
     good = np.flatnonzero(ex.ok)
@@ -284,11 +323,22 @@ def _roofs(d: _Lod1, settings: Settings, out: Batch) -> _Roofs:
     n, cols = d.n, d.cols
     bottom, top = d.hs.bottom[d.k_of], d.hs.top[d.k_of]
     # building:part=roof / building=roof: a roof without walls
-    roof_only = np.array([(cols["part"][k] or "").lower() == "roof" or (cols["building"][k] or "").lower() == "roof"
-                          for k in d.k_of.tolist()], dtype=bool)
-    r = _Roofs(bottom=bottom, top=top, top2=top.copy(), roof_h=np.zeros(n),
-               shape_used=np.array(["flat"] * n, dtype=object), engine=np.array(["flat"] * n, dtype=object),
-               roof_only=roof_only)
+    roof_only = np.array(
+        [
+            (cols["part"][k] or "").lower() == "roof" or (cols["building"][k] or "").lower() == "roof"
+            for k in d.k_of.tolist()
+        ],
+        dtype=bool,
+    )
+    r = _Roofs(
+        bottom=bottom,
+        top=top,
+        top2=top.copy(),
+        roof_h=np.zeros(n),
+        shape_used=np.array(["flat"] * n, dtype=object),
+        engine=np.array(["flat"] * n, dtype=object),
+        roof_only=roof_only,
+    )
     for j, k in enumerate(d.k_of.tolist()):
         _roof(d, r, j, k, settings.level_height_m, out)
     _slabs(d, r)
@@ -302,8 +352,7 @@ def _roof(d: _Lod1, r: _Roofs, j: int, k: int, lh: float, out: Batch) -> None:
     shape, known = roofs.canonical_shape(raw)
     ot, oi = d.osm_types[k], d.osm_ids[k]
     if not known:
-        out.diagnostics.append((ot, oi, "unknown_roof_shape",
-                                f"roof:shape={raw} is not in the catalogue; drawn flat"))
+        out.diagnostics.append((ot, oi, "unknown_roof_shape", f"roof:shape={raw} is not in the catalogue; drawn flat"))
     if shape == "flat":
         if r.roof_only[j]:
             r.slabs.append(j)
@@ -313,18 +362,34 @@ def _roof(d: _Lod1, r: _Roofs, j: int, k: int, lh: float, out: Batch) -> None:
     from_levels = rh is None and angle is None and rl is not None and rl > 0
     roof_tagged = float(rh) if rh is not None else (float(rl) * lh if from_levels else None)
     if shape != "flat" and rh is None and rl is not None and rl == 0:
-        out.diagnostics.append((ot, oi, "pitched_roof_zero_levels",
-                                f"roof:levels=0 on a {shape} roof; the default pitch is used"))
+        out.diagnostics.append(
+            (ot, oi, "pitched_roof_zero_levels", f"roof:levels=0 on a {shape} roof; the default pitch is used")
+        )
     # heights.resolve put roof:height / roof:levels into the top already when the top came from levels
     included = d.hs.source[k] == "height" or rh is not None or (rl is not None and rl > 0)
     if roof_tagged is not None and roof_tagged > r.top[j] - r.bottom[j]:
-        out.diagnostics.append((ot, oi, "roof_height_clamped",
-                                f"roof height {roof_tagged:g} m exceeds the building's {r.top[j] - r.bottom[j]:g} m"))
+        out.diagnostics.append(
+            (
+                ot,
+                oi,
+                "roof_height_clamped",
+                f"roof height {roof_tagged:g} m exceeds the building's {r.top[j] - r.bottom[j]:g} m",
+            )
+        )
     _pitched(d, r, j, k, shape, roof_tagged, included, angle, out)
 
 
-def _pitched(d: _Lod1, r: _Roofs, j: int, k: int, shape: str, roof_tagged: float | None, included: bool,
-             angle: float | None, out: Batch) -> None:
+def _pitched(
+    d: _Lod1,
+    r: _Roofs,
+    j: int,
+    k: int,
+    shape: str,
+    roof_tagged: float | None,
+    included: bool,
+    angle: float | None,
+    out: Batch,
+) -> None:
     """Drawn building j's (row k's) pitched LOD2 solid into ``r``; when it cannot be built the building keeps its
     flat block and gets a roof_fallback diagnostic."""
     ot, oi = d.osm_types[k], d.osm_ids[k]
@@ -333,9 +398,18 @@ def _pitched(d: _Lod1, r: _Roofs, j: int, k: int, shape: str, roof_tagged: float
         roof_wkb = d.cols["roof_footprint"][k]
         roof_geom = d.geoms[k] if roof_wkb is None else shapely.from_wkb(roof_wkb)
         tri, sem, h, t2, eng, note = _pitched_solid(
-            roof_geom, d.cols["skeleton"][k], shape, float(r.bottom[j]), float(r.top[j]), roof_tagged, included,
-            None if angle is None else float(angle), None if direction is None else float(direction),
-            d.cols["roof_orientation"][k], bool(r.roof_only[j]))
+            roof_geom,
+            d.cols["skeleton"][k],
+            shape,
+            float(r.bottom[j]),
+            float(r.top[j]),
+            roof_tagged,
+            included,
+            None if angle is None else float(angle),
+            None if direction is None else float(direction),
+            d.cols["roof_orientation"][k],
+            bool(r.roof_only[j]),
+        )
         r.own[j] = (tri, sem)
         r.roof_h[j], r.top2[j], r.shape_used[j], r.engine[j] = h, t2, shape, eng
         out.pitched += 1
@@ -353,8 +427,14 @@ def _slabs(d: _Lod1, r: _Roofs) -> None:
     js = np.asarray(r.slabs)
     es = extrude(d.geoms[d.k_of[js]], np.maximum(r.bottom[js], r.top[js] - ROOF_SLAB_M), r.top[js])
     for i, j in enumerate(r.slabs):  # a slab's rim is roof, not wall
-        r.own[j] = (es.of(i), np.where(es.semantics[es.offsets[i]:es.offsets[i + 1]] == SEM_WALL, SEM_ROOF,
-                                       es.semantics[es.offsets[i]:es.offsets[i + 1]]).astype(np.uint8))
+        r.own[j] = (
+            es.of(i),
+            np.where(
+                es.semantics[es.offsets[i] : es.offsets[i + 1]] == SEM_WALL,
+                SEM_ROOF,
+                es.semantics[es.offsets[i] : es.offsets[i + 1]],
+            ).astype(np.uint8),
+        )
 
 
 def _not_closed(out: Batch, d: _Lod1, r: _Roofs, lod2: Meshes, cl: Closure) -> None:
@@ -366,8 +446,14 @@ def _not_closed(out: Batch, d: _Lod1, r: _Roofs, lod2: Meshes, cl: Closure) -> N
         reasons = _closure_reasons(cl, j)
         t, _ = lod2.of(j)
         verdict = _trimesh_verdict(t)
-        out.diagnostics.append((d.osm_types[k], d.osm_ids[k], "not_watertight",
-                                f"LOD2 {r.shape_used[j]} ({r.engine[j]}): " + ", ".join(reasons) + f"; {verdict}"))
+        out.diagnostics.append(
+            (
+                d.osm_types[k],
+                d.osm_ids[k],
+                "not_watertight",
+                f"LOD2 {r.shape_used[j]} ({r.engine[j]}): " + ", ".join(reasons) + f"; {verdict}",
+            )
+        )
 
 
 def _closure_reasons(cl: Closure, j: int) -> list[str]:
@@ -390,9 +476,12 @@ def _trimesh_verdict(t: np.ndarray) -> str:
     import trimesh
 
     tm = trimesh.Trimesh((t - t[0, 0]).reshape(-1, 3), np.arange(3 * len(t)).reshape(-1, 3)) if len(t) else None
-    return ("trimesh: empty" if tm is None else
-            f"trimesh: is_watertight={tm.is_watertight}, is_winding_consistent={tm.is_winding_consistent}, "
-            f"volume={tm.volume:.3g}")
+    return (
+        "trimesh: empty"
+        if tm is None
+        else f"trimesh: is_watertight={tm.is_watertight}, is_winding_consistent={tm.is_winding_consistent}, "
+        f"volume={tm.volume:.3g}"
+    )
 
 
 def _openings(d: _Lod1, r: _Roofs, settings: Settings) -> Facades:
@@ -410,8 +499,18 @@ def _openings(d: _Lod1, r: _Roofs, settings: Settings) -> Facades:
     # NaN: untagged
     storeys = (heights_mod.floats(d.cols["levels"]) - np.nan_to_num(heights_mod.floats(d.cols["min_level"])))[d.k_of]
     params = FacadeParams(level_height=settings.level_height_m, style=settings.lod3_openings)
-    return facades(w.a[keep], w.b[keep], w_owner, r.bottom[w_owner], eave[w_owner], storeys[w_owner],
-                   (r.bottom < 0.5)[w_owner], w.exterior[keep], n, params)
+    return facades(
+        w.a[keep],
+        w.b[keep],
+        w_owner,
+        r.bottom[w_owner],
+        eave[w_owner],
+        storeys[w_owner],
+        (r.bottom < 0.5)[w_owner],
+        w.exterior[keep],
+        n,
+        params,
+    )
 
 
 def _with_openings(lod2: Meshes, fac: Facades, n: int) -> tuple[Meshes, np.ndarray]:
@@ -436,8 +535,11 @@ def _rows(out: Batch, d: _Lod1, r: _Roofs, m: _Lod23, settings: Settings, srid: 
     n, lod1 = d.n, d.lod1
     # LOD3 = LOD2 + openings: their areas add up
     area2 = _areas(m.lod2, n)
-    area_by_lod = {1: _areas(lod1, n), 2: area2,
-                   3: area2 + _areas(Meshes(m.fac.triangles, m.fac.semantics, m.f_off), n)}
+    area_by_lod = {
+        1: _areas(lod1, n),
+        2: area2,
+        3: area2 + _areas(Meshes(m.fac.triangles, m.fac.semantics, m.f_off), n),
+    }
     # LOD1 is LOD2 wherever the roof is flat: measured and encoded once; only the other buildings apart
     keys = np.fromiter(r.own, dtype=np.int64, count=len(r.own))
     cl1_wt, cl1_wc = _lod1_closure(lod1, keys, m.cl)
@@ -451,12 +553,48 @@ def _rows(out: Batch, d: _Lod1, r: _Roofs, m: _Lod23, settings: Settings, srid: 
     flat = np.array(["flat"] * n, dtype=object)
     no_openings = np.zeros(n, int)
     for lr in (
-        _LodRows(1, lod1, wkb1, d.ex.volume[d.good], r.top, np.zeros(n), flat, flat, cl1_wt.tolist(),
-                 cl1_wc.tolist(), no_openings, no_openings),
-        _LodRows(2, m.lod2, wkb2, m.cl.volume, r.top2, r.roof_h, r.shape_used, r.engine, m.cl.watertight.tolist(),
-                 m.cl.winding_consistent.tolist(), no_openings, no_openings),
-        _LodRows(3, m.lod3, encode_triangles_batch(m.lod3.triangles, m.lod3.offsets, srid), vol3, r.top2, r.roof_h,
-                 r.shape_used, r.engine, cl3_wt, cl3_wc, m.fac.n_windows, m.fac.n_doors),
+        _LodRows(
+            1,
+            lod1,
+            wkb1,
+            d.ex.volume[d.good],
+            r.top,
+            np.zeros(n),
+            flat,
+            flat,
+            cl1_wt.tolist(),
+            cl1_wc.tolist(),
+            no_openings,
+            no_openings,
+        ),
+        _LodRows(
+            2,
+            m.lod2,
+            wkb2,
+            m.cl.volume,
+            r.top2,
+            r.roof_h,
+            r.shape_used,
+            r.engine,
+            m.cl.watertight.tolist(),
+            m.cl.winding_consistent.tolist(),
+            no_openings,
+            no_openings,
+        ),
+        _LodRows(
+            3,
+            m.lod3,
+            encode_triangles_batch(m.lod3.triangles, m.lod3.offsets, srid),
+            vol3,
+            r.top2,
+            r.roof_h,
+            r.shape_used,
+            r.engine,
+            cl3_wt,
+            cl3_wc,
+            m.fac.n_windows,
+            m.fac.n_doors,
+        ),
     ):
         _append_rows(out, d, r, lr, area_by_lod[lr.lod])
 
@@ -489,10 +627,25 @@ def _append_rows(out: Batch, d: _Lod1, r: _Roofs, lr: _LodRows, ar: np.ndarray) 
     sem_bytes = m.semantics.tobytes()
     offs = m.offsets.tolist()
     out.meshes += zip(
-        d.ids[d.k_of].tolist(), [lr.lod] * n, lr.wkbs, counts.tolist(), r.bottom.tolist(), lr.tops.tolist(),
-        d.hs.source[d.k_of].tolist(), np.asarray(lr.volume, dtype=np.float64).tolist(),
-        [sem_bytes[offs[j]:offs[j + 1]] for j in range(n)], [str(x) for x in lr.shapes], lr.roof_h.tolist(),
-        [str(x) for x in lr.engines], ar[:, 0].tolist(), ar[:, 1].tolist(), ar[:, 2].tolist(),
-        (ar[:, 3] + ar[:, 4]).tolist(), np.asarray(lr.n_windows).tolist(), np.asarray(lr.n_doors).tolist(),
-        list(lr.watertight), list(lr.winding_consistent), strict=True,
+        d.ids[d.k_of].tolist(),
+        [lr.lod] * n,
+        lr.wkbs,
+        counts.tolist(),
+        r.bottom.tolist(),
+        lr.tops.tolist(),
+        d.hs.source[d.k_of].tolist(),
+        np.asarray(lr.volume, dtype=np.float64).tolist(),
+        [sem_bytes[offs[j] : offs[j + 1]] for j in range(n)],
+        [str(x) for x in lr.shapes],
+        lr.roof_h.tolist(),
+        [str(x) for x in lr.engines],
+        ar[:, 0].tolist(),
+        ar[:, 1].tolist(),
+        ar[:, 2].tolist(),
+        (ar[:, 3] + ar[:, 4]).tolist(),
+        np.asarray(lr.n_windows).tolist(),
+        np.asarray(lr.n_doors).tolist(),
+        list(lr.watertight),
+        list(lr.winding_consistent),
+        strict=True,
     )

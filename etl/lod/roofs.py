@@ -40,26 +40,55 @@ from core.semantics import SEM_GROUND, SEM_ROOF, SEM_WALL
 GRID = 1e-7
 
 SKELETON_SHAPES = {
-    "hipped", "gabled", "half-hipped", "side_hipped", "side_half-hipped", "hipped-and-gabled", "gambrel",
-    "mansard", "round",
+    "hipped",
+    "gabled",
+    "half-hipped",
+    "side_hipped",
+    "side_half-hipped",
+    "hipped-and-gabled",
+    "gambrel",
+    "mansard",
+    "round",
 }
 APEX_SHAPES = {"pyramidal", "cone", "dome", "onion"}
 FIELD_SHAPES = {"skillion", "saltbox", "gabled_height_moved", "butterfly", "crosspitched", "sawtooth"}
 #: every roof:shape value of the OSM catalogue; anything else (and "many") is drawn flat with a diagnostic
 SHAPES = {"flat"} | SKELETON_SHAPES | APEX_SHAPES | FIELD_SHAPES
 ALIASES = {
-    "pyramid": "pyramidal", "hip": "hipped", "gable": "gabled", "half_hipped": "half-hipped",
-    "side-hipped": "side_hipped", "side_half_hipped": "side_half-hipped", "hipped_and_gabled": "hipped-and-gabled",
-    "cross_pitched": "crosspitched", "cross-pitched": "crosspitched", "gabled-height-moved": "gabled_height_moved",
+    "pyramid": "pyramidal",
+    "hip": "hipped",
+    "gable": "gabled",
+    "half_hipped": "half-hipped",
+    "side-hipped": "side_hipped",
+    "side_half_hipped": "side_half-hipped",
+    "hipped_and_gabled": "hipped-and-gabled",
+    "cross_pitched": "crosspitched",
+    "cross-pitched": "crosspitched",
+    "gabled-height-moved": "gabled_height_moved",
 }
 #: shapes that need the straight skeleton (asked of the database only for these)
 NEEDS_SKELETON = SKELETON_SHAPES | APEX_SHAPES
 #: default pitch in degrees when neither roof:height, roof:angle nor roof:levels is tagged
 DEFAULT_PITCH = {
-    "hipped": 30.0, "gabled": 35.0, "half-hipped": 35.0, "side_hipped": 35.0, "side_half-hipped": 35.0,
-    "hipped-and-gabled": 35.0, "gambrel": 45.0, "mansard": 45.0, "round": 45.0, "pyramidal": 40.0,
-    "cone": 55.0, "dome": 45.0, "onion": 56.0, "skillion": 12.0, "saltbox": 30.0, "gabled_height_moved": 35.0,
-    "butterfly": 12.0, "crosspitched": 35.0, "sawtooth": 25.0,
+    "hipped": 30.0,
+    "gabled": 35.0,
+    "half-hipped": 35.0,
+    "side_hipped": 35.0,
+    "side_half-hipped": 35.0,
+    "hipped-and-gabled": 35.0,
+    "gambrel": 45.0,
+    "mansard": 45.0,
+    "round": 45.0,
+    "pyramidal": 40.0,
+    "cone": 55.0,
+    "dome": 45.0,
+    "onion": 56.0,
+    "skillion": 12.0,
+    "saltbox": 30.0,
+    "gabled_height_moved": 35.0,
+    "butterfly": 12.0,
+    "crosspitched": 35.0,
+    "sawtooth": 25.0,
 }
 
 
@@ -166,8 +195,9 @@ def _cross2(tri2d: np.ndarray) -> np.ndarray:
     return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
 
 
-def _slice(xyz_d: list[list[float]], tris: np.ndarray, sem: np.ndarray, levels: np.ndarray
-           ) -> tuple[list[list[float]], np.ndarray, np.ndarray]:
+def _slice(
+    xyz_d: list[list[float]], tris: np.ndarray, sem: np.ndarray, levels: np.ndarray
+) -> tuple[list[list[float]], np.ndarray, np.ndarray]:
     """Cut triangles along the iso-lines d = level (d linear over each triangle). A cut point on an edge is
     created once per edge, so neighbouring triangles share it."""
     verts = [list(v) for v in xyz_d]
@@ -287,8 +317,15 @@ def _edge_frame(xy: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray]
 
 
 #: the end treatment of each shape whose skeleton roof is not hipped all round
-_END_TREATMENT = {"gabled": "gable", "gambrel": "gable", "round": "gable", "half-hipped": "half",
-                  "hipped-and-gabled": "gablet", "side_hipped": "side", "side_half-hipped": "side_half"}
+_END_TREATMENT = {
+    "gabled": "gable",
+    "gambrel": "gable",
+    "round": "gable",
+    "half-hipped": "half",
+    "hipped-and-gabled": "gablet",
+    "side_hipped": "side",
+    "side_half-hipped": "side_half",
+}
 
 
 class _Hip(NamedTuple):
@@ -315,8 +352,9 @@ class _Ends:
     vertical: list[list[int]] = field(default_factory=list)
 
 
-def _skeleton_roof(poly: shapely.Polygon, arcs: np.ndarray, shape: str, direction: float | None
-                   ) -> tuple[_Mesh, list[list[int]], list[list[int]]]:
+def _skeleton_roof(
+    poly: shapely.Polygon, arcs: np.ndarray, shape: str, direction: float | None
+) -> tuple[_Mesh, list[list[int]], list[list[int]]]:
     """Faces (roof) and vertical faces after the end treatment of ``shape``; mesh.d holds distances."""
     mesh, faces, contour = skeleton_faces(poly, arcs)
     xy = np.asarray(mesh.xy)
@@ -349,8 +387,9 @@ def _distances(mesh: _Mesh, faces: list[list[int]], frames: list[tuple[np.ndarra
     return d
 
 
-def _hips(faces: list[list[int]], xy: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]],
-          direction: float | None) -> list[_Hip]:
+def _hips(
+    faces: list[list[int]], xy: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]], direction: float | None
+) -> list[_Hip]:
     """The hip triangles, shortest footprint edge first; among equal ones the end the roof looks towards last
     (it stays hipped on side_* shapes), else the first face first."""
     face_of_half: dict[tuple[int, int], int] = {}
@@ -399,8 +438,9 @@ def _plan(chosen: list[_Hip], treat: str) -> list[tuple[_Hip, str]]:
     return [(c, treat) for c in chosen]
 
 
-def _ridge_hit(p0: np.ndarray, p1: np.ndarray, pa: np.ndarray, na: np.ndarray, pb: np.ndarray, nb: np.ndarray
-               ) -> float | None:
+def _ridge_hit(
+    p0: np.ndarray, p1: np.ndarray, pa: np.ndarray, na: np.ndarray, pb: np.ndarray, nb: np.ndarray
+) -> float | None:
     """Where on p0 -> p1 (0..1) the planes of the two faces with frames (pa, na) and (pb, nb) meet; None when
     parallel to it."""
     den = float((p1 - p0) @ (na - nb))
@@ -409,8 +449,15 @@ def _ridge_hit(p0: np.ndarray, p1: np.ndarray, pa: np.ndarray, na: np.ndarray, p
     return float(((pa - p0) @ na - (pb - p0) @ nb) / den)
 
 
-def _treat_end(mesh: _Mesh, ends: _Ends, hip: _Hip, kind: str, xy: np.ndarray, d: np.ndarray,
-               frames: list[tuple[np.ndarray, np.ndarray]]) -> None:
+def _treat_end(
+    mesh: _Mesh,
+    ends: _Ends,
+    hip: _Hip,
+    kind: str,
+    xy: np.ndarray,
+    d: np.ndarray,
+    frames: list[tuple[np.ndarray, np.ndarray]],
+) -> None:
     """One end into ``ends``: its hip face removed (gable), cut to a small hip (half) or a gablet, the apex moved
     along the ridge; an end whose ridge meets the edge too near a corner is left hipped."""
     if kind == "gablet":
@@ -441,8 +488,9 @@ def _treat_end(mesh: _Mesh, ends: _Ends, hip: _Hip, kind: str, xy: np.ndarray, d
         ends.new_faces[fi] = [iq1, iq2, ir]
 
 
-def _gablet(mesh: _Mesh, ends: _Ends, hip: _Hip, xy: np.ndarray, d: np.ndarray,
-            frames: list[tuple[np.ndarray, np.ndarray]]) -> None:
+def _gablet(
+    mesh: _Mesh, ends: _Ends, hip: _Hip, xy: np.ndarray, d: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]]
+) -> None:
     """A hipped-and-gabled end: the hip face cut at half its height, a small vertical gable above the cut."""
     _, fi, a, b, nn, fa, fb = hip
     pa, na = frames[fa]
@@ -484,8 +532,9 @@ def _reshaped(faces: list[list[int]], ends: _Ends) -> list[list[int]]:
 # ---------------------------------------------------------------------------------------------------------
 # apex engine
 # ---------------------------------------------------------------------------------------------------------
-_ONION = np.array([[1.0, 0.0], [1.18, 0.12], [1.25, 0.3], [1.1, 0.48], [0.75, 0.63], [0.4, 0.76],
-                   [0.18, 0.87], [0.06, 0.95]])
+_ONION = np.array(
+    [[1.0, 0.0], [1.18, 0.12], [1.25, 0.3], [1.1, 0.48], [0.75, 0.63], [0.4, 0.76], [0.18, 0.87], [0.06, 0.95]]
+)
 _DOME = np.array([[math.cos(a), math.sin(a)] for a in np.radians([0, 22.5, 45, 67.5, 80])])
 
 
@@ -503,8 +552,7 @@ def _star_centre(poly: shapely.Polygon) -> np.ndarray | None:
     return c
 
 
-def _apex_roof(poly: shapely.Polygon, centre: np.ndarray, shape: str, height: float
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _apex_roof(poly: shapely.Polygon, centre: np.ndarray, shape: str, height: float) -> tuple[np.ndarray, np.ndarray]:
     ring = np.asarray(poly.exterior.coords)[:-1]
     n = len(ring)
     prof = {"dome": _DOME, "onion": _ONION}.get(shape, np.array([[1.0, 0.0]]))
@@ -534,8 +582,9 @@ def long_axis(poly: shapely.Polygon) -> np.ndarray:
     return e / n if n > 0 else np.array([1.0, 0.0])
 
 
-def _field(shape: str, u: np.ndarray, v: np.ndarray, U: tuple[float, float], V: tuple[float, float]
-           ) -> tuple[np.ndarray, list[tuple[str, float]]]:
+def _field(
+    shape: str, u: np.ndarray, v: np.ndarray, U: tuple[float, float], V: tuple[float, float]
+) -> tuple[np.ndarray, list[tuple[str, float]]]:
     """g in [0, 1] at (u, v) and the break lines ('u' or 'v', value); v runs across the ridge / down-slope."""
     (u0, u1), (v0, v1) = U, V
     du, dv = max(u1 - u0, 1e-9), max(v1 - v0, 1e-9)
@@ -565,8 +614,7 @@ def _field(shape: str, u: np.ndarray, v: np.ndarray, U: tuple[float, float], V: 
     raise ValueError(shape)
 
 
-def _field_roof(poly: shapely.Polygon, shape: str, axis: np.ndarray, height: float
-                ) -> tuple[np.ndarray, np.ndarray]:
+def _field_roof(poly: shapely.Polygon, shape: str, axis: np.ndarray, height: float) -> tuple[np.ndarray, np.ndarray]:
     eu = axis / np.linalg.norm(axis)
     ev = np.array([-eu[1], eu[0]])
     ring_all = np.concatenate(_rings(poly))
@@ -626,9 +674,16 @@ class _Pitch:
         return float(min(h, self.max_height))
 
 
-def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, height: float | None,
-                 angle: float | None, direction: float | None, orientation: str | None,
-                 max_height: float) -> tuple[RoofSurface, float]:
+def roof_surface(
+    poly: shapely.Polygon,
+    shape: str,
+    arcs: np.ndarray | None,
+    height: float | None,
+    angle: float | None,
+    direction: float | None,
+    orientation: str | None,
+    max_height: float,
+) -> tuple[RoofSurface, float]:
     """Roof surface of one polygon (local coordinates, exterior CCW, holes CW) with z = 0 at the eaves.
 
     ``height`` is the tagged roof height (None: from ``angle``, else the shape's default pitch); the
@@ -662,8 +717,9 @@ def roof_surface(poly: shapely.Polygon, shape: str, arcs: np.ndarray | None, hei
     return _skeleton_surface(poly, _snap(arcs), shape, direction, pitch, fallback)
 
 
-def _field_shape(poly: shapely.Polygon, shape: str, axis: np.ndarray, across: bool, dir_vec: np.ndarray | None
-                 ) -> str | None:
+def _field_shape(
+    poly: shapely.Polygon, shape: str, axis: np.ndarray, across: bool, dir_vec: np.ndarray | None
+) -> str | None:
     """The height-field shape the roof is built as, None for another engine: the field shapes, and gabled
     where the mapper put the ridge across the long axis of a boxy footprint."""
     field_shape = shape if shape in FIELD_SHAPES else None
@@ -677,8 +733,9 @@ def _field_shape(poly: shapely.Polygon, shape: str, axis: np.ndarray, across: bo
     return field_shape
 
 
-def _field_surface(poly: shapely.Polygon, field_shape: str, axis: np.ndarray, across: bool,
-                   dir_vec: np.ndarray | None, pitch: _Pitch) -> tuple[RoofSurface, float]:
+def _field_surface(
+    poly: shapely.Polygon, field_shape: str, axis: np.ndarray, across: bool, dir_vec: np.ndarray | None, pitch: _Pitch
+) -> tuple[RoofSurface, float]:
     """The height-field roof in its frame: v down the slope from roof:direction where the shape has one,
     else across the ridge, which runs along the long axis (across it with roof:orientation=across)."""
     sloped = ("skillion", "saltbox", "gabled_height_moved", "butterfly", "sawtooth")
@@ -699,8 +756,9 @@ def _field_surface(poly: shapely.Polygon, field_shape: str, axis: np.ndarray, ac
     return RoofSurface(v, t, np.full(len(t), SEM_ROOF, np.uint8), "field"), h
 
 
-def _skeleton_surface(poly: shapely.Polygon, arcs: np.ndarray, shape: str, direction: float | None,
-                      pitch: _Pitch, fallback: str | None) -> tuple[RoofSurface, float]:
+def _skeleton_surface(
+    poly: shapely.Polygon, arcs: np.ndarray, shape: str, direction: float | None, pitch: _Pitch, fallback: str | None
+) -> tuple[RoofSurface, float]:
     """The skeleton roof: its faces triangulated, cut where the shape's profile bends, lifted along it."""
     mesh, faces, vertical = _skeleton_roof(poly, arcs, shape, direction)
     fallback = mesh.note or fallback
@@ -725,8 +783,9 @@ def _skeleton_surface(poly: shapely.Polygon, arcs: np.ndarray, shape: str, direc
     return RoofSurface(np.column_stack([va[:, :2], z]), tris, sem, "skeleton", fallback), h
 
 
-def solid(roof: RoofSurface, z_eave: float, z_bottom: float, rim_semantic: int = SEM_WALL
-          ) -> tuple[np.ndarray, np.ndarray]:
+def solid(
+    roof: RoofSurface, z_eave: float, z_bottom: float, rim_semantic: int = SEM_WALL
+) -> tuple[np.ndarray, np.ndarray]:
     """Close a roof surface (z relative to the eaves) into a solid from z_bottom: walls under every rim edge,
     a bottom cap triangulated from the rim. Returns ((m, 3, 3) triangles, (m,) semantics)."""
     v = roof.vertices.copy()
@@ -773,6 +832,7 @@ def solid(roof: RoofSurface, z_eave: float, z_bottom: float, rim_semantic: int =
     bottom = np.concatenate([bt, np.full((len(bt), 3, 1), z_bottom)], axis=2)
     top = v[t]
     tris = np.concatenate([bottom, walls, top])
-    sem = np.concatenate([np.full(len(bottom), SEM_GROUND, np.uint8), np.full(len(walls), rim_semantic, np.uint8),
-                          roof.semantics])
+    sem = np.concatenate(
+        [np.full(len(bottom), SEM_GROUND, np.uint8), np.full(len(walls), rim_semantic, np.uint8), roof.semantics]
+    )
     return tris, sem

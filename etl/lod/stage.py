@@ -52,14 +52,49 @@ _SKELETON_VALUES = sorted(roofs.NEEDS_SKELETON | {k for k, v in roofs.ALIASES.it
 # outlines get their diagnostics from lod.diagnose_hidden_outlines, rejects go to osm.reject through
 # lod.store_rejects.
 COLUMNS = (
-    "building_id", "lod", "geom", "n_triangles", "min_height", "height", "height_source", "volume_m3",
-    "semantics", "roof_shape", "roof_height", "roof_engine", "ground_area_m2", "wall_area_m2", "roof_area_m2",
-    "opening_area_m2", "n_windows", "n_doors", "watertight", "winding_consistent",
+    "building_id",
+    "lod",
+    "geom",
+    "n_triangles",
+    "min_height",
+    "height",
+    "height_source",
+    "volume_m3",
+    "semantics",
+    "roof_shape",
+    "roof_height",
+    "roof_engine",
+    "ground_area_m2",
+    "wall_area_m2",
+    "roof_area_m2",
+    "opening_area_m2",
+    "n_windows",
+    "n_doors",
+    "watertight",
+    "winding_consistent",
 )
 # binary COPY: no hex encoding and half the bytes; EWKB goes to geometry_recv as it is
 COPY_TYPES = (
-    "int8", "int2", "bytea", "int4", "float4", "float4", "text", "float8", "bytea", "text", "float4", "text",
-    "float8", "float8", "float8", "float8", "int4", "int4", "bool", "bool",
+    "int8",
+    "int2",
+    "bytea",
+    "int4",
+    "float4",
+    "float4",
+    "text",
+    "float8",
+    "bytea",
+    "text",
+    "float4",
+    "text",
+    "float8",
+    "float8",
+    "float8",
+    "float8",
+    "int4",
+    "int4",
+    "bool",
+    "bool",
 )
 
 
@@ -75,13 +110,15 @@ def _lost_batch(rows: list[dict[str, Any]], lost: Lost) -> Batch:
         if r["footprint"] is None:
             hidden_outline(out, r)
         else:
-            out.rejects.append((r["osm_type"], r["osm_id"], f"lod_{lost.reason}",
-                                f"its batch of {len(rows)} buildings: {lost.detail}"))
+            out.rejects.append(
+                (r["osm_type"], r["osm_id"], f"lod_{lost.reason}", f"its batch of {len(rows)} buildings: {lost.detail}")
+            )
     return out
 
 
-def _built(src: psycopg.ServerCursor[dict[str, Any]], settings: Settings, srid: int,
-           failure: list[BaseException]) -> Iterator[tuple[list[dict[str, Any]], Batch]]:
+def _built(
+    src: psycopg.ServerCursor[dict[str, Any]], settings: Settings, srid: int, failure: list[BaseException]
+) -> Iterator[tuple[list[dict[str, Any]], Batch]]:
     """(rows, their Batch) for every batch of the input, in input order: built here with one worker, else as
     Dask tasks (core/workers.py) with a few batches in flight, so the city is never held whole."""
     batches = iter(lambda: [] if failure else src.fetchmany(settings.lod_batch_size), [])
@@ -108,11 +145,21 @@ def _built(src: psycopg.ServerCursor[dict[str, Any]], settings: Settings, srid: 
 class _Tally:
     """What the batches drawn so far add up to: the counts of the result, seconds by step, hidden outlines."""
 
-    counts: dict[str, int] = field(default_factory=lambda: {
-        "buildings": 0, "meshes": 0, "rejected": 0, "pitched_roofs": 0, "lod2_not_closed": 0,
-        "triangles_lod1": 0, "triangles_lod2": 0, "triangles_lod3": 0})
-    seconds: dict[str, float] = field(default_factory=lambda: {
-        "lod1": 0.0, "lod2": 0.0, "lod3": 0.0, "encode": 0.0, "copy": 0.0})
+    counts: dict[str, int] = field(
+        default_factory=lambda: {
+            "buildings": 0,
+            "meshes": 0,
+            "rejected": 0,
+            "pitched_roofs": 0,
+            "lod2_not_closed": 0,
+            "triangles_lod1": 0,
+            "triangles_lod2": 0,
+            "triangles_lod3": 0,
+        }
+    )
+    seconds: dict[str, float] = field(
+        default_factory=lambda: {"lod1": 0.0, "lod2": 0.0, "lod3": 0.0, "encode": 0.0, "copy": 0.0}
+    )
     hidden: int = 0
 
     def add(self, b: Batch) -> None:
@@ -141,12 +188,13 @@ def _clear_affected(cur: psycopg.Cursor[Any], buildings: Iterable[int]) -> list[
     rejects and diagnostics of this stage deleted."""
     only = [i for (i,) in cur.execute("SELECT id FROM lod.affected_buildings(%s)", (sorted(set(buildings)),))]
     keys = [("W" if i > 0 else "R", abs(i)) for i in only]  # osm2pgsql ids: way id, or minus the relation's
-    cur.execute("DELETE FROM lod.building_mesh WHERE building_id = ANY(%s) AND lod = ANY(%s)",
-                (only, list(LODS)))
+    cur.execute("DELETE FROM lod.building_mesh WHERE building_id = ANY(%s) AND lod = ANY(%s)", (only, list(LODS)))
     for table in ("osm.reject", "meta.diagnostic"):
-        cur.execute(f"DELETE FROM {table} WHERE stage = 'lod' AND (osm_type, osm_id) IN "  # noqa: S608
-                    "(SELECT * FROM unnest(%s::text[], %s::bigint[]))",
-                    ([k[0] for k in keys], [k[1] for k in keys]))
+        cur.execute(
+            f"DELETE FROM {table} WHERE stage = 'lod' AND (osm_type, osm_id) IN "  # noqa: S608
+            "(SELECT * FROM unnest(%s::text[], %s::bigint[]))",
+            ([k[0] for k in keys], [k[1] for k in keys]),
+        )
     return only
 
 
@@ -161,32 +209,35 @@ def _clear_all(cur: psycopg.Cursor[Any]) -> None:
         cur.execute("TRUNCATE lod.building_mesh")
     # the tile tree and its generalized content were built from the old meshes; keeping them would let
     # export drop or miss buildings
-    cur.execute("TRUNCATE gen.block, gen.building_mesh, gen.footprint, tiles.building_tile, "
-                "tiles.tile_content, tex.page, tex.feature_uv, tex.failure, tiles.tile, tiles.grid "
-                "RESTART IDENTITY")
+    cur.execute(
+        "TRUNCATE gen.block, gen.building_mesh, gen.footprint, tiles.building_tile, "
+        "tiles.tile_content, tex.page, tex.feature_uv, tex.failure, tiles.tile, tiles.grid "
+        "RESTART IDENTITY"
+    )
     cur.execute("DELETE FROM osm.reject WHERE stage = 'lod'")
     cur.execute("DELETE FROM meta.diagnostic WHERE stage = 'lod'")
 
 
 def _copy_batch(cur: psycopg.Cursor[Any], b: Batch) -> None:
     """A built batch into the database: its meshes, rejects and diagnostics."""
-    with cur.copy(f"COPY lod.building_mesh ({', '.join(COLUMNS)}) FROM STDIN (FORMAT BINARY)"
-                  ) as copy:
+    with cur.copy(f"COPY lod.building_mesh ({', '.join(COLUMNS)}) FROM STDIN (FORMAT BINARY)") as copy:
         copy.set_types(list(COPY_TYPES))
         for m in b.meshes:
             copy.write_row(m)
     if b.rejects:  # few: with their tags and footprint, so nothing is lost
-        cur.execute("CALL lod.store_rejects(%s, %s, %s, %s)",
-                    [list(c) for c in zip(*b.rejects, strict=True)])
+        cur.execute("CALL lod.store_rejects(%s, %s, %s, %s)", [list(c) for c in zip(*b.rejects, strict=True)])
     if b.diagnostics:
-        with cur.copy("COPY meta.diagnostic (stage, osm_type, osm_id, code, detail) FROM STDIN"
-                      ) as copy:
+        with cur.copy("COPY meta.diagnostic (stage, osm_type, osm_id, code, detail) FROM STDIN") as copy:
             for d in b.diagnostics:
                 copy.write_row(("lod", *d))
 
 
-def _write(cur: psycopg.Cursor[Any], pending: queue.Queue[Batch | None], failure: list[BaseException],
-           seconds: dict[str, float]) -> None:
+def _write(
+    cur: psycopg.Cursor[Any],
+    pending: queue.Queue[Batch | None],
+    failure: list[BaseException],
+    seconds: dict[str, float],
+) -> None:
     """The COPY thread: every batch ``pending`` hands over until None, into the database; a failure goes to
     ``failure`` for the main thread, the queue still drained so the producer never blocks."""
     try:
@@ -200,8 +251,14 @@ def _write(cur: psycopg.Cursor[Any], pending: queue.Queue[Batch | None], failure
             pass
 
 
-def _draw(cur: psycopg.Cursor[Any], src: psycopg.ServerCursor[dict[str, Any]], settings: Settings, srid: int,
-          tally: _Tally, progress: Progress) -> None:
+def _draw(
+    cur: psycopg.Cursor[Any],
+    src: psycopg.ServerCursor[dict[str, Any]],
+    settings: Settings,
+    srid: int,
+    tally: _Tally,
+    progress: Progress,
+) -> None:
     """Every batch of ``src`` built and COPYed: the database parses and indexes a batch (COPY, on a thread of
     its own) while Python builds the next, two cores busy. Raises what the COPY thread failed with."""
     pending: queue.Queue[Batch | None] = queue.Queue(maxsize=2)
@@ -238,8 +295,9 @@ def run(ctx: Context) -> Result:
             only = _clear_affected(cur, ctx.changed.buildings)
         else:
             _clear_all(cur)
-        total = _scalar(cur, "SELECT count(*) FROM osm.building WHERE %s::bigint[] IS NULL OR id = ANY(%s)",
-                        (only, only))
+        total = _scalar(
+            cur, "SELECT count(*) FROM osm.building WHERE %s::bigint[] IS NULL OR id = ANY(%s)", (only, only)
+        )
         tally.hidden = _scalar(cur, "CALL lod.diagnose_hidden_outlines(%s, NULL, %s)", (coverage, only))
         progress.total = total - tally.hidden
         with reader.cursor(name="lod_input", row_factory=dict_row) as src:
@@ -253,21 +311,30 @@ def run(ctx: Context) -> Result:
 def _result(tally: _Tally, total: int, changed: bool, wall: float) -> Result:
     """The stage's result and summary line: the balance of buildings in and drawn, triangles, timings."""
     counts, seconds, hidden = tally.counts, tally.seconds, tally.hidden
-    balance = Balance("buildings and parts", total,
-                      {"drawn": counts["buildings"], "outlines drawn by their parts": hidden}, counts["rejected"])
+    balance = Balance(
+        "buildings and parts",
+        total,
+        {"drawn": counts["buildings"], "outlines drawn by their parts": hidden},
+        counts["rejected"],
+    )
     nb = max(counts["buildings"], 1)
     result: dict[str, object] = {
-        **counts, **balance.counts(), "hidden_by_parts": hidden, "seconds": round(wall, 3),
+        **counts,
+        **balance.counts(),
+        "hidden_by_parts": hidden,
+        "seconds": round(wall, 3),
         "changed_only": changed,
         "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         **{f"triangles_per_building_lod{lod}": round(counts[f"triangles_lod{lod}"] / nb, 1) for lod in LODS},
         "lod2_closed_pct": round(100.0 * (1 - counts["lod2_not_closed"] / nb), 3),
     }
     summary(
-        "lod", balance,
+        "lod",
+        balance,
         f"{counts['pitched_roofs']:,} pitched roofs, LOD2 closed {result['lod2_closed_pct']}% | triangles LOD1 "
         f"{counts['triangles_lod1']:,}, LOD2 {counts['triangles_lod2']:,}, LOD3 {counts['triangles_lod3']:,}",
-        wall, total,
+        wall,
+        total,
     )
     # an update: only the buildings ingest recorded (and their kin, reached through their group)
     return Result(result, Changes() if changed else None)

@@ -36,24 +36,47 @@ def run(ctx: Context) -> Result:
         conn.execute(
             "CALL tiles.build_quadtree(%s, %s, %s, %s, %s)",
             # budgeted on LOD3, the largest mesh of every building, so any exported LOD fits the triangle budget
-            (3, settings.tile_max_features, settings.tile_max_triangles, settings.tile_max_level,
-             settings.base_height_m),
+            (
+                3,
+                settings.tile_max_features,
+                settings.tile_max_triangles,
+                settings.tile_max_level,
+                settings.base_height_m,
+            ),
         )
         n_tiles, n_leaves, depth = _one(
-            conn, "SELECT count(*), count(*) FILTER (WHERE is_leaf), max(level) FROM tiles.tile")
+            conn, "SELECT count(*), count(*) FILTER (WHERE is_leaf), max(level) FROM tiles.tile"
+        )
         n_features, max_leaf = _one(
-            conn, "SELECT count(*), (SELECT max(n_features) FROM tiles.tile WHERE is_leaf) FROM tiles.building_tile")
+            conn, "SELECT count(*), (SELECT max(n_features) FROM tiles.tile WHERE is_leaf) FROM tiles.building_tile"
+        )
         (meshes,) = _one(conn, "SELECT count(*) FROM lod.building_mesh WHERE lod = 3")
         # every feature (a drawn building or part, its LOD3 mesh) in exactly one leaf; checked before commit
         balance = Balance("features", int(meshes), {"in leaf tiles": int(n_features)})
-        changed = [(int(lv), int(x), int(y)) for lv, x, y in conn.execute(
-            f"SELECT level, x, y FROM ({differing(_TILE_ROW, '_tile_was')}) t "
-            f"UNION SELECT level, x, y FROM ({differing(_PLACED, '_placed_was')}) p")]
+        changed = [
+            (int(lv), int(x), int(y))
+            for lv, x, y in conn.execute(
+                f"SELECT level, x, y FROM ({differing(_TILE_ROW, '_tile_was')}) t "
+                f"UNION SELECT level, x, y FROM ({differing(_PLACED, '_placed_was')}) p"
+            )
+        ]
     seconds = time.perf_counter() - t0
     summary(
-        "tiles", balance,
+        "tiles",
+        balance,
         f"{n_leaves:,} leaf tiles ({n_tiles:,} tiles, depth {depth}, largest leaf {max_leaf:,} features)",
-        seconds, n_features,
+        seconds,
+        n_features,
     )
-    return Result({**balance.counts(), "features": n_features, "tiles": n_tiles, "leaves": n_leaves, "depth": depth,
-                   "max_leaf_features": max_leaf, "seconds": round(seconds, 3)}, Changes(tiles=changed))
+    return Result(
+        {
+            **balance.counts(),
+            "features": n_features,
+            "tiles": n_tiles,
+            "leaves": n_leaves,
+            "depth": depth,
+            "max_leaf_features": max_leaf,
+            "seconds": round(seconds, 3),
+        },
+        Changes(tiles=changed),
+    )
