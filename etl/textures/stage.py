@@ -15,11 +15,13 @@ meshes, in the same triangle order, as the exporter writes):
   pages <= tex_page_size with power-of-two sides.
 * encodings: every page twice, as WebP (OpenImageIO) and as KTX2 (etl/textures/ktx2.py: basisu, ETC1S, full mip
   chain), in the workers, so an export picks either (--textures ktx2|webp) without running the stage again
-  and is no slower for it (what it costs: the comment at KTX2 settings below).
+  and is no slower for it (what it costs: the comment at the KTX2 settings in
+  etl/textures/tile.py).
 * a LOD2 tile and the leaves below it are one unit of work sharing a chart cache: the leaves' walls and
   roofs are the LOD2 tile's, at the same resolution wherever the LOD2 tile's rule reaches the cap (on
   Liechtenstein, all of them), so they are copied, and downsampled through OpenImageIO when the parent
-  needs fewer texels. Units are independent and run in a few worker processes, each with its own connection.
+  needs fewer texels. Units are independent and run in a few worker processes, each with its own connection
+  (etl/textures/tile.py, the worker side; this module plans the units and writes what they make).
 
 One broken feature never stops the run: a tile that fails is textured again without the features that fail
 alone, and those are listed in tex.failure (they keep their vertex colours). A unit whose worker hangs (past
@@ -31,50 +33,51 @@ vertex colours in KTX2 exports. Features in = textured + textured in WebP only +
 
 from __future__ import annotations
 
-import atexit
 import itertools
 import math
 import os
 import time
-import traceback
-from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
-from typing import Any
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any, LiteralString
 
-import numpy as np
 import psycopg
-from psycopg.rows import class_row, dict_row
+from psycopg.rows import class_row
 
-from core.camera import distance_for_pixels
 from core.changes import Changes, reach
-from core.db import analyze, connect, shares, thread_map
+from core.db import analyze, shares, thread_map
 from core.fingerprint import run_seed
 from core.progress import Balance, Progress, summary
 from core.reuse import plan
-from core.semantics import SEM_DOOR, SEM_WINDOW
 from core.settings import Settings
 from core.stage import Context, Result
-from core.wkb import decode_triangles
-from core.workers import Lost, imap_isolated
+from core.workers import Lost
 from etl.textures import atlas as A
 from etl.textures import ktx2 as K
-from etl.textures import texturing as X
+from etl.textures.tile import (
+    BLOCK_KEY,
+    FORMAT,
+    WEBP_METHOD,
+    Feature,
+    Key,
+    Tile,
+    TileResult,
+    Unit,
+    _kept_result,
+    _lost,
+    _map_units,
+    padding_for,
+    resolution,
+    units,
+)
 
-FORMAT = "webp"
-WEBP_METHOD = 2  # libwebp effort: 4 is 2.4x slower for 3 % fewer bytes on these pages (measured)
-# KTX2 settings (core.settings tex_ktx2_*), measured on 16 Liechtenstein pages of 512 x 512, level 0 of the ETC1
-# transcode against the page (WebP q90 for scale: 363 kB, PSNR 39.6 dB, mean abs diff 1.49 of 255): basisu -q 64
-# 208 kB, 35.2 dB, 2.43; -q 128 257 kB, 35.2 dB, 2.42; -q 32 180 kB, 34.8 dB, 2.49; -comp_level 0 6 % more bytes
-# for ~10 % less time. The error is ETC1S's block format, not its codebook size: -q above 64 buys bytes only.
-# Encoding costs ~0.35 s a 512 x 512 page (basisu, one thread): on Liechtenstein (636 pages, 2 workers on a
-# shared machine under load 6-7) the stage took 411 s with it against 97 s without, for 13.0 MB of KTX2
-# pages against 39.0 MB of WebP.
-BLOCK_KEY = 1 << 62  # style keys of blocks (gen.block ids) apart from osm.building ids
+# the worker side (etl/textures/tile.py), importable from here as before
+__all__ = ["BLOCK_KEY", "FORMAT", "WEBP_METHOD", "Feature", "Key", "Plan", "Tile", "TileResult", "Unit",
+           "padding_for", "plan_units", "resolution", "run", "units"]
 
 # The stage reads tex.tiles_to_texture (Tile rows), tex.tile_features (a tile's features, the same meshes in the
-# same triangle order as the exporter's) and tex.opening_meshes (sql/tex/), rows by column name.
-_FEATURES = "SELECT * FROM tex.tile_features(%s, %s, %s)"
-_FEATURE_IDS = "SELECT feature_kind, building_id, osm_type, osm_id FROM tex.tile_features(%s, %s, %s)"  # no meshes
+# same triangle order as the exporter's: etl/textures/tile.py) and tex.opening_meshes (sql/tex/), rows by column
+# name.
 _PAGE_COLUMNS = ("level", "x", "y", "page_no", "format", "mime", "width", "height", "n_bytes", "bytes",
                  "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects",
                  "ktx2", "ktx2_n_bytes", "ktx2_levels")
@@ -84,152 +87,6 @@ _UV_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "n_triangles", "
 _UV_TYPES = ("int2", "int4", "int4", "text", "int8", "int4", "bytea", "bytea")
 _FAIL_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "osm_type", "osm_id", "reason", "detail")
 _FAIL_TYPES = ("int2", "int4", "int4", "text", "int8", "text", "int8", "text", "text")
-
-
-@dataclass(frozen=True)
-class Tile:
-    level: int
-    x: int
-    y: int
-    gen_level: int
-    geometric_error: float
-    is_leaf: bool
-    features: int
-
-
-Key = tuple[int, int, int]
-#: A unit of work: its tiles, the fingerprints of their last textures (in an update; else None) and this run's.
-Unit = tuple[list[Tile], dict[Key, str] | None, dict[Key, str]]
-
-
-@dataclass
-class TileResult:
-    tile: Tile
-    rho: float
-    distance: float
-    padding: int
-    pages: list[tuple] = field(default_factory=list)
-    uvs: list[tuple] = field(default_factory=list)
-    failures: list[tuple] = field(default_factory=list)
-    features: int = 0
-    ktx2_failed: int = 0  # features among ``failures`` textured, but on a page without KTX2
-    stats: dict[str, int] = field(default_factory=dict)
-    seconds: float = 0.0
-    encode_seconds: float = 0.0
-    fingerprint: str | None = None  # of everything read for the tile (tex.tile_input)
-    kept: bool = False  # the tile's input had not changed: its rows in tex.* stay as they are
-    redrawn: bool = False  # kept, but drawn again for its unit's chart cache (its unit's LOD2 tile changed)
-
-
-def resolution(geometric_error: float, settings: Settings) -> tuple[float, float]:
-    """(texels per metre, view distance m) of a tile: the thesis' rule at the nearest distance the tile is
-    drawn from, capped by tex_max_texels_per_metre; the distance is where that resolution is exactly right."""
-    fov = math.radians(settings.tex_fov_deg)
-    cap = settings.tex_max_texels_per_metre
-    rho = cap
-    if geometric_error > 0:
-        d = distance_for_pixels(geometric_error, settings.tex_max_sse, fov, settings.tex_screen_height)
-        rho = min(cap, float(A.texels_per_metre(d, fov, settings.tex_screen_height, settings.tex_px_per_texel)))
-    # where rho texels per metre are exactly rho * px_per_texel pixels per metre
-    distance = distance_for_pixels(1.0, rho * settings.tex_px_per_texel, fov, settings.tex_screen_height)
-    return rho, distance
-
-
-def padding_for(rho: float, settings: Settings) -> int:
-    """Gutter texels at rho texels/m: about half a metre of texels, at most tex_padding. A 2-texel gutter
-    around charts a few texels wide would cost more texels than they hold (utilization below 60 % at 1 texel/m
-    against 98 % without, on Liechtenstein); without gutters the charts' edge texels are centred on their
-    edges (texturing._insets), so full-resolution sampling never reads a neighbour."""
-    return max(0, min(settings.tex_padding, int(rho // 2)))
-
-
-def units(tiles: list[Tile]) -> list[list[Tile]]:
-    """Units of work: each LOD2-band tile with the leaves below it (leaves first, so they fill the chart cache
-    it reads), every other tile alone. Deterministic order."""
-    lod2 = {(t.level, t.x, t.y): [] for t in tiles if t.gen_level == 3}  # type: dict[tuple[int, int, int], list[Tile]]
-    alone: list[list[Tile]] = []
-    for t in tiles:
-        if t.gen_level == 4:
-            for up in range(1, t.level + 1):
-                key = (t.level - up, t.x >> up, t.y >> up)
-                if key in lod2:
-                    lod2[key].append(t)
-                    break
-            else:
-                alone.append([t])
-        elif t.gen_level != 3:
-            alone.append([t])
-    by_key = {(t.level, t.x, t.y): t for t in tiles}
-    out = [leaves + [by_key[k]] for k, leaves in lod2.items()] + alone
-    # biggest units first, so the last worker does not start a long one at the end
-    return sorted(out, key=lambda u: -sum(t.features for t in u))
-
-
-#: A row of tex.tile_features, by column name.
-Feature = dict[str, Any]
-
-
-def _style(r: Feature) -> X.Style:
-    bid = int(r["building_id"])
-    key = BLOCK_KEY + bid if r["feature_kind"] == "block" else bid
-    return X.Style.from_tags(key, r["building_material"], r["building_colour"], r["roof_material"], r["roof_colour"],
-                             r["levels"], generic_openings=r["gen_level"] <= 2)
-
-
-def _arrays(rows: list[Feature]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
-    tris, sems, counts = [], [], []
-    for r in rows:
-        t = decode_triangles(r["mesh"])
-        s = (np.full(len(t), X.SEM_UNKNOWN, np.uint8) if r["semantics"] is None
-             else np.frombuffer(bytes(r["semantics"]), np.uint8))
-        if len(s) != len(t):
-            raise ValueError(f"{len(s)} semantics bytes for {len(t)} triangles")
-        tris.append(t)
-        sems.append(s)
-        counts.append(len(t))
-    feat = np.repeat(np.arange(len(rows)), counts)
-    return (np.concatenate(tris) if tris else np.zeros((0, 3, 3)), feat,
-            np.concatenate(sems) if sems else np.zeros(0, np.uint8), counts)
-
-
-def _texture(rows: list[Feature], conn: psycopg.Connection, rho: float, params: X.Params,
-             cache: X.ChartCache | None, store: bool) -> tuple[X.TileTexture, list[int]]:
-    tri, feat, sem, counts = _arrays(rows)
-    styles = [_style(r) for r in rows]
-    # LOD2 features whose leaves were not textured in this unit: their openings from the LOD3 meshes
-    lod2 = [r["gen_level"] == 3 and r["feature_kind"] != "block" for r in rows]
-    need = sorted({int(r["building_id"]) for r, s, is2 in zip(rows, styles, lod2, strict=True)
-                   if is2 and (cache is None or s.key not in cache.buildings)})
-    extra = None
-    if need:
-        index = {int(r["building_id"]): i for i, (r, is2) in enumerate(zip(rows, lod2, strict=True)) if is2}
-        ot, of, os_ = [], [], []
-        for bid, s3, g3 in conn.execute("SELECT building_id, semantics, mesh FROM tex.opening_meshes(%s)",
-                                        (need,)).fetchall():
-            t3 = decode_triangles(g3)
-            s = np.frombuffer(bytes(s3), np.uint8) if s3 is not None else np.zeros(0, np.uint8)
-            if len(s) != len(t3):
-                continue  # no usable semantics: the wall stays without openings
-            keep = (s == SEM_WINDOW) | (s == SEM_DOOR)
-            ot.append(t3[keep])
-            of.append(np.full(int(keep.sum()), index[int(bid)]))
-            os_.append(s[keep])
-        if ot:
-            extra = (np.concatenate(ot), np.concatenate(of), np.concatenate(os_))
-    tt = X.texture_tile(tri, feat, sem, styles, rho, params, extra, cache, store)
-    return tt, counts
-
-
-def _failure(key: tuple[int, int, int], row: Feature, reason: str, detail: str) -> tuple:
-    """A tex.failure row (_FAIL_COLUMNS) of the feature ``row`` (of tex.tile_features)."""
-    return (*key, row["feature_kind"], int(row["building_id"]), row["osm_type"], int(row["osm_id"]), reason,
-            detail[:2000])
-
-
-def _features(conn: psycopg.Connection, tile: Tile, query: str) -> list[Feature]:
-    """The rows of ``query`` (_FEATURES or _FEATURE_IDS) for ``tile``."""
-    with conn.cursor(row_factory=dict_row) as cur:
-        return cur.execute(query, (tile.level, tile.x, tile.y)).fetchall()  # type: ignore[arg-type]
 
 
 def _input_digests(url: str, tiles: list[Tile], threads: int) -> dict[Key, tuple[str, int]]:
@@ -283,85 +140,8 @@ def plan_units(url: str, all_units: list[list[Tile]], seed: str, settings: Setti
     return out
 
 
-def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
-              store: bool, rows: list[Feature] | None = None, encode: bool = True, jobs: int = 1) -> TileResult:
-    """Texture ``tile``. ``encode`` False: only draw it, for the charts it adds to ``cache`` (its pages are
-    kept from the last run, so neither encoded nor returned). ``jobs``: basisu processes for its pages (the
-    cores this unit has to itself)."""
-    t0 = time.perf_counter()
-    rho, distance = resolution(tile.geometric_error, settings)
-    pad = padding_for(rho, settings)
-    res = TileResult(tile, rho, distance, pad)
-    params = X.Params(page_size=settings.tex_page_size, padding=pad, packer=settings.tex_packer,
-                      min_chart_texels=settings.tex_min_chart_texels,
-                      xatlas_min_planes=settings.tex_xatlas_min_planes)
-    rows = _features(conn, tile, _FEATURES) if rows is None else rows
-    res.features = len(rows)
-    key = (tile.level, tile.x, tile.y)
-
-    good = list(range(len(rows)))
-    tt: X.TileTexture | None = None
-    try:
-        tt, counts = _texture(rows, conn, rho, params, cache, store)
-    except Exception:  # noqa: BLE001 -- one broken building never stops the run: find it below
-        # which features fail on their own? (texturing is pure and per tile, so this is exact and rare)
-        bad = []
-        for i, r in enumerate(rows):
-            try:
-                _texture([r], conn, rho, params, None, False)
-            except Exception as e:  # noqa: BLE001
-                bad.append(i)
-                res.failures.append(_failure(key, r, "texturing_failed", f"{type(e).__name__}: {e}"))
-        good = sorted(set(range(len(rows))) - set(bad))
-        try:
-            tt, counts = _texture([rows[i] for i in good], conn, rho, params, cache, store)
-        except Exception as e:  # noqa: BLE001
-            detail = "".join(traceback.format_exception_only(type(e), e)).strip()
-            res.failures += [_failure(key, rows[i], "tile_texturing_failed", detail) for i in good]
-            good, tt = [], None
-    if tt is not None and encode:
-        rects = [tt.page_rects(p) for p in range(tt.layout.n_pages)]
-        util = tt.layout.utilization
-        refused: dict[int, str] = {}
-        # basisu's processes encode the KTX2 while this one writes the WebP (the bytes do not depend on ``jobs``)
-        t1 = time.perf_counter()
-        pending = K.start_many(list(tt.pages), settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
-                               settings.tex_ktx2_timeout_s, jobs)
-        try:
-            webp = [A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD) for img in tt.pages]
-        except BaseException:
-            pending.cancel()
-            raise
-        ktx2 = pending.result()
-        res.encode_seconds += time.perf_counter() - t1
-        for p, img in enumerate(tt.pages):
-            data, mime = webp[p]
-            k2 = ktx2[p]
-            if isinstance(k2, K.EncodeError):  # this page stays WebP only; its features get vertex colours in KTX2
-                k2, refused[p] = None, str(k2)
-            h, w = img.shape[:2]
-            res.pages.append((*key, p, FORMAT, mime, w, h, len(data), data, float(util[p]), rho, distance,
-                              len(rects[p]), int(tt.layout.scaled[tt.layout.page == p].sum()), pad,
-                              rects[p].astype("<i4").tobytes(), k2, len(k2) if k2 else None,
-                              max(w, h).bit_length() if k2 else None))
-        off = np.concatenate([[0], np.cumsum(counts)])
-        bad = np.array(sorted(refused), np.int64)
-        for j, i in enumerate(good):
-            r = rows[i]
-            sl = slice(off[j], off[j + 1])
-            res.uvs.append((*key, r["feature_kind"], int(r["building_id"]), int(counts[j]),
-                            tt.tri_page[sl].astype("<i2").tobytes(), tt.tri_uv[sl].astype("<f4").tobytes()))
-            hit = np.intersect1d(tt.tri_page[sl], bad) if len(bad) else bad
-            if len(hit):
-                first = int(hit[0])
-                res.failures.append(_failure(key, r, K.EncodeError.reason, f"page {first}: {refused[first]}"))
-                res.ktx2_failed += 1
-        res.stats = tt.stats
-    res.seconds = time.perf_counter() - t0
-    return res
-
-
 def _write(cur: psycopg.Cursor, res: TileResult) -> None:
+    """A textured tile's rows into tex.page, tex.feature_uv and tex.failure (binary COPY)."""
     for table, cols, types, rows in (("page", _PAGE_COLUMNS, _PAGE_TYPES, res.pages),
                                      ("feature_uv", _UV_COLUMNS, _UV_TYPES, res.uvs),
                                      ("failure", _FAIL_COLUMNS, _FAIL_TYPES, res.failures)):
@@ -373,75 +153,6 @@ def _write(cur: psycopg.Cursor, res: TileResult) -> None:
                 copy.write_row(row)
 
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(url: str, settings: Settings, jobs: int = 1) -> None:
-    _WORKER["conn"] = connect(url, autocommit=True)  # reads only: no transaction left open between tiles
-    _WORKER["settings"] = settings
-    _WORKER["jobs"] = jobs
-    atexit.register(_WORKER["conn"].close)
-
-
-
-
-def _do_unit(item: Unit) -> list[TileResult]:
-    """Texture a unit in order (leaves first): a LOD2 tile and its leaves share one chart cache. In an update
-    (the unit changed: run() keeps a unit whose fingerprints are all the last ones without sending it here) every
-    tile is textured again but the leaves whose input is unchanged: those are only drawn, for the charts the
-    unit's LOD2 tile reads, and their rows kept (encoding is most of a tile's time)."""
-    unit, kept, prints = item
-    conn, settings = _WORKER["conn"], _WORKER["settings"]
-    shared = any(t.gen_level == 3 for t in unit)
-    cache = X.ChartCache() if shared else None
-    results = []
-    for t in unit:
-        f = prints[(t.level, t.x, t.y)]
-        store = shared and t.gen_level == 4
-        # a leaf as it was is drawn again for the charts the LOD2 tile reads from the cache, not encoded: its
-        # pages are the kept ones (a leaf reads no chart of another leaf: a building is in one leaf)
-        same = store and kept is not None and kept.get((t.level, t.x, t.y)) == f
-        res = _one_tile(t, conn, settings, cache, store=store, encode=not same, jobs=_WORKER["jobs"])
-        if same:
-            res = replace(_kept_result(t, f, res.features, settings), seconds=res.seconds, redrawn=True)
-        res.fingerprint = f
-        results.append(res)
-    return results
-
-
-def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> Iterator[list[TileResult] | Lost]:
-    """Results of every unit, in order; a unit whose worker hung or died comes back as a Lost. Worker
-    processes, not threads: most of the time is numpy on arrays of a few thousand elements and Python between
-    them, which threads serialise on the GIL (2 threads were no faster than 1, measured); each process reads
-    its tiles through its own connection. One per unit at a time (core/workers.py), so a building that hangs or
-    crashes xatlas or OpenImageIO loses its unit's textures, never the run."""
-    if workers <= 1:
-        _init_worker(url, settings)
-        try:
-            yield from (_do_unit(u) for u in work)
-        finally:
-            _WORKER.pop("conn").close()
-        return
-    # fewer units than workers (an update of a few buildings): the cores no unit takes encode their pages
-    jobs = max(1, workers // len(work))
-    yield from imap_isolated(_do_unit, work, min(workers, len(work)), settings.tex_unit_timeout_s, _init_worker,
-                             (url, settings, jobs))
-
-
-def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[TileResult]:
-    """A lost unit's features, every one in tex.failure (they keep their vertex colours)."""
-    out = []
-    for t in unit:
-        rho, distance = resolution(t.geometric_error, settings)
-        res = TileResult(t, rho, distance, padding_for(rho, settings))
-        rows = _features(conn, t, _FEATURE_IDS)
-        res.features = len(rows)
-        detail = f"the unit of tile {t.level}/{t.x}/{t.y}: {lost.detail}"
-        res.failures = [_failure((t.level, t.x, t.y), r, f"texturing_{lost.reason}", detail) for r in rows]
-        out.append(res)
-    return out
-
-
 #: tiles of tex.tile_input whose rows are all there as the last textures run wrote them (a full lod run empties
 #: tex.page, tex.feature_uv and tex.failure, not tex.tile_input)
 _KEPT_WHOLE = """FROM tex.tile_input i
@@ -451,7 +162,8 @@ _KEPT_WHOLE = """FROM tex.tile_input i
       AND i.n_failures = (SELECT count(*) FROM tex.failure k WHERE (k.level, k.x, k.y) = (i.level, i.x, i.y))"""
 
 
-def _kept_prints(conn: psycopg.Connection) -> dict[tuple[int, int, int], str]:
+def _kept_prints(conn: psycopg.Connection) -> dict[Key, str]:
+    """The recorded fingerprint of every tile whose rows are whole (_KEPT_WHOLE)."""
     rows = conn.execute("SELECT i.level, i.x, i.y, i.fingerprint " + _KEPT_WHOLE).fetchall()
     return {(int(lv), int(x), int(y)): f for lv, x, y, f in rows}
 
@@ -465,31 +177,40 @@ _KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.feature_uv GROUP BY 1, 2, 3"
 _KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.failure GROUP BY 1, 2, 3"
 
 
+@dataclass
+class _KeptCounts:
+    """Per kept tile, what _KEPT_PAGES, _KEPT_UVS and _KEPT_FAILS read (empty in a full run)."""
 
-def _kept_counts(conn: psycopg.Connection) -> dict[str, dict[Key, object]]:
-    return {what: {(int(r[0]), int(r[1]), int(r[2])): r[3:] if what == "pages" else r[3]
-                   for r in conn.execute(q)}
-            for what, q in (("pages", _KEPT_PAGES), ("uvs", _KEPT_UVS), ("fails", _KEPT_FAILS))}
+    #: (texels of each page, its WebP bytes, its KTX2 bytes or None, the texels its charts cover)
+    pages: dict[Key, tuple[Sequence[int], Sequence[int], Sequence[int | None], float | None]] = field(
+        default_factory=dict)
+    uvs: dict[Key, int] = field(default_factory=dict)
+    fails: dict[Key, list[str]] = field(default_factory=dict)
 
 
-def _fill_kept(res: TileResult, counts: dict[str, dict[Key, object]]) -> None:
+def _kept_counts(conn: psycopg.Connection) -> _KeptCounts:
+    """The counts of every tile's rows as they are (_KeptCounts)."""
+    def by_tile(query: LiteralString) -> dict[Key, tuple[Any, ...]]:
+        """The rows of ``query`` by tile: (level, x, y) -> the columns after those."""
+        return {(int(r[0]), int(r[1]), int(r[2])): r[3:] for r in conn.execute(query)}
+
+    pages, uvs, fails = by_tile(_KEPT_PAGES), by_tile(_KEPT_UVS), by_tile(_KEPT_FAILS)
+    return _KeptCounts({k: (r[0], r[1], r[2], r[3]) for k, r in pages.items()}, {k: r[0] for k, r in uvs.items()},
+                       {k: r[0] for k, r in fails.items()})
+
+
+def _fill_kept(res: TileResult, counts: _KeptCounts) -> None:
+    """A kept tile's pages, UVs and failures as placeholders with the counts its rows hold, for the balance and
+    the summary (its rows stay as they are)."""
     key = (res.tile.level, res.tile.x, res.tile.y)
-    texels, webp, ktx2, content = counts["pages"].get(key, ((), (), (), 0))  # type: ignore[misc]
+    texels, webp, ktx2, content = counts.pages.get(key, ((), (), (), 0))
     res.stats = {"content_texels": round(content or 0)}  # as its pages' utilizations say: for the summary
-    fails: list[str] = counts["fails"].get(key) or []  # type: ignore[assignment]
-    res.uvs = [()] * int(counts["uvs"].get(key, 0))  # type: ignore[call-overload]
+    fails = counts.fails.get(key) or []
+    res.uvs = [()] * int(counts.uvs.get(key, 0))
     res.failures = [()] * len(fails)
     res.ktx2_failed = sum(1 for r in fails if r == K.EncodeError.reason)
     res.pages = [(0,) * 6 + (int(t), 1, int(b)) + (0,) * 8 + ((b"",) if k else (None,)) + (int(k or 0), 0)
                  for t, b, k in zip(texels, webp, ktx2, strict=True)]
-
-
-def _kept_result(t: Tile, fingerprint: str, features: int, settings: Settings) -> TileResult:
-    """A tile of a unit whose input did not change (``features``: as tex.input_digests counted them): its rows
-    stay as the last run wrote them."""
-    rho, distance = resolution(t.geometric_error, settings)
-    return TileResult(t, rho, distance, padding_for(rho, settings), features=features, fingerprint=fingerprint,
-                  kept=True)
 
 
 def _drop_tile(cur: psycopg.Cursor, key: Key) -> None:
@@ -507,137 +228,231 @@ def _seed(settings: Settings, code: str) -> str:
     return run_seed(settings.as_dict(), code)
 
 
-def run(ctx: Context) -> Result:
-    """Texture every tile; in an update, leave the textures of the units whose input did not change as they are,
-    and replace only the others' rows, instead of texturing every tile again. When the update knows what
-    changed since the last run (``ctx.changed``), only the tiles that reaches are fingerprinted; the others'
-    input is what it was, and they keep the fingerprint the last run recorded."""
-    conn, url, settings, keep, code = ctx.conn, ctx.url, ctx.settings, ctx.update, ctx.code
-    t0 = time.perf_counter()
-    since = reach(conn, ctx.changed) if keep and ctx.changed is not None else None
+# --- the run ------------------------------------------------------------------------------------------------------
+
+
+def _check_settings(settings: Settings) -> None:
+    """Refuse settings no page can be made with, and a missing KTX2 encoder, before any work."""
     if not 16 <= settings.tex_page_size <= A.MAX_PAGE_SIZE or settings.tex_page_size & (settings.tex_page_size - 1):
         raise ValueError(f"tex_page_size must be a power of two in 16..{A.MAX_PAGE_SIZE}")
     K.binary()  # no encoder is an installation problem, not a bad page: stop before any work ("run make setup")
     if settings.tex_max_texels_per_metre <= 0:
         raise ValueError("tex_max_texels_per_metre must be > 0")
+
+
+def _read_tiles(conn: psycopg.Connection) -> list[Tile]:
+    """The tiles to texture (tex.tiles_to_texture), with the geometric errors the generalize stage measured."""
     tiles = conn.cursor(row_factory=class_row(Tile)).execute("SELECT * FROM tex.tiles_to_texture()").fetchall()
     if not tiles:
         raise RuntimeError("no tiles: run the tiles and generalize stages first (make tiles generalize)")
     if any(t.geometric_error is None for t in tiles):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
+    return tiles
+
+
+@dataclass
+class _Prepared:
+    """What a run textures: its tiles' units, planned (kept or textured again), and what the kept ones need."""
+
+    tiles: list[Tile]
+    expected: int  # the features of the tiles
+    workers: int
+    plan: Plan
+    kept_counts: _KeptCounts
+
+
+def _prepare(ctx: Context, tiles: list[Tile], since: set[Key] | None) -> _Prepared:
+    """The units of the tiles and their plan: a tile no run reached, with its rows whole, keeps its fingerprint;
+    the others' are computed."""
+    conn, settings, keep = ctx.conn, ctx.settings, ctx.update
     expected = sum(t.features for t in tiles)
-    seed = _seed(settings, code)
+    seed = _seed(settings, ctx.code)
     kept = _kept_prints(conn) if keep else None
-    kept_counts = _kept_counts(conn) if keep else {}
+    kept_counts = _kept_counts(conn) if keep else _KeptCounts()
     workers = settings.tex_workers or min(4, os.cpu_count() or 1)
     all_units = units(tiles)
-    # a tile no run reached, with its rows whole, keeps its fingerprint; the others' are computed
-    pl = plan_units(url, all_units, seed, settings, kept, since, workers)
-    work, same, prints, counts = pl.work, pl.same, pl.prints, pl.counts
-    progress = Progress("textures", "features", total=expected)
-    by_band: dict[int, dict[str, float]] = {}
-    lost = 0
-    totals = dict.fromkeys(("features", "textured", "failed", "ktx2_failed", "pages", "bytes", "ktx2_pages",
-                            "ktx2_bytes", "page_texels", "content_texels", "rendered_texels", "copied", "resized",
-                            "flat", "sheets", "scaled", "panels_mapped"), 0)
-    encode_seconds = 0.0
-    redrawn = 0  # kept tiles drawn again for their unit's chart cache
-    textured_again = 0  # features of the tiles textured (not kept): an update's share of the stage's work
+    pl = plan_units(ctx.url, all_units, seed, settings, kept, since, workers)
+    return _Prepared(tiles, expected, workers, pl, kept_counts)
+
+
+#: the running totals of a run, in the order its Result reports them
+_TOTALS = ("features", "textured", "failed", "ktx2_failed", "pages", "bytes", "ktx2_pages", "ktx2_bytes", "page_texels",
+           "content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled", "panels_mapped")
+_BAND_SUMS = ("tiles", "features", "pages", "bytes", "page_texels", "content_texels", "seconds")
+
+
+@dataclass
+class _Tally:
+    """A run's running totals, tile by tile: for the balance, the summary line and the Result."""
+
+    totals: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_TOTALS, 0))
+    by_band: dict[int, dict[str, float]] = field(default_factory=dict)
+    encode_seconds: float = 0.0
+    lost: int = 0  # units lost (their worker hung or died)
+    redrawn: int = 0  # kept tiles drawn again for their unit's chart cache
+    textured_again: int = 0  # features of the tiles textured (not kept): an update's share of the stage's work
+    n_kept: int = 0  # tiles whose rows stay as they are
+    made: list[Key] = field(default_factory=list)  # the tiles textured (their rows replaced)
+    written: dict[str, int] = field(default_factory=lambda: {"tex.page": 0, "tex.feature_uv": 0})
+    inputs: list[tuple] = field(default_factory=list)  # tex.tile_input rows, written in one COPY
+
+    def add(self, res: TileResult) -> None:
+        """Count a tile's result (kept or textured) in its band and in the totals."""
+        self.inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages), len(res.uvs),
+                            len(res.failures)))
+        page_texels = sum(p[6] * p[7] for p in res.pages)
+        n_bytes = sum(p[8] for p in res.pages)
+        self._add_band(res, page_texels, n_bytes)
+        totals = self.totals
+        totals["features"] += res.features
+        totals["textured"] += len(res.uvs)
+        totals["failed"] += len(res.failures) - res.ktx2_failed
+        totals["ktx2_failed"] += res.ktx2_failed
+        totals["pages"] += len(res.pages)
+        totals["bytes"] += n_bytes
+        totals["ktx2_pages"] += sum(1 for p in res.pages if p[17] is not None)
+        totals["ktx2_bytes"] += sum(p[18] or 0 for p in res.pages)
+        self.encode_seconds += res.encode_seconds
+        totals["page_texels"] += page_texels
+        for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
+                  "panels_mapped"):
+            totals[k] += res.stats.get(k, 0)
+
+    def _add_band(self, res: TileResult, page_texels: int, n_bytes: int) -> None:
+        """Count a tile in its band (gen_level): sums, and the range of texels per metre."""
+        b = self.by_band.setdefault(res.tile.gen_level, dict.fromkeys(_BAND_SUMS, 0.0))
+        b.update(min_texels_per_metre=min(b.get("min_texels_per_metre", math.inf), res.rho),
+                 max_texels_per_metre=max(b.get("max_texels_per_metre", 0.0), res.rho))
+        for k, v in (("tiles", 1), ("features", res.features), ("pages", len(res.pages)), ("bytes", n_bytes),
+                     ("page_texels", page_texels), ("content_texels", res.stats.get("content_texels", 0)),
+                     ("seconds", res.seconds)):
+            b[k] += v
+
+
+def _clear(cur: psycopg.Cursor, keep: bool) -> None:
+    """Empty tex.tile_input, and in a full run every row of before."""
+    # not TRUNCATE (see generalize.run): readers keep the pages of before until the commit, without waiting
+    cur.execute("DELETE FROM tex.tile_input")
+    if not keep:
+        # failure_id numbered from 1 again, as TRUNCATE ... RESTART IDENTITY did (the old rows are this
+        # transaction's deleted ones, so no id collides, even after a rollback)
+        cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure")
+        cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
+
+
+def _unit_results(pr: _Prepared, url: str, settings: Settings) -> Iterator[tuple[list[Tile], list[TileResult] | Lost]]:
+    """(unit, its results or a Lost) of the units textured, in order, then of the kept ones."""
+    pl = pr.plan
+    work, same = pl.work, pl.same
+    done = [[_kept_result(t, pl.prints[(t.level, t.x, t.y)], pl.counts[(t.level, t.x, t.y)], settings) for t in u]
+            for u in same]
+    for (unit, _, _), out in itertools.chain(
+            zip(work, _map_units(work, url, settings, pr.workers) if work else iter([]), strict=True),
+            zip([(u, None, None) for u in same], done, strict=True)):
+        yield unit, out
+
+
+def _record(cur: psycopg.Cursor, res: TileResult, keep: bool, kept_counts: _KeptCounts, tally: _Tally) -> None:
+    """A tile's result: a kept tile's counts read back, a textured one's rows written (in an update, its old
+    ones dropped first); counted in ``tally``."""
+    if res.kept:
+        tally.redrawn += res.redrawn
+        _fill_kept(res, kept_counts)
+        tally.n_kept += 1
+    else:
+        tally.textured_again += res.features
+        tally.made.append((res.tile.level, res.tile.x, res.tile.y))
+        if keep:
+            _drop_tile(cur, (res.tile.level, res.tile.x, res.tile.y))
+        _write(cur, res)
+        tally.written["tex.page"] += len(res.pages)
+        tally.written["tex.feature_uv"] += len(res.uvs)
+    tally.add(res)
+
+
+def _balance(tally: _Tally, expected: int) -> Balance:
+    """Every feature of every tile textured or in tex.failure with its reason; checked before commit. A feature
+    on a page the KTX2 encoder refused is textured in WebP only (and in tex.failure as ktx2_encode_failed)."""
+    totals = tally.totals
+    if totals["features"] != expected:
+        raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
+    return Balance("features", int(expected), {
+        "textured": int(totals["textured"] - totals["ktx2_failed"]),
+        "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
+
+
+def _texture_and_write(ctx: Context, pr: _Prepared) -> tuple[_Tally, Balance]:
+    """Texture the units (or keep them) and write their rows, every tile's tex.tile_input row and the statistics,
+    in one transaction; the totals and the balance, checked before the commit."""
+    conn, settings, keep = ctx.conn, ctx.settings, ctx.update
+    progress = Progress("textures", "features", total=pr.expected)
+    tally = _Tally()
     with conn.transaction(), conn.cursor() as cur:
-        # not TRUNCATE (see generalize.run): readers keep the pages of before until the commit, without waiting
-        cur.execute("DELETE FROM tex.tile_input")
-        if not keep:
-            # failure_id numbered from 1 again, as TRUNCATE ... RESTART IDENTITY did (the old rows are this
-            # transaction's deleted ones, so no id collides, even after a rollback)
-            cur.execute("DELETE FROM tex.page; DELETE FROM tex.feature_uv; DELETE FROM tex.failure")
-            cur.execute("SELECT setval(pg_get_serial_sequence('tex.failure', 'failure_id'), 1, false)")
-        n_kept = 0  # their rows stay as they are
-        made: list[Key] = []  # the tiles textured (their rows replaced)
-        written = {"tex.page": 0, "tex.feature_uv": 0}
-        inputs: list[tuple] = []  # tex.tile_input rows, written in one COPY
-        done = [[_kept_result(t, prints[(t.level, t.x, t.y)], counts[(t.level, t.x, t.y)], settings) for t in u]
-                for u in same]
-        for (unit, _, _), out in itertools.chain(
-                zip(work, _map_units(work, url, settings, workers) if work else iter([]), strict=True),
-                zip([(u, None, None) for u in same], done, strict=True)):
+        _clear(cur, keep)
+        for unit, out in _unit_results(pr, ctx.url, settings):
             if isinstance(out, Lost):
-                lost += 1
+                tally.lost += 1
                 out = _lost(conn, unit, out, settings)
             for res in out:
-                if res.kept:
-                    redrawn += res.redrawn
-                    _fill_kept(res, kept_counts)
-                    n_kept += 1
-                else:
-                    textured_again += res.features
-                    made.append((res.tile.level, res.tile.x, res.tile.y))
-                    if keep:
-                        _drop_tile(cur, (res.tile.level, res.tile.x, res.tile.y))
-                    _write(cur, res)
-                    written["tex.page"] += len(res.pages)
-                    written["tex.feature_uv"] += len(res.uvs)
-                inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages),
-                               len(res.uvs), len(res.failures)))
-                page_texels = sum(p[6] * p[7] for p in res.pages)
-                n_bytes = sum(p[8] for p in res.pages)
-                b = by_band.setdefault(res.tile.gen_level, dict.fromkeys(
-                    ("tiles", "features", "pages", "bytes", "page_texels", "content_texels", "seconds"), 0.0))
-                b.update(min_texels_per_metre=min(b.get("min_texels_per_metre", math.inf), res.rho),
-                         max_texels_per_metre=max(b.get("max_texels_per_metre", 0.0), res.rho))
-                for k, v in (("tiles", 1), ("features", res.features), ("pages", len(res.pages)), ("bytes", n_bytes),
-                             ("page_texels", page_texels), ("content_texels", res.stats.get("content_texels", 0)),
-                             ("seconds", res.seconds)):
-                    b[k] += v
-                totals["features"] += res.features
-                totals["textured"] += len(res.uvs)
-                totals["failed"] += len(res.failures) - res.ktx2_failed
-                totals["ktx2_failed"] += res.ktx2_failed
-                totals["pages"] += len(res.pages)
-                totals["bytes"] += n_bytes
-                totals["ktx2_pages"] += sum(1 for p in res.pages if p[17] is not None)
-                totals["ktx2_bytes"] += sum(p[18] or 0 for p in res.pages)
-                encode_seconds += res.encode_seconds
-                totals["page_texels"] += page_texels
-                for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
-                          "panels_mapped"):
-                    totals[k] += res.stats.get(k, 0)
+                _record(cur, res, keep, pr.kept_counts, tally)
                 progress.update(res.features)
-        if totals["features"] != expected:
-            raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
-        # every feature of every tile textured or in tex.failure with its reason; checked before commit. A feature
-        # on a page the KTX2 encoder refused is textured in WebP only (and in tex.failure as ktx2_encode_failed)
-        balance = Balance("features", int(expected), {
-            "textured": int(totals["textured"] - totals["ktx2_failed"]),
-            "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
+        balance = _balance(tally, pr.expected)
         with cur.copy("COPY tex.tile_input FROM STDIN") as copy:
-            for row in inputs:
+            for row in tally.inputs:
                 copy.write_row(row)
-        for table, n in written.items():
+        for table, n in tally.written.items():
             analyze(cur, table, n if keep else None)
-    seconds = time.perf_counter() - t0
+    return tally, balance
+
+
+def _bands(by_band: dict[int, dict[str, float]]) -> list[dict[str, object]]:
+    """Per band (gen_level), what its tiles made, for the Result."""
+    return [{"gen_level": g, "tiles": int(b["tiles"]), "features": int(b["features"]), "pages": int(b["pages"]),
+             "bytes": int(b["bytes"]), "utilization": round(b["content_texels"] / b["page_texels"], 4)
+             if b["page_texels"] else None, "texels_per_metre": [round(b["min_texels_per_metre"], 3),
+                                                                  round(b["max_texels_per_metre"], 3)],
+             "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
+
+
+def _report(ctx: Context, pr: _Prepared, tally: _Tally, balance: Balance, since: set[Key] | None,
+            seconds: float) -> Result:
+    """The summary line printed, and the run's Result: the totals, the balance, the bands, the changed tiles."""
+    tiles, totals, keep = pr.tiles, tally.totals, ctx.update
     buildings = sum(t.features for t in tiles if t.is_leaf)
     util = totals["content_texels"] / totals["page_texels"] if totals["page_texels"] else 0.0
-    bands = [{"gen_level": g, "tiles": int(b["tiles"]), "features": int(b["features"]), "pages": int(b["pages"]),
-              "bytes": int(b["bytes"]), "utilization": round(b["content_texels"] / b["page_texels"], 4)
-              if b["page_texels"] else None, "texels_per_metre": [round(b["min_texels_per_metre"], 3),
-                                                                   round(b["max_texels_per_metre"], 3)],
-              "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
+    bands = _bands(tally.by_band)
     summary(
         "textures", balance,
         f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB WebP, "
-        f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({encode_seconds:.1f} s encoding KTX2 and WebP in the workers), "
-        f"utilization {100 * util:.1f} %, "
+        f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({tally.encode_seconds:.1f} s encoding KTX2 and WebP in the "
+        f"workers), utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)"
-        + (f"; {n_kept:,} tiles kept as they were ({redrawn:,} of them drawn again for a chart cache)"
+        + (f"; {tally.n_kept:,} tiles kept as they were ({tally.redrawn:,} of them drawn again for a chart cache)"
            if keep else ""),
         seconds,
         buildings,
     )
-    return Result({**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": n_kept, "units": len(work),
-                   "tiles_redrawn": redrawn, "features_textured": textured_again, "units_lost": lost,
-                   "tiles_fingerprinted": pl.fingerprinted,  # the others no run of the update reached (core/changes.py)
-                   "workers": workers, "utilization": round(util, 4), "encode_seconds": round(encode_seconds, 3),
-                   "bands": bands, "seconds": round(seconds, 3), "buildings": buildings,
-                   "buildings_per_s": round(buildings / seconds, 1) if seconds else None},
-                  None if since is None else Changes(tiles=made))
+    return Result({**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": tally.n_kept,
+                   "units": len(pr.plan.work), "tiles_redrawn": tally.redrawn,
+                   "features_textured": tally.textured_again, "units_lost": tally.lost,
+                   # the others no run of the update reached (core/changes.py)
+                   "tiles_fingerprinted": pr.plan.fingerprinted,
+                   "workers": pr.workers, "utilization": round(util, 4),
+                   "encode_seconds": round(tally.encode_seconds, 3), "bands": bands, "seconds": round(seconds, 3),
+                   "buildings": buildings, "buildings_per_s": round(buildings / seconds, 1) if seconds else None},
+                  None if since is None else Changes(tiles=tally.made))
+
+
+def run(ctx: Context) -> Result:
+    """Texture every tile; in an update, leave the textures of the units whose input did not change as they are,
+    and replace only the others' rows, instead of texturing every tile again. When the update knows what
+    changed since the last run (``ctx.changed``), only the tiles that reaches are fingerprinted; the others'
+    input is what it was, and they keep the fingerprint the last run recorded."""
+    t0 = time.perf_counter()
+    since = reach(ctx.conn, ctx.changed) if ctx.update and ctx.changed is not None else None
+    _check_settings(ctx.settings)
+    tiles = _read_tiles(ctx.conn)
+    pr = _prepare(ctx, tiles, since)
+    tally, balance = _texture_and_write(ctx, pr)
+    return _report(ctx, pr, tally, balance, since, time.perf_counter() - t0)
