@@ -45,6 +45,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from types import ModuleType
+from typing import overload
 
 import numpy as np
 
@@ -87,6 +88,12 @@ def texture_size(extent_m: float | np.ndarray, view_distance_m: float | np.ndarr
     return texels(extent_m, texels_per_metre(view_distance_m, fov_y_rad, screen_height_px, px_per_texel))
 
 
+@overload
+def texels(extent_m: float, rho: float) -> int: ...
+@overload
+def texels(extent_m: np.ndarray, rho: float | np.ndarray) -> np.ndarray: ...
+@overload
+def texels(extent_m: float | np.ndarray, rho: float | np.ndarray) -> int | np.ndarray: ...
 def texels(extent_m: float | np.ndarray, rho: float | np.ndarray) -> int | np.ndarray:
     """Texels along an extent of ``extent_m`` metres at ``rho`` texels per metre: rounded up, at least 1."""
     px = np.asarray(extent_m, dtype=np.float64) * rho

@@ -30,8 +30,10 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from core.semantics import SEM_DOOR, SEM_WINDOW
 from etl.geom.facade import FacadeParams, door_walls, facades
@@ -139,7 +141,7 @@ def _seed(*parts: object) -> int:
 _HX, _HY = np.uint32(0x8DA6B343), np.uint32(0xD8163841)
 
 
-def _u32(i: np.ndarray) -> np.ndarray:
+def _u32(i: np.ndarray | int) -> np.ndarray:
     return (np.asarray(i, dtype=np.int64) & 0xFFFFFFFF).astype(np.uint32)
 
 
@@ -154,7 +156,7 @@ def _mix(h: np.ndarray) -> np.ndarray:
     return (h >> np.uint32(8)).astype(np.float64) / float(1 << 24)
 
 
-def _hash(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
+def _hash(ix: np.ndarray | int, iy: np.ndarray | int, seed: int) -> np.ndarray:
     """Uniform [0, 1) per integer lattice point (a 32-bit integer hash; wraps negative indices)."""
     with np.errstate(over="ignore"):
         return _mix((_u32(ix) * _HX) ^ (_u32(iy) * _HY) ^ np.uint32(seed & 0xFFFFFFFF))
@@ -189,7 +191,28 @@ class _Field:
         return np.mod(i, max(1, round(self.span[axis] / p)))
 
 
-def _stripes(x: np.ndarray, t: float, period: float, width: float, offset: float | np.ndarray = 0.0) -> np.ndarray:
+class _TexelField(Protocol):
+    """What the pattern functions read of their texels: _Field's (one image; texel sizes are floats) or
+    texturing._Flat's (a flat list of texels of many charts; per-texel sizes)."""
+
+    @property
+    def u(self) -> np.ndarray: ...
+    @property
+    def v(self) -> np.ndarray: ...
+    @property
+    def tu(self) -> float | np.ndarray: ...
+    @property
+    def tv(self) -> float | np.ndarray: ...
+    @property
+    def t(self) -> float | np.ndarray: ...
+    @property
+    def shape(self) -> tuple[int, ...]: ...
+    def period(self, p: float, axis: int, group: int = 1) -> float: ...
+    def wrap(self, i: np.ndarray, p: float, axis: int) -> np.ndarray: ...
+
+
+def _stripes(x: np.ndarray, t: float | np.ndarray, period: float, width: float,
+             offset: float | np.ndarray = 0.0) -> np.ndarray:
     """Exact fraction of each texel [x - t/2, x + t/2] covered by stripes [k period + offset, ... + width)."""
 
     def cum(y: np.ndarray) -> np.ndarray:
@@ -200,7 +223,7 @@ def _stripes(x: np.ndarray, t: float, period: float, width: float, offset: float
     return (cum(x + t / 2) - cum(x - t / 2)) / t
 
 
-def _saw(x: np.ndarray, t: float, period: float) -> np.ndarray:
+def _saw(x: np.ndarray, t: float | np.ndarray, period: float) -> np.ndarray:
     """Box-filtered sawtooth frac(x / period) (0 at a period's start, 1 at its end; mean 0.5)."""
 
     def cum(y: np.ndarray) -> np.ndarray:
@@ -211,13 +234,13 @@ def _saw(x: np.ndarray, t: float, period: float) -> np.ndarray:
     return (cum(x + t / 2) - cum(x - t / 2)) / t
 
 
-def _damp(unit_m: float, fld: _Field) -> float | np.ndarray:
+def _damp(unit_m: float, fld: _TexelField) -> float | np.ndarray:
     """How much of a per-unit variation survives averaging over a texel: 1 / sqrt(units per texel). Per texel
     when the texel sizes are arrays (etl/textures/texturing.py renders many charts of one page in one pass)."""
     return np.minimum(1.0, unit_m / fld.t)
 
 
-def _noise(fld: _Field, cu: float, cv: float, seed: int) -> np.ndarray:
+def _noise(fld: _TexelField, cu: float, cv: float, seed: int) -> np.ndarray:
     """Smooth value noise with cells cu x cv metres, mean 0, within +-0.5, damped for cells below a texel."""
     cu, cv = fld.period(cu, 0), fld.period(cv, 1)
     x, y = fld.u / cu, fld.v / cv
@@ -235,7 +258,7 @@ def _noise(fld: _Field, cu: float, cv: float, seed: int) -> np.ndarray:
     return (top * (1 - fy) + bot * fy - 0.5) * _damp(math.sqrt(cu * cv), fld)
 
 
-def _bond(fld: _Field, pu: float, pv: float, ju: float, jv: float, seed: int,
+def _bond(fld: _TexelField, pu: float, pv: float, ju: float, jv: float, seed: int,
           shift: float = 0.5) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Running bond of units pu x pv (bricks, stones, tiles) with joints ju, jv, every other row shifted by
     ``shift`` units: (joint coverage (H, W), per-unit variation (H, W) in +-0.5 damped, pu, pv) as used."""
@@ -259,14 +282,14 @@ def _joints(base: np.ndarray, joint: np.ndarray, cover: np.ndarray, mean_cover: 
     return unit * (1 - c) + joint * c
 
 
-def _grid_cover(fld: _Field, pu: float, pv: float, ju: float, jv: float) -> tuple[np.ndarray, float]:
+def _grid_cover(fld: _TexelField, pu: float, pv: float, ju: float, jv: float) -> tuple[np.ndarray, float]:
     pu, pv = fld.period(pu, 0), fld.period(pv, 1)
     ch = _stripes(fld.v, fld.tv, pv, jv) if jv > 0 else np.zeros_like(fld.v)
     cu = _stripes(fld.u, fld.tu, pu, ju) if ju > 0 else np.zeros_like(fld.u)
     return 1 - (1 - ch) * (1 - cu), 1 - (1 - jv / pv) * (1 - ju / pu)
 
 
-def _wall_pattern(material: str, base: np.ndarray, fld: _Field, seed: int) -> np.ndarray:
+def _wall_pattern(material: str, base: np.ndarray, fld: _TexelField, seed: int) -> np.ndarray:
     """(H, W, 3) linear colours of a wall material; mean about ``base``."""
     mortar = _lin(_MORTAR)
     if material == "brick":  # 215 x 65 mm bricks, 10 mm joints, stretcher bond
@@ -305,7 +328,7 @@ def _wall_pattern(material: str, base: np.ndarray, fld: _Field, seed: int) -> np
     return base * (1 + big * _noise(fld, 0.9, 0.9, seed) + fine * _noise(fld, 0.07, 0.07, seed + 1))[..., None]
 
 
-def _roof_pattern(material: str, base: np.ndarray, fld: _Field, seed: int) -> np.ndarray:
+def _roof_pattern(material: str, base: np.ndarray, fld: _TexelField, seed: int) -> np.ndarray:
     """(H, W, 3) linear colours of a roof material (u along the eaves, v up the slope); mean about ``base``."""
     if material in ("roof_tiles", "slate"):
         pu, pv, ju, shade_amp, amp = (0.22, 0.32, 0.012, 0.35, 0.35) if material == "roof_tiles" \
@@ -403,8 +426,8 @@ class Openings:
         return cls(np.zeros(0, np.int64), e, e, e, e, np.zeros(0, np.uint8))
 
 
-def wall_openings(a: np.ndarray, b: np.ndarray, owner: np.ndarray, z_bottom: np.ndarray, z_top: np.ndarray,
-                  levels: np.ndarray, ground: np.ndarray, exterior: np.ndarray,
+def wall_openings(a: ArrayLike, b: ArrayLike, owner: ArrayLike, z_bottom: ArrayLike, z_top: ArrayLike,
+                  levels: ArrayLike, ground: ArrayLike, exterior: ArrayLike,
                   params: FacadeParams = FacadeParams()) -> Openings:  # noqa: B008 -- frozen
     """The LOD3 openings of walls a->b (same arrays as etl.geom.facade.facades), per wall.
 
