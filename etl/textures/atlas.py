@@ -71,8 +71,9 @@ def openimageio() -> ModuleType:
 # --- resolution rule -----------------------------------------------------------------------------------------
 
 
-def texels_per_metre(view_distance_m: float | np.ndarray, fov_y_rad: float, screen_height_px: float,
-                     px_per_texel: float = 1.0) -> float | np.ndarray:
+def texels_per_metre(
+    view_distance_m: float | np.ndarray, fov_y_rad: float, screen_height_px: float, px_per_texel: float = 1.0
+) -> float | np.ndarray:
     """Texels per metre that avoid magnification for a surface seen from at least ``view_distance_m``."""
     d = np.asarray(view_distance_m, dtype=np.float64)
     if np.any(d <= 0) or not 0 < fov_y_rad < math.pi or screen_height_px <= 0 or px_per_texel <= 0:
@@ -81,8 +82,13 @@ def texels_per_metre(view_distance_m: float | np.ndarray, fov_y_rad: float, scre
     return float(rho) if np.ndim(rho) == 0 else rho
 
 
-def texture_size(extent_m: float | np.ndarray, view_distance_m: float | np.ndarray, fov_y_rad: float,
-                 screen_height_px: float, px_per_texel: float = 1.0) -> int | np.ndarray:
+def texture_size(
+    extent_m: float | np.ndarray,
+    view_distance_m: float | np.ndarray,
+    fov_y_rad: float,
+    screen_height_px: float,
+    px_per_texel: float = 1.0,
+) -> int | np.ndarray:
     """Texels along an extent of ``extent_m`` metres: its projected size in pixels at the distance, rounded up
     (at least 1). Vectorised over extents and distances."""
     return texels(extent_m, texels_per_metre(view_distance_m, fov_y_rad, screen_height_px, px_per_texel))
@@ -137,8 +143,9 @@ def resize(pixels: np.ndarray, width: int, height: int, filter: str = FILTER) ->
     lin = srgb_to_linear(src)
     if nc in (2, 4):  # alpha is not gamma-encoded
         lin[:, :, -1] = src[:, :, -1] / np.float32(255.0)
-    out = oiio.ImageBufAlgo.resize(oiio.ImageBuf(np.ascontiguousarray(lin)), filtername=filter,
-                                   roi=oiio.ROI(0, width, 0, height, 0, 1, 0, nc))
+    out = oiio.ImageBufAlgo.resize(
+        oiio.ImageBuf(np.ascontiguousarray(lin)), filtername=filter, roi=oiio.ROI(0, width, 0, height, 0, 1, 0, nc)
+    )
     if out.has_error:
         raise RuntimeError(f"OpenImageIO resize failed: {out.geterror()}")
     res = out.get_pixels(oiio.FLOAT).reshape(height, width, nc)
@@ -217,8 +224,9 @@ class Layout:
     def rects(self) -> np.ndarray:
         """(k, 4) float64 (u0, v0, u1, v1): each content box in its page's normalised UV (v down)."""
         dims = self.page_dims[self.page].astype(np.float64)
-        return np.column_stack([self.x / dims[:, 0], self.y / dims[:, 1], (self.x + self.w) / dims[:, 0],
-                                (self.y + self.h) / dims[:, 1]])
+        return np.column_stack(
+            [self.x / dims[:, 0], self.y / dims[:, 1], (self.x + self.w) / dims[:, 0], (self.y + self.h) / dims[:, 1]]
+        )
 
 
 @dataclass(frozen=True)
@@ -265,8 +273,9 @@ def fit_sizes(sizes: np.ndarray, page_size: int, padding: int) -> tuple[np.ndarr
     return np.minimum(fitted, room), f < 1
 
 
-def _crop(page: np.ndarray, right: np.ndarray, bottom: np.ndarray, n_pages: int, page_size: int,
-          pot: bool) -> np.ndarray:
+def _crop(
+    page: np.ndarray, right: np.ndarray, bottom: np.ndarray, n_pages: int, page_size: int, pot: bool
+) -> np.ndarray:
     """(pages, 2) page sizes: the used area rounded up to a multiple of 4 (or a power of two), <= page_size."""
     used = np.zeros((n_pages, 2), dtype=np.int64)
     np.maximum.at(used[:, 0], page, right)
@@ -350,9 +359,12 @@ def _xatlas(slots: np.ndarray, page_size: int, brute_force: bool) -> tuple[np.nd
         return vmap, out_uv, atlas.get_mesh_vertex_assignment(0)[0], atlas.width, atlas.height
 
     vmap, out_uv, at, width, height = xatlas_run.generate(
-        lambda atlas: atlas.add_uv_mesh(np.ascontiguousarray(uv.reshape(-1, 2)),
-                                        np.ascontiguousarray(idx.reshape(-1, 3))),
-        read, pack_options=po)
+        lambda atlas: atlas.add_uv_mesh(
+            np.ascontiguousarray(uv.reshape(-1, 2)), np.ascontiguousarray(idx.reshape(-1, 3))
+        ),
+        read,
+        pack_options=po,
+    )
     req = vmap.astype(np.int64) // 4
     px = out_uv.astype(np.float64) * np.array([width, height])
     lo = np.full((k, 2), np.inf)
@@ -367,8 +379,14 @@ def _xatlas(slots: np.ndarray, page_size: int, brute_force: bool) -> tuple[np.nd
     return page, org[:, 0], org[:, 1]
 
 
-def layout(sizes: np.ndarray | Sequence[tuple[int, int]], page_size: int = PAGE_SIZE, packer: str = "shelf",
-           padding: int = 2, brute_force: bool = False, pot: bool = False) -> Layout:
+def layout(
+    sizes: np.ndarray | Sequence[tuple[int, int]],
+    page_size: int = PAGE_SIZE,
+    packer: str = "shelf",
+    padding: int = 2,
+    brute_force: bool = False,
+    pot: bool = False,
+) -> Layout:
     """Place textures of ``sizes`` (k, 2) = (width, height) texels on pages of at most page_size a side.
     ``pot``: crop pages to the next power of two a side (KTX2 mip chains halve each side exactly; CesiumJS
     resizes a mipmapped NPOT WebP page to the next power of two itself). The shelf packer fills a page's width
@@ -397,8 +415,18 @@ def layout(sizes: np.ndarray | Sequence[tuple[int, int]], page_size: int = PAGE_
     if np.any(sx < 0) or np.any(sy < 0) or np.any(sx + slots[:, 0] > page_size) or np.any(sy + slots[:, 1] > page_size):
         raise RuntimeError(f"{packer} placed a texture outside its page")
     dims = _crop(page, sx + slots[:, 0], sy + slots[:, 1], n_pages, page_size, pot)
-    return Layout(page=page, x=sx + padding, y=sy + padding, w=fitted[:, 0], h=fitted[:, 1], scaled=scaled,
-                  page_dims=dims, padding=padding, packer=packer, seconds=seconds)
+    return Layout(
+        page=page,
+        x=sx + padding,
+        y=sy + padding,
+        w=fitted[:, 0],
+        h=fitted[:, 1],
+        scaled=scaled,
+        page_dims=dims,
+        padding=padding,
+        packer=packer,
+        seconds=seconds,
+    )
 
 
 def _rgba(img: np.ndarray) -> np.ndarray:
@@ -417,8 +445,9 @@ def _rgba(img: np.ndarray) -> np.ndarray:
     raise ValueError(f"cannot use {c}-channel pixels")
 
 
-def bake_repeat(image: np.ndarray, repeat: tuple[float, float], width: int, height: int,
-                filter: str = FILTER) -> np.ndarray:
+def bake_repeat(
+    image: np.ndarray, repeat: tuple[float, float], width: int, height: int, filter: str = FILTER
+) -> np.ndarray:
     """(height, width, c): ``image`` repeated (across, down) times (fractions crop the last copy) and resampled
     to the chart size. The tile is first shrunk to about twice its final per-repeat size, so a texture
     repeated 500 times never builds a 500-copy intermediate: the cost follows the chart, not the repeats."""
@@ -444,15 +473,25 @@ def _content(req: TextureRequest, w: int, h: int, filter: str) -> np.ndarray:
         if img.shape[:2] != (h, w):  # a generator that ignores the size still gets resampled to it
             img = resize(img, w, h, filter)
     elif req.image is not None:
-        img = bake_repeat(req.image, req.repeat, w, h, filter) if req.repeat != (1.0, 1.0) \
+        img = (
+            bake_repeat(req.image, req.repeat, w, h, filter)
+            if req.repeat != (1.0, 1.0)
             else resize(req.image, w, h, filter)
+        )
     else:
         raise ValueError("a texture request needs an image or a generator")
     return _rgba(img)
 
 
-def pack(requests: Sequence[TextureRequest], page_size: int = PAGE_SIZE, packer: str = "shelf",
-         padding: int = 2, brute_force: bool = False, filter: str = FILTER, pot: bool = False) -> Atlas:
+def pack(
+    requests: Sequence[TextureRequest],
+    page_size: int = PAGE_SIZE,
+    packer: str = "shelf",
+    padding: int = 2,
+    brute_force: bool = False,
+    filter: str = FILTER,
+    pot: bool = False,
+) -> Atlas:
     """Pack the requests onto pages (see the module doc). Each request is drawn once at its placed size
     (shrunk if it had to be: ``layout.scaled``), its gutter filled with its edge texels; unused texels get the
     mean colour of the page's content so coarse mip levels do not darken towards black."""
@@ -480,8 +519,9 @@ def page_uv(local: np.ndarray, rect: np.ndarray) -> np.ndarray:
     top-left corner), with ``rect`` (4,) or (n, 4) = (u0, v0, u1, v1) of the chart on its page."""
     loc = np.asarray(local, dtype=np.float64).reshape(-1, 2)
     r = np.broadcast_to(np.asarray(rect, dtype=np.float64), (len(loc), 4))
-    return np.column_stack([r[:, 0] + loc[:, 0] * (r[:, 2] - r[:, 0]),
-                            r[:, 1] + loc[:, 1] * (r[:, 3] - r[:, 1])]).astype(np.float32)
+    return np.column_stack(
+        [r[:, 0] + loc[:, 0] * (r[:, 2] - r[:, 0]), r[:, 1] + loc[:, 1] * (r[:, 3] - r[:, 1])]
+    ).astype(np.float32)
 
 
 def metric_to_local(uv_m: np.ndarray, origin_m: np.ndarray, size_m: np.ndarray) -> np.ndarray:

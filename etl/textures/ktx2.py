@@ -150,8 +150,17 @@ def _page(pixels: np.ndarray) -> np.ndarray:
 
 
 def _command(exe: Path, quality: int, comp_level: int) -> list[str]:
-    return [str(exe), "-ktx2", "-mipmap", "-mip_clamp", "-no_multithreading", "-q", str(int(quality)),
-            "-comp_level", str(int(comp_level))]
+    return [
+        str(exe),
+        "-ktx2",
+        "-mipmap",
+        "-mip_clamp",
+        "-no_multithreading",
+        "-q",
+        str(int(quality)),
+        "-comp_level",
+        str(int(comp_level)),
+    ]
 
 
 def _run(exe: Path, tmp: str, names: list[str], quality: int, comp_level: int, timeout_s: float, what: str) -> None:
@@ -177,13 +186,16 @@ def _read(path: str, w: int, h: int) -> bytes:
         raise EncodeError(f"basisu wrote no KTX2 for a {w}x{h} page ({len(data)} bytes: {e})") from None
     want = max(w, h).bit_length()
     if (hd.width, hd.height, hd.level_count) != (w, h, want):
-        raise EncodeError(f"basisu wrote {hd.width}x{hd.height} with {hd.level_count} levels "
-                          f"for a {w}x{h} page ({want} levels expected)")
+        raise EncodeError(
+            f"basisu wrote {hd.width}x{hd.height} with {hd.level_count} levels "
+            f"for a {w}x{h} page ({want} levels expected)"
+        )
     return data
 
 
-def encode(pixels: np.ndarray, quality: int = QUALITY, comp_level: int = COMP_LEVEL,
-           timeout_s: float = TIMEOUT_S) -> bytes:
+def encode(
+    pixels: np.ndarray, quality: int = QUALITY, comp_level: int = COMP_LEVEL, timeout_s: float = TIMEOUT_S
+) -> bytes:
     """KTX2 bytes (ETC1S, sRGB, mips down to 1x1) of an (h, w, 3|4) uint8 opaque page. Each side must be a
     power of two (a full mip chain halves both sides exactly; the textures stage crops pages so)."""
     img = _page(pixels)
@@ -196,8 +208,13 @@ def encode(pixels: np.ndarray, quality: int = QUALITY, comp_level: int = COMP_LE
         return _read(os.path.join(tmp, "page.ktx2"), w, h)
 
 
-def encode_many(pages: list[np.ndarray], quality: int = QUALITY, comp_level: int = COMP_LEVEL,
-                timeout_s: float = TIMEOUT_S, jobs: int = 1) -> list[bytes | EncodeError]:
+def encode_many(
+    pages: list[np.ndarray],
+    quality: int = QUALITY,
+    comp_level: int = COMP_LEVEL,
+    timeout_s: float = TIMEOUT_S,
+    jobs: int = 1,
+) -> list[bytes | EncodeError]:
     """encode() of every page (start_many(...).result()): per page its KTX2 or the EncodeError that refused it."""
     return start_many(pages, quality, comp_level, timeout_s, jobs).result()
 
@@ -226,8 +243,7 @@ class Pending:
                 try:
                     # its output to a file, not a pipe: nobody reads it while the process runs
                     with open(os.path.join(tmp, f"basisu{j}.log"), "wb") as log:
-                        proc: subprocess.Popen[bytes] | None = subprocess.Popen(cmd, cwd=tmp, stdout=log,
-                                                                                stderr=log)
+                        proc: subprocess.Popen[bytes] | None = subprocess.Popen(cmd, cwd=tmp, stdout=log, stderr=log)
                 except OSError:
                     proc = None  # each of its pages on its own in result(), which says why it failed
                 self._procs.append((group, proc))
@@ -277,8 +293,13 @@ class Pending:
         return out
 
 
-def start_many(pages: list[np.ndarray], quality: int = QUALITY, comp_level: int = COMP_LEVEL,
-               timeout_s: float = TIMEOUT_S, jobs: int = 1) -> Pending:
+def start_many(
+    pages: list[np.ndarray],
+    quality: int = QUALITY,
+    comp_level: int = COMP_LEVEL,
+    timeout_s: float = TIMEOUT_S,
+    jobs: int = 1,
+) -> Pending:
     """Start encoding every page, by ``jobs`` basisu processes at once (each a run of the pages: its start-up,
     ~40 ms, once per process rather than per page; each file is encoded on its own, so the bytes are encode()'s
     whatever ``jobs`` is), and return at once: the caller works meanwhile (the textures stage writes the pages'

@@ -211,8 +211,9 @@ class _TexelField(Protocol):
     def wrap(self, i: np.ndarray, p: float, axis: int) -> np.ndarray: ...
 
 
-def _stripes(x: np.ndarray, t: float | np.ndarray, period: float, width: float,
-             offset: float | np.ndarray = 0.0) -> np.ndarray:
+def _stripes(
+    x: np.ndarray, t: float | np.ndarray, period: float, width: float, offset: float | np.ndarray = 0.0
+) -> np.ndarray:
     """Exact fraction of each texel [x - t/2, x + t/2] covered by stripes [k period + offset, ... + width)."""
 
     def cum(y: np.ndarray) -> np.ndarray:
@@ -258,8 +259,9 @@ def _noise(fld: _TexelField, cu: float, cv: float, seed: int) -> np.ndarray:
     return (top * (1 - fy) + bot * fy - 0.5) * _damp(math.sqrt(cu * cv), fld)
 
 
-def _bond(fld: _TexelField, pu: float, pv: float, ju: float, jv: float, seed: int,
-          shift: float = 0.5) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _bond(
+    fld: _TexelField, pu: float, pv: float, ju: float, jv: float, seed: int, shift: float = 0.5
+) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Running bond of units pu x pv (bricks, stones, tiles) with joints ju, jv, every other row shifted by
     ``shift`` units: (joint coverage (H, W), per-unit variation (H, W) in +-0.5 damped, pu, pv) as used."""
     pv = fld.period(pv, 1, group=2)  # shifted rows repeat every two rows
@@ -320,8 +322,11 @@ def _wall_pattern(material: str, base: np.ndarray, fld: _TexelField, seed: int) 
         pu = fld.period(0.6, 0)
         seam = np.broadcast_to(_stripes(fld.u, fld.tu, pu, 0.03), fld.shape)
         img = _joints(base, np.clip(1.35 * base, 0, 1), seam, 0.03 / pu)
-        shade = 1 + 0.2 * (_saw(fld.u, fld.tu, pu) - 0.5) - 0.3 * (_stripes(fld.v, fld.tv, fld.period(3.0, 1), 0.01)
-                                                                     - 0.01 / fld.period(3.0, 1))
+        shade = (
+            1
+            + 0.2 * (_saw(fld.u, fld.tu, pu) - 0.5)
+            - 0.3 * (_stripes(fld.v, fld.tv, fld.period(3.0, 1), 0.01) - 0.01 / fld.period(3.0, 1))
+        )
         return img * shade[..., None]
     # plaster, default: render with a slight cloudiness
     big, fine = (0.10, 0.08) if material == "plaster" else (0.06, 0.05)
@@ -331,8 +336,9 @@ def _wall_pattern(material: str, base: np.ndarray, fld: _TexelField, seed: int) 
 def _roof_pattern(material: str, base: np.ndarray, fld: _TexelField, seed: int) -> np.ndarray:
     """(H, W, 3) linear colours of a roof material (u along the eaves, v up the slope); mean about ``base``."""
     if material in ("roof_tiles", "slate"):
-        pu, pv, ju, shade_amp, amp = (0.22, 0.32, 0.012, 0.35, 0.35) if material == "roof_tiles" \
-            else (0.28, 0.18, 0.006, 0.2, 0.3)
+        pu, pv, ju, shade_amp, amp = (
+            (0.22, 0.32, 0.012, 0.35, 0.35) if material == "roof_tiles" else (0.28, 0.18, 0.006, 0.2, 0.3)
+        )
         joint, var, pu, pv = _bond(fld, pu, pv, ju, 0.0, seed)
         img = _joints(base, 0.4 * base, joint, ju / pu)
         # each row darkens towards its top, where the row above overlaps it and casts its shadow
@@ -366,21 +372,39 @@ def _size(w_m: float, h_m: float, texels_per_metre: float | None, size: tuple[in
     return texels(w_m, texels_per_metre), texels(h_m, texels_per_metre)
 
 
-def material_texture(colour: str | RGB | None, material: str | None, width_m: float, height_m: float,
-                     texels_per_metre: float | None = None, size: tuple[int, int] | None = None,
-                     origin: tuple[float, float] = (0.0, 0.0), kind: str = "wall", tile: bool = False,
-                     seed: int = 0) -> np.ndarray:
+def material_texture(
+    colour: str | RGB | None,
+    material: str | None,
+    width_m: float,
+    height_m: float,
+    texels_per_metre: float | None = None,
+    size: tuple[int, int] | None = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+    kind: str = "wall",
+    tile: bool = False,
+    seed: int = 0,
+) -> np.ndarray:
     """(h, w, 3) uint8: the bare material of a wall or roof over [origin, origin + (width_m, height_m)] metres.
     ``tile``: every period snapped to divide the extent, so the image repeats seamlessly."""
     if kind not in ("wall", "roof"):
         raise ValueError("kind is wall or roof")
-    return linear_to_srgb(_material(kind, colour, material, width_m, height_m, texels_per_metre, size, origin,
-                                    tile, seed)[2])
+    return linear_to_srgb(
+        _material(kind, colour, material, width_m, height_m, texels_per_metre, size, origin, tile, seed)[2]
+    )
 
 
-def _material(kind: str, colour: str | RGB | None, material: str | None, width_m: float, height_m: float,
-              texels_per_metre: float | None, size: tuple[int, int] | None, origin: tuple[float, float],
-              tile: bool, seed: int) -> tuple[str, _Field, np.ndarray]:
+def _material(
+    kind: str,
+    colour: str | RGB | None,
+    material: str | None,
+    width_m: float,
+    height_m: float,
+    texels_per_metre: float | None,
+    size: tuple[int, int] | None,
+    origin: tuple[float, float],
+    tile: bool,
+    seed: int,
+) -> tuple[str, _Field, np.ndarray]:
     """(pattern, texel field, (h, w, 3) linear colours) of the bare material: what the texture functions share."""
     mat, rgb = material_and_colour(kind, material, colour)
     w, h = _size(width_m, height_m, texels_per_metre, size)
@@ -389,13 +413,19 @@ def _material(kind: str, colour: str | RGB | None, material: str | None, width_m
     return mat, fld, pattern(mat, _lin(rgb), fld, _seed(kind, mat, rgb, seed))
 
 
-def roof_texture(colour_rgb: str | RGB | None, material: str | None, width_m: float, height_m: float,
-                 texels_per_metre: float | None = None, size: tuple[int, int] | None = None,
-                 origin: tuple[float, float] = (0.0, 0.0), seed: int = 0) -> np.ndarray:
+def roof_texture(
+    colour_rgb: str | RGB | None,
+    material: str | None,
+    width_m: float,
+    height_m: float,
+    texels_per_metre: float | None = None,
+    size: tuple[int, int] | None = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+    seed: int = 0,
+) -> np.ndarray:
     """(h, w, 3) uint8 roof texture of a chart width_m along the eaves x height_m up the slope (metric, so
     tiles have one size on every roof); roof:material and roof:colour tags accepted raw."""
-    return material_texture(colour_rgb, material, width_m, height_m, texels_per_metre, size, origin, "roof",
-                            seed=seed)
+    return material_texture(colour_rgb, material, width_m, height_m, texels_per_metre, size, origin, "roof", seed=seed)
 
 
 # --- openings ------------------------------------------------------------------------------------------------
@@ -426,9 +456,17 @@ class Openings:
         return cls(np.zeros(0, np.int64), e, e, e, e, np.zeros(0, np.uint8))
 
 
-def wall_openings(a: ArrayLike, b: ArrayLike, owner: ArrayLike, z_bottom: ArrayLike, z_top: ArrayLike,
-                  levels: ArrayLike, ground: ArrayLike, exterior: ArrayLike,
-                  params: FacadeParams = FacadeParams()) -> Openings:  # noqa: B008 -- frozen
+def wall_openings(
+    a: ArrayLike,
+    b: ArrayLike,
+    owner: ArrayLike,
+    z_bottom: ArrayLike,
+    z_top: ArrayLike,
+    levels: ArrayLike,
+    ground: ArrayLike,
+    exterior: ArrayLike,
+    params: FacadeParams = FacadeParams(),  # noqa: B008 -- frozen
+) -> Openings:
     """The LOD3 openings of walls a->b (same arrays as etl.geom.facade.facades), per wall.
 
     facade.py's layout is reused, not re-implemented: its door rule picks each building's door wall, then
@@ -455,8 +493,14 @@ def wall_openings(a: ArrayLike, b: ArrayLike, owner: ArrayLike, z_bottom: ArrayL
     d = (b - a) / np.where(length > 0, length, 1.0)[:, None]
     s0 = ((c_lo[:, :2] - a[wall]) * d[wall]).sum(axis=1)
     s1 = ((c_hi[:, :2] - a[wall]) * d[wall]).sum(axis=1)
-    return Openings(wall=wall.astype(np.int64), s0=s0, s1=s1, z0=c_lo[:, 2] - zb[wall], z1=c_hi[:, 2] - zb[wall],
-                    kind=f.semantics[::2].astype(np.uint8))
+    return Openings(
+        wall=wall.astype(np.int64),
+        s0=s0,
+        s1=s1,
+        z0=c_lo[:, 2] - zb[wall],
+        z1=c_hi[:, 2] - zb[wall],
+        kind=f.semantics[::2].astype(np.uint8),
+    )
 
 
 def _cover(x: np.ndarray, t: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -516,35 +560,49 @@ def _paint_openings(img: np.ndarray, fld: _Field, op: Openings, material: str) -
     return out
 
 
-def facade_texture(colour_rgb: str | RGB | None, material: str | None, levels: float | None, length: float,
-                   height: float, texels_per_metre: float | None = None, size: tuple[int, int] | None = None,
-                   openings: Openings | None = None,
-                   params: FacadeParams = FacadeParams(),  # noqa: B008 -- frozen
-                   seed: int = 0) -> np.ndarray:
+def facade_texture(
+    colour_rgb: str | RGB | None,
+    material: str | None,
+    levels: float | None,
+    length: float,
+    height: float,
+    texels_per_metre: float | None = None,
+    size: tuple[int, int] | None = None,
+    openings: Openings | None = None,
+    params: FacadeParams = FacadeParams(),  # noqa: B008 -- frozen
+    seed: int = 0,
+) -> np.ndarray:
     """(h, w, 3) uint8 texture of a whole wall, length x height metres (u from the wall start a, v up from its
     bottom, row 0 at the top), at ``texels_per_metre`` or an exact ``size`` (width, height) texels.
 
     Openings are ``openings`` (this wall's, from ``wall_openings(...).of(i)``) or, when None, those facade.py
     lays out on a free-standing wall of this length with ``levels`` storeys (no door). building:material and
     building:colour are accepted raw."""
-    mat, fld, img = _material("wall", colour_rgb, material, length, height, texels_per_metre, size, (0.0, 0.0),
-                              False, seed)
+    mat, fld, img = _material(
+        "wall", colour_rgb, material, length, height, texels_per_metre, size, (0.0, 0.0), False, seed
+    )
     if openings is None:
         lv = np.nan if levels is None else float(levels)
         openings = wall_openings([[0.0, 0.0]], [[length, 0.0]], [0], 0.0, height, lv, False, True, params)
     return linear_to_srgb(_paint_openings(img, fld, openings, mat))
 
 
-def facade_tile(colour_rgb: str | RGB | None, material: str | None, bay_width: float, storey_height: float,
-                texels_per_metre: float,
-                params: FacadeParams = FacadeParams(),  # noqa: B008 -- frozen
-                seed: int = 0) -> np.ndarray:
+def facade_tile(
+    colour_rgb: str | RGB | None,
+    material: str | None,
+    bay_width: float,
+    storey_height: float,
+    texels_per_metre: float,
+    params: FacadeParams = FacadeParams(),  # noqa: B008 -- frozen
+    seed: int = 0,
+) -> np.ndarray:
     """(h, w, 3) uint8 tileable texture of one window bay x one storey: the window where facade.py puts it in
     a bay of that width and a storey of that height (horizontally centred, sill_height up, lowered to fit),
     on the material with its periods snapped to divide the tile. Repeated with u' = (u - margin) / bay_width
     and v' = v / storey_height it reproduces facade.py's windows on a wall whose pitch is bay_width."""
-    mat, fld, img = _material("wall", colour_rgb, material, bay_width, storey_height, texels_per_metre, None,
-                              (0.0, 0.0), True, seed)
+    mat, fld, img = _material(
+        "wall", colour_rgb, material, bay_width, storey_height, texels_per_metre, None, (0.0, 0.0), True, seed
+    )
     # facade.py on a one-bay wall (bay plus both margins, one storey) says where the window goes
     m = params.margin
     op = wall_openings([[0.0, 0.0]], [[bay_width + 2 * m, 0.0]], [0], 0.0, storey_height, 1.0, False, True, params)
@@ -603,8 +661,9 @@ class PlanarCharts:
     first: np.ndarray  # (c,) int64 the chart's first triangle
 
 
-def planar_charts(triangles: np.ndarray, group: np.ndarray | None = None,
-                  align: dict[int, np.ndarray] | None = None) -> PlanarCharts:
+def planar_charts(
+    triangles: np.ndarray, group: np.ndarray | None = None, align: dict[int, np.ndarray] | None = None
+) -> PlanarCharts:
     """Charts for planar surfaces (walls, roof faces, caps): triangles (m, 3, 3) with the same ``group`` (e.g.
     building id) whose planes agree (normal to 1e-3, offset to 1 cm) share a chart. An extruded wall's chart
     has u from a and v from its bottom, i.e. the frame of wall_uvs and wall_openings; a chart's size is what
@@ -633,8 +692,17 @@ def planar_charts(triangles: np.ndarray, group: np.ndarray | None = None,
     hi = np.full((c, 2), -np.inf)
     np.minimum.at(lo, chart, uv.min(axis=1))
     np.maximum.at(hi, chart, uv.max(axis=1))
-    return PlanarCharts(chart=chart, uv=uv - lo[chart][:, None, :], origin=lo, size=hi - lo, normal=nrm,
-                        group=grp[first], du=du, dv=dv, first=first.astype(np.int64))
+    return PlanarCharts(
+        chart=chart,
+        uv=uv - lo[chart][:, None, :],
+        origin=lo,
+        size=hi - lo,
+        normal=nrm,
+        group=grp[first],
+        du=du,
+        dv=dv,
+        first=first.astype(np.int64),
+    )
 
 
 @dataclass(frozen=True)
@@ -650,8 +718,7 @@ class XatlasCharts:
     size_m: tuple[float, float]  # sheet width, height in metres
 
 
-def chart_uvs(vertices: np.ndarray, faces: np.ndarray, texels_per_metre: float = 8.0,
-              padding: int = 2) -> XatlasCharts:
+def chart_uvs(vertices: np.ndarray, faces: np.ndarray, texels_per_metre: float = 8.0, padding: int = 2) -> XatlasCharts:
     """Charts for non-planar surfaces (domes, onions, roofs with many small faces) by xatlas, in metric units:
     xatlas lays the charts out at ``texels_per_metre`` with ``padding`` texels between them; pass the density
     of the finest tile level that will show the surface, so that gutter stays >= 1 texel there."""
@@ -672,10 +739,19 @@ def chart_uvs(vertices: np.ndarray, faces: np.ndarray, texels_per_metre: float =
         return (*atlas.get_mesh(0), atlas.get_mesh_vertex_assignment(0)[1], atlas.width, atlas.height)
 
     vmap, idx, uv, vchart, w, h = xatlas_run.generate(
-        lambda atlas: atlas.add_mesh(np.ascontiguousarray((v - centre).astype(np.float32)),
-                                     np.ascontiguousarray(f.astype(np.uint32))),
-        read, chart_options=xatlas.ChartOptions(), pack_options=po)
+        lambda atlas: atlas.add_mesh(
+            np.ascontiguousarray((v - centre).astype(np.float32)), np.ascontiguousarray(f.astype(np.uint32))
+        ),
+        read,
+        chart_options=xatlas.ChartOptions(),
+        pack_options=po,
+    )
     local = uv.astype(np.float64)
-    return XatlasCharts(vertex=vmap.astype(np.int64), faces=idx.astype(np.int64), local=local,
-                        uv_m=local * np.array([w, h]) / texels_per_metre,
-                        chart=vchart[idx[:, 0]].astype(np.int64), size_m=(w / texels_per_metre, h / texels_per_metre))
+    return XatlasCharts(
+        vertex=vmap.astype(np.int64),
+        faces=idx.astype(np.int64),
+        local=local,
+        uv_m=local * np.array([w, h]) / texels_per_metre,
+        chart=vchart[idx[:, 0]].astype(np.int64),
+        size_m=(w / texels_per_metre, h / texels_per_metre),
+    )

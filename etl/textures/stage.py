@@ -72,17 +72,70 @@ from etl.textures.tile import (
 )
 
 # the worker side (etl/textures/tile.py), importable from here as before
-__all__ = ["BLOCK_KEY", "FORMAT", "WEBP_METHOD", "Feature", "Key", "Plan", "Tile", "TileResult", "Unit",
-           "padding_for", "plan_units", "resolution", "run", "units"]
+__all__ = [
+    "BLOCK_KEY",
+    "FORMAT",
+    "WEBP_METHOD",
+    "Feature",
+    "Key",
+    "Plan",
+    "Tile",
+    "TileResult",
+    "Unit",
+    "padding_for",
+    "plan_units",
+    "resolution",
+    "run",
+    "units",
+]
 
 # The stage reads tex.tiles_to_texture (Tile rows), tex.tile_features (a tile's features, the same meshes in the
 # same triangle order as the exporter's: etl/textures/tile.py) and tex.opening_meshes (sql/tex/), rows by column
 # name.
-_PAGE_COLUMNS = ("level", "x", "y", "page_no", "format", "mime", "width", "height", "n_bytes", "bytes",
-                 "utilization", "texels_per_metre", "view_distance_m", "n_charts", "n_scaled", "padding", "rects",
-                 "ktx2", "ktx2_n_bytes", "ktx2_levels")
-_PAGE_TYPES = ("int2", "int4", "int4", "int2", "text", "text", "int4", "int4", "int4", "bytea", "float4", "float4",
-               "float4", "int4", "int4", "int2", "bytea", "bytea", "int4", "int2")
+_PAGE_COLUMNS = (
+    "level",
+    "x",
+    "y",
+    "page_no",
+    "format",
+    "mime",
+    "width",
+    "height",
+    "n_bytes",
+    "bytes",
+    "utilization",
+    "texels_per_metre",
+    "view_distance_m",
+    "n_charts",
+    "n_scaled",
+    "padding",
+    "rects",
+    "ktx2",
+    "ktx2_n_bytes",
+    "ktx2_levels",
+)
+_PAGE_TYPES = (
+    "int2",
+    "int4",
+    "int4",
+    "int2",
+    "text",
+    "text",
+    "int4",
+    "int4",
+    "int4",
+    "bytea",
+    "float4",
+    "float4",
+    "float4",
+    "int4",
+    "int4",
+    "int2",
+    "bytea",
+    "bytea",
+    "int4",
+    "int2",
+)
 _UV_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "n_triangles", "page", "uv")
 _UV_TYPES = ("int2", "int4", "int4", "text", "int8", "int4", "bytea", "bytea")
 _FAIL_COLUMNS = ("level", "x", "y", "feature_kind", "feature_id", "osm_type", "osm_id", "reason", "detail")
@@ -93,10 +146,12 @@ def _input_digests(url: str, tiles: list[Tile], threads: int) -> dict[Key, tuple
     """tex.input_digests of every tile (the md5 of its feature rows, every column in order, and of its LOD2
     buildings' openings; its features), computed in the database by ``threads`` connections, each over a share
     of the tiles in one statement: no mesh is sent here."""
+
     def one(conn: psycopg.Connection, share: list[Tile]) -> list[tuple]:
-        return conn.execute("SELECT level, x, y, digest, n_features FROM tex.input_digests(%s::int[], %s::int[], "
-                            "%s::int[])",
-                            ([t.level for t in share], [t.x for t in share], [t.y for t in share])).fetchall()
+        return conn.execute(
+            "SELECT level, x, y, digest, n_features FROM tex.input_digests(%s::int[], %s::int[], %s::int[])",
+            ([t.level for t in share], [t.x for t in share], [t.y for t in share]),
+        ).fetchall()
 
     with thread_map(url, one, shares(tiles, threads), threads) as got:  # largest first, from units()
         return {(int(lv), int(x), int(y)): (d, int(n)) for part in got for lv, x, y, d, n in part}
@@ -113,8 +168,15 @@ class Plan:
     fingerprinted: int  # tiles whose input was read
 
 
-def plan_units(url: str, all_units: list[list[Tile]], seed: str, settings: Settings,
-               recorded: dict[Key, str] | None, reached: set[Key] | None, threads: int) -> Plan:
+def plan_units(
+    url: str,
+    all_units: list[list[Tile]],
+    seed: str,
+    settings: Settings,
+    recorded: dict[Key, str] | None,
+    reached: set[Key] | None,
+    threads: int,
+) -> Plan:
     """The fingerprint of every tile (core/reuse.py): ``seed`` (the stage's settings and code), the tile's place,
     band, resolution (its geometric error matters through that alone) and count, and its input digest; a tile
     no change reached keeps its recorded one unread. A unit is kept when every tile of it is."""
@@ -124,8 +186,13 @@ def plan_units(url: str, all_units: list[list[Tile]], seed: str, settings: Setti
     def parts(keys: list[Key]) -> dict[Key, tuple[object, ...]]:
         got = _input_digests(url, [by_key[k] for k in keys], threads)
         counts.update({k: n for k, (_, n) in got.items()})
-        return {k: ((t.level, t.x, t.y, t.gen_level, resolution(t.geometric_error, settings), t.is_leaf,
-                     t.features), got[k][0]) for k, t in ((k, by_key[k]) for k in keys)}
+        return {
+            k: (
+                (t.level, t.x, t.y, t.gen_level, resolution(t.geometric_error, settings), t.is_leaf, t.features),
+                got[k][0],
+            )
+            for k, t in ((k, by_key[k]) for k in keys)
+        }
 
     p = plan(list(by_key), seed, recorded, parts, reached=reached)
     kept = set(p.keep)
@@ -142,9 +209,11 @@ def plan_units(url: str, all_units: list[list[Tile]], seed: str, settings: Setti
 
 def _write(cur: psycopg.Cursor, res: TileResult) -> None:
     """A textured tile's rows into tex.page, tex.feature_uv and tex.failure (binary COPY)."""
-    for table, cols, types, rows in (("page", _PAGE_COLUMNS, _PAGE_TYPES, res.pages),
-                                     ("feature_uv", _UV_COLUMNS, _UV_TYPES, res.uvs),
-                                     ("failure", _FAIL_COLUMNS, _FAIL_TYPES, res.failures)):
+    for table, cols, types, rows in (
+        ("page", _PAGE_COLUMNS, _PAGE_TYPES, res.pages),
+        ("feature_uv", _UV_COLUMNS, _UV_TYPES, res.uvs),
+        ("failure", _FAIL_COLUMNS, _FAIL_TYPES, res.failures),
+    ):
         if not rows:
             continue
         with cur.copy(f"COPY tex.{table} ({', '.join(cols)}) FROM STDIN (FORMAT BINARY)") as copy:
@@ -170,9 +239,11 @@ def _kept_prints(conn: psycopg.Connection) -> dict[Key, str]:
 
 #: per kept tile, the counts the balance needs as the run that made them wrote them: pages (texels, WebP
 #: bytes, KTX2 bytes), UVs, failure reasons; three grouped reads instead of queries per tile
-_KEPT_PAGES = ("SELECT level, x, y, array_agg(width * height ORDER BY page_no), array_agg(n_bytes ORDER BY page_no), "
-               "array_agg(ktx2_n_bytes ORDER BY page_no), sum(utilization * width * height) "
-               "FROM tex.page GROUP BY 1, 2, 3")
+_KEPT_PAGES = (
+    "SELECT level, x, y, array_agg(width * height ORDER BY page_no), array_agg(n_bytes ORDER BY page_no), "
+    "array_agg(ktx2_n_bytes ORDER BY page_no), sum(utilization * width * height) "
+    "FROM tex.page GROUP BY 1, 2, 3"
+)
 _KEPT_UVS = "SELECT level, x, y, count(*) FROM tex.feature_uv GROUP BY 1, 2, 3"
 _KEPT_FAILS = "SELECT level, x, y, array_agg(reason ORDER BY failure_id) FROM tex.failure GROUP BY 1, 2, 3"
 
@@ -183,20 +254,25 @@ class _KeptCounts:
 
     #: (texels of each page, its WebP bytes, its KTX2 bytes or None, the texels its charts cover)
     pages: dict[Key, tuple[Sequence[int], Sequence[int], Sequence[int | None], float | None]] = field(
-        default_factory=dict)
+        default_factory=dict
+    )
     uvs: dict[Key, int] = field(default_factory=dict)
     fails: dict[Key, list[str]] = field(default_factory=dict)
 
 
 def _kept_counts(conn: psycopg.Connection) -> _KeptCounts:
     """The counts of every tile's rows as they are (_KeptCounts)."""
+
     def by_tile(query: LiteralString) -> dict[Key, tuple[Any, ...]]:
         """The rows of ``query`` by tile: (level, x, y) -> the columns after those."""
         return {(int(r[0]), int(r[1]), int(r[2])): r[3:] for r in conn.execute(query)}
 
     pages, uvs, fails = by_tile(_KEPT_PAGES), by_tile(_KEPT_UVS), by_tile(_KEPT_FAILS)
-    return _KeptCounts({k: (r[0], r[1], r[2], r[3]) for k, r in pages.items()}, {k: r[0] for k, r in uvs.items()},
-                       {k: r[0] for k, r in fails.items()})
+    return _KeptCounts(
+        {k: (r[0], r[1], r[2], r[3]) for k, r in pages.items()},
+        {k: r[0] for k, r in uvs.items()},
+        {k: r[0] for k, r in fails.items()},
+    )
 
 
 def _fill_kept(res: TileResult, counts: _KeptCounts) -> None:
@@ -209,16 +285,20 @@ def _fill_kept(res: TileResult, counts: _KeptCounts) -> None:
     res.uvs = [()] * int(counts.uvs.get(key, 0))
     res.failures = [()] * len(fails)
     res.ktx2_failed = sum(1 for r in fails if r == K.EncodeError.reason)
-    res.pages = [(0,) * 6 + (int(t), 1, int(b)) + (0,) * 8 + ((b"",) if k else (None,)) + (int(k or 0), 0)
-                 for t, b, k in zip(texels, webp, ktx2, strict=True)]
+    res.pages = [
+        (0,) * 6 + (int(t), 1, int(b)) + (0,) * 8 + ((b"",) if k else (None,)) + (int(k or 0), 0)
+        for t, b, k in zip(texels, webp, ktx2, strict=True)
+    ]
 
 
 def _drop_tile(cur: psycopg.Cursor, key: Key) -> None:
     """An update's tile textured again: its old rows go just before its new ones come (in the same transaction,
     so a reader sees the old ones until the commit)."""
-    for q in ("DELETE FROM tex.page WHERE (level, x, y) = (%s, %s, %s)",
-              "DELETE FROM tex.feature_uv WHERE (level, x, y) = (%s, %s, %s)",
-              "DELETE FROM tex.failure WHERE (level, x, y) = (%s, %s, %s)"):
+    for q in (
+        "DELETE FROM tex.page WHERE (level, x, y) = (%s, %s, %s)",
+        "DELETE FROM tex.feature_uv WHERE (level, x, y) = (%s, %s, %s)",
+        "DELETE FROM tex.failure WHERE (level, x, y) = (%s, %s, %s)",
+    ):
         cur.execute(q, key)
 
 
@@ -276,8 +356,25 @@ def _prepare(ctx: Context, tiles: list[Tile], since: set[Key] | None) -> _Prepar
 
 
 #: the running totals of a run, in the order its Result reports them
-_TOTALS = ("features", "textured", "failed", "ktx2_failed", "pages", "bytes", "ktx2_pages", "ktx2_bytes", "page_texels",
-           "content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled", "panels_mapped")
+_TOTALS = (
+    "features",
+    "textured",
+    "failed",
+    "ktx2_failed",
+    "pages",
+    "bytes",
+    "ktx2_pages",
+    "ktx2_bytes",
+    "page_texels",
+    "content_texels",
+    "rendered_texels",
+    "copied",
+    "resized",
+    "flat",
+    "sheets",
+    "scaled",
+    "panels_mapped",
+)
 _BAND_SUMS = ("tiles", "features", "pages", "bytes", "page_texels", "content_texels", "seconds")
 
 
@@ -298,8 +395,9 @@ class _Tally:
 
     def add(self, res: TileResult) -> None:
         """Count a tile's result (kept or textured) in its band and in the totals."""
-        self.inputs.append((res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages), len(res.uvs),
-                            len(res.failures)))
+        self.inputs.append(
+            (res.tile.level, res.tile.x, res.tile.y, res.fingerprint, len(res.pages), len(res.uvs), len(res.failures))
+        )
         page_texels = sum(p[6] * p[7] for p in res.pages)
         n_bytes = sum(p[8] for p in res.pages)
         self._add_band(res, page_texels, n_bytes)
@@ -314,18 +412,34 @@ class _Tally:
         totals["ktx2_bytes"] += sum(p[18] or 0 for p in res.pages)
         self.encode_seconds += res.encode_seconds
         totals["page_texels"] += page_texels
-        for k in ("content_texels", "rendered_texels", "copied", "resized", "flat", "sheets", "scaled",
-                  "panels_mapped"):
+        for k in (
+            "content_texels",
+            "rendered_texels",
+            "copied",
+            "resized",
+            "flat",
+            "sheets",
+            "scaled",
+            "panels_mapped",
+        ):
             totals[k] += res.stats.get(k, 0)
 
     def _add_band(self, res: TileResult, page_texels: int, n_bytes: int) -> None:
         """Count a tile in its band (gen_level): sums, and the range of texels per metre."""
         b = self.by_band.setdefault(res.tile.gen_level, dict.fromkeys(_BAND_SUMS, 0.0))
-        b.update(min_texels_per_metre=min(b.get("min_texels_per_metre", math.inf), res.rho),
-                 max_texels_per_metre=max(b.get("max_texels_per_metre", 0.0), res.rho))
-        for k, v in (("tiles", 1), ("features", res.features), ("pages", len(res.pages)), ("bytes", n_bytes),
-                     ("page_texels", page_texels), ("content_texels", res.stats.get("content_texels", 0)),
-                     ("seconds", res.seconds)):
+        b.update(
+            min_texels_per_metre=min(b.get("min_texels_per_metre", math.inf), res.rho),
+            max_texels_per_metre=max(b.get("max_texels_per_metre", 0.0), res.rho),
+        )
+        for k, v in (
+            ("tiles", 1),
+            ("features", res.features),
+            ("pages", len(res.pages)),
+            ("bytes", n_bytes),
+            ("page_texels", page_texels),
+            ("content_texels", res.stats.get("content_texels", 0)),
+            ("seconds", res.seconds),
+        ):
             b[k] += v
 
 
@@ -344,11 +458,14 @@ def _unit_results(pr: _Prepared, url: str, settings: Settings) -> Iterator[tuple
     """(unit, its results or a Lost) of the units textured, in order, then of the kept ones."""
     pl = pr.plan
     work, same = pl.work, pl.same
-    done = [[_kept_result(t, pl.prints[(t.level, t.x, t.y)], pl.counts[(t.level, t.x, t.y)], settings) for t in u]
-            for u in same]
+    done = [
+        [_kept_result(t, pl.prints[(t.level, t.x, t.y)], pl.counts[(t.level, t.x, t.y)], settings) for t in u]
+        for u in same
+    ]
     for (unit, _, _), out in itertools.chain(
-            zip(work, _map_units(work, url, settings, pr.workers) if work else iter([]), strict=True),
-            zip([(u, None, None) for u in same], done, strict=True)):
+        zip(work, _map_units(work, url, settings, pr.workers) if work else iter([]), strict=True),
+        zip([(u, None, None) for u in same], done, strict=True),
+    ):
         yield unit, out
 
 
@@ -376,9 +493,15 @@ def _balance(tally: _Tally, expected: int) -> Balance:
     totals = tally.totals
     if totals["features"] != expected:
         raise RuntimeError(f"textures lost features: {expected} in the tiles, {totals['features']} read")
-    return Balance("features", int(expected), {
-        "textured": int(totals["textured"] - totals["ktx2_failed"]),
-        "textured in WebP only": int(totals["ktx2_failed"])}, int(totals["failed"]))
+    return Balance(
+        "features",
+        int(expected),
+        {
+            "textured": int(totals["textured"] - totals["ktx2_failed"]),
+            "textured in WebP only": int(totals["ktx2_failed"]),
+        },
+        int(totals["failed"]),
+    )
 
 
 def _texture_and_write(ctx: Context, pr: _Prepared) -> tuple[_Tally, Balance]:
@@ -407,41 +530,67 @@ def _texture_and_write(ctx: Context, pr: _Prepared) -> tuple[_Tally, Balance]:
 
 def _bands(by_band: dict[int, dict[str, float]]) -> list[dict[str, object]]:
     """Per band (gen_level), what its tiles made, for the Result."""
-    return [{"gen_level": g, "tiles": int(b["tiles"]), "features": int(b["features"]), "pages": int(b["pages"]),
-             "bytes": int(b["bytes"]), "utilization": round(b["content_texels"] / b["page_texels"], 4)
-             if b["page_texels"] else None, "texels_per_metre": [round(b["min_texels_per_metre"], 3),
-                                                                  round(b["max_texels_per_metre"], 3)],
-             "seconds": round(b["seconds"], 3)} for g, b in sorted(by_band.items())]
+    return [
+        {
+            "gen_level": g,
+            "tiles": int(b["tiles"]),
+            "features": int(b["features"]),
+            "pages": int(b["pages"]),
+            "bytes": int(b["bytes"]),
+            "utilization": round(b["content_texels"] / b["page_texels"], 4) if b["page_texels"] else None,
+            "texels_per_metre": [round(b["min_texels_per_metre"], 3), round(b["max_texels_per_metre"], 3)],
+            "seconds": round(b["seconds"], 3),
+        }
+        for g, b in sorted(by_band.items())
+    ]
 
 
-def _report(ctx: Context, pr: _Prepared, tally: _Tally, balance: Balance, since: set[Key] | None,
-            seconds: float) -> Result:
+def _report(
+    ctx: Context, pr: _Prepared, tally: _Tally, balance: Balance, since: set[Key] | None, seconds: float
+) -> Result:
     """The summary line printed, and the run's Result: the totals, the balance, the bands, the changed tiles."""
     tiles, totals, keep = pr.tiles, tally.totals, ctx.update
     buildings = sum(t.features for t in tiles if t.is_leaf)
     util = totals["content_texels"] / totals["page_texels"] if totals["page_texels"] else 0.0
     bands = _bands(tally.by_band)
     summary(
-        "textures", balance,
+        "textures",
+        balance,
         f"{len(tiles):,} tiles: {totals['pages']:,} pages, {totals['bytes'] / 1e6:.1f} MB WebP, "
         f"{totals['ktx2_bytes'] / 1e6:.1f} MB KTX2 ({tally.encode_seconds:.1f} s encoding KTX2 and WebP in the "
         f"workers), utilization {100 * util:.1f} %, "
         f"{totals['rendered_texels'] / max(seconds, 1e-9) / 1e6:.1f} M texels/s rendered "
         f"({totals['copied']:,} charts copied, {totals['resized']:,} downsampled)"
-        + (f"; {tally.n_kept:,} tiles kept as they were ({tally.redrawn:,} of them drawn again for a chart cache)"
-           if keep else ""),
+        + (
+            f"; {tally.n_kept:,} tiles kept as they were ({tally.redrawn:,} of them drawn again for a chart cache)"
+            if keep
+            else ""
+        ),
         seconds,
         buildings,
     )
-    return Result({**totals, **balance.counts(), "tiles": len(tiles), "tiles_kept": tally.n_kept,
-                   "units": len(pr.plan.work), "tiles_redrawn": tally.redrawn,
-                   "features_textured": tally.textured_again, "units_lost": tally.lost,
-                   # the others no run of the update reached (core/changes.py)
-                   "tiles_fingerprinted": pr.plan.fingerprinted,
-                   "workers": pr.workers, "utilization": round(util, 4),
-                   "encode_seconds": round(tally.encode_seconds, 3), "bands": bands, "seconds": round(seconds, 3),
-                   "buildings": buildings, "buildings_per_s": round(buildings / seconds, 1) if seconds else None},
-                  None if since is None else Changes(tiles=tally.made))
+    return Result(
+        {
+            **totals,
+            **balance.counts(),
+            "tiles": len(tiles),
+            "tiles_kept": tally.n_kept,
+            "units": len(pr.plan.work),
+            "tiles_redrawn": tally.redrawn,
+            "features_textured": tally.textured_again,
+            "units_lost": tally.lost,
+            # the others no run of the update reached (core/changes.py)
+            "tiles_fingerprinted": pr.plan.fingerprinted,
+            "workers": pr.workers,
+            "utilization": round(util, 4),
+            "encode_seconds": round(tally.encode_seconds, 3),
+            "bands": bands,
+            "seconds": round(seconds, 3),
+            "buildings": buildings,
+            "buildings_per_s": round(buildings / seconds, 1) if seconds else None,
+        },
+        None if since is None else Changes(tiles=tally.made),
+    )
 
 
 def run(ctx: Context) -> Result:

@@ -90,9 +90,16 @@ class Style:
     generic_openings: bool = False  # windows by facade.py's rules on each wall (no LOD3 panels to follow)
 
     @classmethod
-    def from_tags(cls, key: int, building_material: str | None, building_colour: str | None,
-                  roof_material: str | None, roof_colour: str | None, levels: float | None,
-                  generic_openings: bool = False) -> Style:
+    def from_tags(
+        cls,
+        key: int,
+        building_material: str | None,
+        building_colour: str | None,
+        roof_material: str | None,
+        roof_colour: str | None,
+        levels: float | None,
+        generic_openings: bool = False,
+    ) -> Style:
         wall = T.material_and_colour("wall", building_material, building_colour)
         roof = T.material_and_colour("roof", roof_material, roof_colour)
         return cls(key, *wall, *roof, math.nan if levels is None else float(levels), generic_openings)
@@ -146,8 +153,17 @@ def _planar(tri: np.ndarray, group: np.ndarray, align: dict[int, np.ndarray] | N
     """textures.planar_charts (horizontal charts turned to ``align[group]``), with plane keys and offsets."""
     pc = T.planar_charts(tri, group, align)
     f = pc.first
-    return _Charts(pc.chart, pc.uv, pc.size, pc.origin, pc.du, pc.dv, pc.group, T.plane_keys(tri[f], group[f]),
-                   (pc.normal * tri[f, 0]).sum(axis=1))
+    return _Charts(
+        pc.chart,
+        pc.uv,
+        pc.size,
+        pc.origin,
+        pc.du,
+        pc.dv,
+        pc.group,
+        T.plane_keys(tri[f], group[f]),
+        (pc.normal * tri[f, 0]).sum(axis=1),
+    )
 
 
 def _cache_keys(style_keys: list[int], kind: int, plane_keys: np.ndarray, size_m: np.ndarray) -> list[tuple]:
@@ -187,8 +203,17 @@ def _cover(x: np.ndarray, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.n
     return np.clip(np.minimum(x + t / 2, hi) - np.maximum(x - t / 2, lo), 0.0, None) / t
 
 
-def _paint_openings(lin: np.ndarray, u: np.ndarray, v: np.ndarray, tu: np.ndarray, tv: np.ndarray,
-                    tex: np.ndarray, op: np.ndarray, dark: np.ndarray, n: int) -> None:
+def _paint_openings(
+    lin: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tu: np.ndarray,
+    tv: np.ndarray,
+    tex: np.ndarray,
+    op: np.ndarray,
+    dark: np.ndarray,
+    n: int,
+) -> None:
     """textures._paint_openings for (texel, opening) pairs: ``tex`` the texel of each pair, ``op`` (pairs, 5)
     its opening (s0, s1, z0, z1, kind), ``dark`` (pairs,) whether its wall has dark frames. In place."""
     if len(tex) == 0:
@@ -223,8 +248,12 @@ def _paint_openings(lin: np.ndarray, u: np.ndarray, v: np.ndarray, tu: np.ndarra
     grad = gnum / np.maximum(inner_w, 1e-9)
     low, high = T._lin(T._GLASS_LOW), T._lin(T._GLASS_HIGH)
     frame_c = np.where(dark_t[at][:, None], T._lin(T._FRAME_DARK), T._lin(T._FRAME_LIGHT))
-    lin[at] = (lin[at] * np.clip(1 - outer, 0, 1)[:, None] + frame_c * frame[:, None]
-               + (low + (high - low) * grad[:, None]) * glass[:, None] + T._lin(_DOOR_RGB) * inner_d[:, None])
+    lin[at] = (
+        lin[at] * np.clip(1 - outer, 0, 1)[:, None]
+        + frame_c * frame[:, None]
+        + (low + (high - low) * grad[:, None]) * glass[:, None]
+        + T._lin(_DOOR_RGB) * inner_d[:, None]
+    )
 
 
 @dataclass
@@ -240,8 +269,14 @@ class _Requests:
     dark: np.ndarray  # (k,) the wall's window frames are dark
 
 
-def _requests(kinds: np.ndarray, style: np.ndarray, size_m: np.ndarray, openings: list[np.ndarray],
-              inset: np.ndarray, styles: list[Style]) -> _Requests:
+def _requests(
+    kinds: np.ndarray,
+    style: np.ndarray,
+    size_m: np.ndarray,
+    openings: list[np.ndarray],
+    inset: np.ndarray,
+    styles: list[Style],
+) -> _Requests:
     keys: dict[tuple, int] = {}
     group = np.full(len(kinds), -1, np.int64)
     shift = np.zeros(len(kinds))
@@ -338,17 +373,16 @@ def _fill_copies(out: np.ndarray, pc: _PageCharts, given: dict[int, np.ndarray],
     for i in range(pc.rendered, len(pc.order)):  # copies and the palette
         j = int(pc.order[i])
         if j in given:
-            out[starts[i]:starts[i + 1]] = given[j].reshape(-1, 3)
+            out[starts[i] : starts[i + 1]] = given[j].reshape(-1, 3)
         else:
-            out[starts[i]:starts[i + 1]] = palette[np.minimum(np.arange(area[i]), len(palette) - 1)]
+            out[starts[i] : starts[i + 1]] = palette[np.minimum(np.arange(area[i]), len(palette) - 1)]
 
 
 def _page_texels(pc: _PageCharts, req: _Requests) -> _PageTexels:
     """The metric coordinates and texel sizes of every texel of the rendered charts (broadcast rows and columns),
     and the texel boxes of the walls' openings: every (opening, texel) pair is painted later."""
     n_render = pc.n_rendered
-    tx = _PageTexels(np.empty(n_render), np.empty(n_render), np.empty(n_render), np.empty(n_render),
-                     np.empty(n_render))
+    tx = _PageTexels(np.empty(n_render), np.empty(n_render), np.empty(n_render), np.empty(n_render), np.empty(n_render))
     u, up, v, tu, tv = tx.u, tx.up, tx.v, tx.tu, tx.tv
     R, w, h, starts = pc.order, pc.w, pc.h, pc.starts
     for i in range(pc.rendered):
@@ -379,7 +413,7 @@ def _paint_patterns(lin: np.ndarray, pc: _PageCharts, tx: _PageTexels, req: _Req
     """The wall and roof patterns of the rendered texels, one pass per (kind, material, colour): textures.py's own
     pattern functions on flat arrays. In place."""
     starts = pc.starts
-    g_of = req.group[pc.order[:pc.rendered]]
+    g_of = req.group[pc.order[: pc.rendered]]
     cuts = np.searchsorted(g_of, np.arange(len(req.groups) + 1))
     for g, (what, material, rgb) in enumerate(req.groups):
         if cuts[g] == cuts[g + 1]:
@@ -419,17 +453,18 @@ def _compose_page(lay: A.Layout, p: int, pc: _PageCharts, out: np.ndarray) -> np
     xs, ys = lay.x[R].tolist(), lay.y[R].tolist()
     for i in range(len(R)):
         x, y, wi, hi = xs[i], ys[i], int(w[i]), int(h[i])
-        page[y:y + hi, x:x + wi] = out[starts[i]:starts[i + 1]].reshape(hi, wi, 3)
+        page[y : y + hi, x : x + wi] = out[starts[i] : starts[i + 1]].reshape(hi, wi, 3)
         if pad:
-            page[y - pad:y, x:x + wi] = page[y, x:x + wi]
-            page[y + hi:y + hi + pad, x:x + wi] = page[y + hi - 1, x:x + wi]
-            page[y - pad:y + hi + pad, x - pad:x] = page[y - pad:y + hi + pad, x:x + 1]
-            page[y - pad:y + hi + pad, x + wi:x + wi + pad] = page[y - pad:y + hi + pad, x + wi - 1:x + wi]
+            page[y - pad : y, x : x + wi] = page[y, x : x + wi]
+            page[y + hi : y + hi + pad, x : x + wi] = page[y + hi - 1, x : x + wi]
+            page[y - pad : y + hi + pad, x - pad : x] = page[y - pad : y + hi + pad, x : x + 1]
+            page[y - pad : y + hi + pad, x + wi : x + wi + pad] = page[y - pad : y + hi + pad, x + wi - 1 : x + wi]
     return page
 
 
-def _render_page(lay: A.Layout, p: int, req: _Requests, palette: np.ndarray,
-                 given: dict[int, np.ndarray]) -> np.ndarray:
+def _render_page(
+    lay: A.Layout, p: int, req: _Requests, palette: np.ndarray, given: dict[int, np.ndarray]
+) -> np.ndarray:
     """(H, W, 3) uint8 page ``p``: its charts rendered (or copied from ``given``: request -> (h, w, 3) pixels),
     gutters repeating their edges, the rest in the page's mean colour."""
     pc = _page_charts(lay, p, req, given)
@@ -440,15 +475,16 @@ def _render_page(lay: A.Layout, p: int, req: _Requests, palette: np.ndarray,
         lin = np.empty((pc.n_rendered, 3), np.float64)
         _paint_patterns(lin, pc, tx, req)
         _paint_page_openings(lin, pc, tx, req)
-        out[:pc.n_rendered] = _to_srgb(lin)
+        out[: pc.n_rendered] = _to_srgb(lin)
     return _compose_page(lay, p, pc, out)
 
 
 # --- the tile ---------------------------------------------------------------------------------------------------
 
 
-def _checked(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarray, styles: list[Style],
-             rho: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _checked(
+    triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarray, styles: list[Style], rho: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The tile's triangles (m, 3, 3), features (m,) and semantics (m,) as arrays; an error where they do not
     fit together or ``rho`` is no density."""
     tri = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
@@ -537,8 +573,9 @@ def _roof_align(wc: _Charts) -> dict[int, np.ndarray]:
     return align
 
 
-def _sheets(tri: np.ndarray, feat: np.ndarray, ir: np.ndarray, sheet_feats: list[int], rho: float,
-            params: Params) -> tuple[list[tuple[int, np.ndarray, T.XatlasCharts]], np.ndarray]:
+def _sheets(
+    tri: np.ndarray, feat: np.ndarray, ir: np.ndarray, sheet_feats: list[int], rho: float, params: Params
+) -> tuple[list[tuple[int, np.ndarray, T.XatlasCharts]], np.ndarray]:
     """xatlas charts of the roofs of ``sheet_feats`` and which roof triangles (of ``ir``) they took: a feature
     whose xatlas run fails keeps its planar charts."""
     sheets: list[tuple[int, np.ndarray, T.XatlasCharts]] = []
@@ -555,8 +592,9 @@ def _sheets(tri: np.ndarray, feat: np.ndarray, ir: np.ndarray, sheet_feats: list
     return sheets, on_sheet
 
 
-def _charts(tri: np.ndarray, feat: np.ndarray, kinds: _Kinds, styles: list[Style], rho: float,
-            params: Params) -> _TileCharts:
+def _charts(
+    tri: np.ndarray, feat: np.ndarray, kinds: _Kinds, styles: list[Style], rho: float, params: Params
+) -> _TileCharts:
     """Walls: planar charts per (feature, plane); roofs: planar unless a feature's roof has too many planes
     (then xatlas)."""
     iw = np.flatnonzero(kinds.wall)
@@ -612,8 +650,9 @@ class _WallFrames:
     def rects(puv: np.ndarray, chart: np.ndarray, psem: np.ndarray) -> np.ndarray:
         """(k, 6) chart, s0, s1, z0, z1, kind: each panel's rectangle; the two triangles of a panel give the
         same one."""
-        r = np.column_stack([chart, puv[..., 0].min(1), puv[..., 0].max(1), puv[..., 1].min(1),
-                             puv[..., 1].max(1), psem])
+        r = np.column_stack(
+            [chart, puv[..., 0].min(1), puv[..., 0].max(1), puv[..., 1].min(1), puv[..., 1].max(1), psem]
+        )
         return np.unique(np.round(r, 6), axis=0)
 
 
@@ -629,8 +668,9 @@ class _WallOpenings:
     uv: np.ndarray  # (panels, 3, 2) metric (s, z) of the panel triangles in their host's frame
 
 
-def _own_panels(tri: np.ndarray, feat: np.ndarray, sem: np.ndarray, ip: np.ndarray, frames: _WallFrames,
-                stats: dict[str, int]) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+def _own_panels(
+    tri: np.ndarray, feat: np.ndarray, sem: np.ndarray, ip: np.ndarray, frames: _WallFrames, stats: dict[str, int]
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """(host, uv, rectangles) of the tile's own panel triangles ``ip``: the wall chart each lies on, its corners
     in that chart's frame, and the rectangles they make (_WallFrames.rects)."""
     found_rects: list[np.ndarray] = []
@@ -646,8 +686,9 @@ def _own_panels(tri: np.ndarray, feat: np.ndarray, sem: np.ndarray, ip: np.ndarr
     return panel_host, panel_uv, found_rects
 
 
-def _given_panels(opening_triangles: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-                  frames: _WallFrames) -> list[np.ndarray]:
+def _given_panels(
+    opening_triangles: tuple[np.ndarray, np.ndarray, np.ndarray] | None, frames: _WallFrames
+) -> list[np.ndarray]:
     """The rectangles the caller's LOD3 window/door panels (of LOD2 features) make on the wall charts."""
     if opening_triangles is None or not len(opening_triangles[0]):
         return []
@@ -671,7 +712,7 @@ def _place_rects(found_rects: list[np.ndarray], wopen: list[np.ndarray]) -> np.n
         allr = allr[np.lexsort((allr[:, 1], allr[:, 3], allr[:, 0]))]
         cuts = np.searchsorted(allr[:, 0], np.arange(nw + 1))
         for c in np.flatnonzero(np.diff(cuts)).tolist():
-            wopen[c] = allr[cuts[c]:cuts[c + 1], 1:]
+            wopen[c] = allr[cuts[c] : cuts[c + 1], 1:]
             has_found[c] = True
     return has_found
 
@@ -692,18 +733,33 @@ def _generic_openings(wc: _Charts, styles: list[Style], wopen: list[np.ndarray],
         gi = np.flatnonzero(gen)
         n = len(gi)
         lv = np.array([styles[g].levels for g in wc.group[gi].tolist()])
-        op = T.wall_openings(np.zeros((n, 2)), np.column_stack([wc.size[gi, 0], np.zeros(n)]), np.arange(n),
-                             0.0, wc.size[gi, 1], lv, False, True)
+        op = T.wall_openings(
+            np.zeros((n, 2)),
+            np.column_stack([wc.size[gi, 0], np.zeros(n)]),
+            np.arange(n),
+            0.0,
+            wc.size[gi, 1],
+            lv,
+            False,
+            True,
+        )
         cuts = np.searchsorted(op.wall, np.arange(n + 1))
         for j in np.flatnonzero(np.diff(cuts)).tolist():
             lo, hi = cuts[j], cuts[j + 1]
-            wopen[gi[j]] = np.column_stack([op.s0[lo:hi], op.s1[lo:hi], op.z0[lo:hi], op.z1[lo:hi],
-                                            op.kind[lo:hi]])
+            wopen[gi[j]] = np.column_stack([op.s0[lo:hi], op.s1[lo:hi], op.z0[lo:hi], op.z1[lo:hi], op.kind[lo:hi]])
 
 
-def _wall_openings(tri: np.ndarray, feat: np.ndarray, sem: np.ndarray, kinds: _Kinds, wc: _Charts,
-                   styles: list[Style], opening_triangles: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-                   cache: ChartCache | None, stats: dict[str, int]) -> _WallOpenings:
+def _wall_openings(
+    tri: np.ndarray,
+    feat: np.ndarray,
+    sem: np.ndarray,
+    kinds: _Kinds,
+    wc: _Charts,
+    styles: list[Style],
+    opening_triangles: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    cache: ChartCache | None,
+    stats: dict[str, int],
+) -> _WallOpenings:
     """The openings of every wall chart: its own LOD3 panels and the caller's, else those the cache holds for the
     wall, else (simplified solids and blocks) facade.py's layout."""
     wopen: list[np.ndarray] = [np.zeros((0, 5))] * len(wc.size)
@@ -712,8 +768,9 @@ def _wall_openings(tri: np.ndarray, feat: np.ndarray, sem: np.ndarray, kinds: _K
     panel_host, panel_uv, found_rects = _own_panels(tri, feat, sem, ip, frames, stats)
     found_rects += _given_panels(opening_triangles, frames)
     has_found = _place_rects(found_rects, wopen)
-    wkeys = _cache_keys([styles[g].key for g in wc.group.tolist()], KIND_WALL, wc.key, wc.size) \
-        if cache is not None else []
+    wkeys = (
+        _cache_keys([styles[g].key for g in wc.group.tolist()], KIND_WALL, wc.key, wc.size) if cache is not None else []
+    )
     if cache is not None:
         _cached_openings(cache, wkeys, wopen, has_found)
     _generic_openings(wc, styles, wopen, has_found)
@@ -763,17 +820,24 @@ class _Planned:
     members: list[list[int]]  # wall charts of a strip, else empty
 
 
-def _planned(ch: _TileCharts, walls: _WallOpenings, st: _StripLayout, styles: list[Style],
-             cache: ChartCache | None, rho: float) -> _Planned:
+def _planned(
+    ch: _TileCharts, walls: _WallOpenings, st: _StripLayout, styles: list[Style], cache: ChartCache | None, rho: float
+) -> _Planned:
     """Requests: strips (with their walls' openings, shifted along the strip), roof charts, sheets."""
     wc, rc, sheets = ch.wc, ch.rc, ch.sheets
     strips, wopen, wkeys = st.members, walls.per_chart, walls.keys
     ns, nr = len(strips), len(rc.size)
-    kinds = np.concatenate([np.full(ns, KIND_WALL), np.full(nr, KIND_ROOF),
-                            np.full(len(sheets), KIND_SHEET)]).astype(np.int8)
+    kinds = np.concatenate([np.full(ns, KIND_WALL), np.full(nr, KIND_ROOF), np.full(len(sheets), KIND_SHEET)]).astype(
+        np.int8
+    )
     size_m = np.concatenate([st.size, rc.size, np.array([x.size_m for _, _, x in sheets]).reshape(-1, 2)])
-    req_style = np.concatenate([wc.group[[s[0] for s in strips]] if ns else np.zeros(0, np.int64), rc.group,
-                                np.array([f for f, _, _ in sheets], np.int64)]).astype(np.int64)
+    req_style = np.concatenate(
+        [
+            wc.group[[s[0] for s in strips]] if ns else np.zeros(0, np.int64),
+            rc.group,
+            np.array([f for f, _, _ in sheets], np.int64),
+        ]
+    ).astype(np.int64)
     req_open: list[np.ndarray] = []
     ckeys: list[tuple | None] = []
     for members in strips:
@@ -781,8 +845,11 @@ def _planned(ch: _TileCharts, walls: _WallOpenings, st: _StripLayout, styles: li
         req_open.append(np.concatenate(ops) if ops else np.zeros((0, 5)))
         ckeys.append((wkeys[members[0]][0], KIND_WALL, tuple(wkeys[c][2:] for c in members)) if wkeys else None)
     req_open += [np.zeros((0, 5))] * (nr + len(sheets))
-    ckeys += _cache_keys([styles[g].key for g in rc.group.tolist()], KIND_ROOF, rc.key, rc.size) \
-        if cache is not None else [None] * nr
+    ckeys += (
+        _cache_keys([styles[g].key for g in rc.group.tolist()], KIND_ROOF, rc.key, rc.size)
+        if cache is not None
+        else [None] * nr
+    )
     ckeys += [None] * len(sheets)
     px = A.texels(size_m, rho)
     return _Planned(kinds, size_m, req_style, req_open, ckeys, px, strips + [[]] * (nr + len(sheets)))
@@ -794,8 +861,7 @@ def _to_local(uv: np.ndarray, size: np.ndarray) -> np.ndarray:
         return np.stack([uv[..., 0] / size[:, None, 0], 1 - uv[..., 1] / size[:, None, 1]], axis=-1)
 
 
-def _triangle_charts(m: int, ch: _TileCharts, walls: _WallOpenings,
-                     st: _StripLayout) -> tuple[np.ndarray, np.ndarray]:
+def _triangle_charts(m: int, ch: _TileCharts, walls: _WallOpenings, st: _StripLayout) -> tuple[np.ndarray, np.ndarray]:
     """(request, chart-local coordinates) of every triangle: (m,) -1 where none (the palette's), (m, 3, 2) in
     [0, 1], image orientation (y down)."""
     wc, rc, iw, ir = ch.wc, ch.rc, ch.iw, ch.ir
@@ -820,8 +886,9 @@ def _triangle_charts(m: int, ch: _TileCharts, walls: _WallOpenings,
     return tri_chart, np.nan_to_num(np.clip(tri_local, 0.0, 1.0))  # zero-extent charts (e.g. 0 m high)
 
 
-def _drop_tiny(pl: _Planned, tri_chart: np.ndarray, ns: int, params: Params,
-               stats: dict[str, int]) -> tuple[_Planned, np.ndarray]:
+def _drop_tiny(
+    pl: _Planned, tri_chart: np.ndarray, ns: int, params: Params, stats: dict[str, int]
+) -> tuple[_Planned, np.ndarray]:
     """Tiny charts: their triangles take the flat colour instead; only the charts in use kept, renumbered (the
     requests kept, and every triangle's request: -1 for the palette)."""
     px = pl.px
@@ -839,14 +906,21 @@ def _drop_tiny(pl: _Planned, tri_chart: np.ndarray, ns: int, params: Params,
         tri_chart = np.where(tri_chart >= 0, new_id[np.maximum(tri_chart, 0)], -1)
     old_ids = np.flatnonzero(keep_req).tolist()
     stats["flat"] = int(tiny.sum())
-    kept = _Planned(pl.kinds[keep_req], pl.size_m[keep_req], pl.style[keep_req],
-                    [pl.openings[i] for i in old_ids], [pl.ckeys[i] for i in old_ids], px[keep_req],
-                    [pl.members[i] for i in old_ids])
+    kept = _Planned(
+        pl.kinds[keep_req],
+        pl.size_m[keep_req],
+        pl.style[keep_req],
+        [pl.openings[i] for i in old_ids],
+        [pl.ckeys[i] for i in old_ids],
+        px[keep_req],
+        [pl.members[i] for i in old_ids],
+    )
     return kept, tri_chart
 
 
-def _add_palette(pl: _Planned, pal: _Palette, tri_chart: np.ndarray, tri_local: np.ndarray,
-                 params: Params) -> np.ndarray:
+def _add_palette(
+    pl: _Planned, pal: _Palette, tri_chart: np.ndarray, tri_local: np.ndarray, params: Params
+) -> np.ndarray:
     """The palette: the flat colours of every triangle without a chart, as one more request (``pl``,
     ``tri_chart`` and ``tri_local`` in place); its (n, 3) uint8 colours."""
     flat = tri_chart < 0
@@ -869,8 +943,9 @@ def _add_palette(pl: _Planned, pal: _Palette, tri_chart: np.ndarray, tri_local: 
     return palette
 
 
-def _from_cache(cache: ChartCache | None, ckeys: list[tuple | None], lay: A.Layout,
-                stats: dict[str, int]) -> dict[int, np.ndarray]:
+def _from_cache(
+    cache: ChartCache | None, ckeys: list[tuple | None], lay: A.Layout, stats: dict[str, int]
+) -> dict[int, np.ndarray]:
     """Cached pixels (request -> (h, w, 3)): the same size copied, larger downsampled (OpenImageIO, linear
     light); the others are rendered."""
     given: dict[int, np.ndarray] = {}
@@ -895,31 +970,48 @@ def _page_uvs(lay: A.Layout, ins: np.ndarray, tri_chart: np.ndarray, tri_local: 
     dims = lay.page_dims[lay.page[tri_chart]].astype(np.float64)  # (m, 2)
     o = ins[tri_chart]
     uv = np.empty((m, 3, 2), np.float32)
-    uv[..., 0] = (lay.x[tri_chart, None] + o[:, None, 0]
-                  + tri_local[..., 0] * (lay.w[tri_chart, None] - 2 * o[:, None, 0])) / dims[:, None, 0]
-    uv[..., 1] = (lay.y[tri_chart, None] + o[:, None, 1]
-                  + tri_local[..., 1] * (lay.h[tri_chart, None] - 2 * o[:, None, 1])) / dims[:, None, 1]
+    uv[..., 0] = (
+        lay.x[tri_chart, None] + o[:, None, 0] + tri_local[..., 0] * (lay.w[tri_chart, None] - 2 * o[:, None, 0])
+    ) / dims[:, None, 0]
+    uv[..., 1] = (
+        lay.y[tri_chart, None] + o[:, None, 1] + tri_local[..., 1] * (lay.h[tri_chart, None] - 2 * o[:, None, 1])
+    ) / dims[:, None, 1]
     return uv
 
 
-def _store(cache: ChartCache, ckeys: list[tuple | None], lay: A.Layout, pages: list[np.ndarray],
-           members_of: list[list[int]], walls: _WallOpenings, styles: list[Style], feat: np.ndarray) -> None:
+def _store(
+    cache: ChartCache,
+    ckeys: list[tuple | None],
+    lay: A.Layout,
+    pages: list[np.ndarray],
+    members_of: list[list[int]],
+    walls: _WallOpenings,
+    styles: list[Style],
+    feat: np.ndarray,
+) -> None:
     """This tile's chart pixels and wall openings into ``cache``, for the tiles above it (a leaf's)."""
     for j, key in enumerate(ckeys):
         if key is None:
             continue
         x, y, w, h = (int(t) for t in (lay.x[j], lay.y[j], lay.w[j], lay.h[j]))
-        cache.pixels[key] = pages[lay.page[j]][y:y + h, x:x + w].copy()
+        cache.pixels[key] = pages[lay.page[j]][y : y + h, x : x + w].copy()
         for c in members_of[j]:
             if len(walls.per_chart[c]):
                 cache.openings[walls.keys[c][:-2]] = walls.per_chart[c]
     cache.buildings.update(styles[f].key for f in np.unique(feat).tolist())
 
 
-def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarray, styles: list[Style],
-                 rho: float, params: Params = Params(),  # noqa: B008 -- frozen
-                 opening_triangles: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                 cache: ChartCache | None = None, store: bool = False) -> TileTexture:
+def texture_tile(
+    triangles: np.ndarray,
+    feature: np.ndarray,
+    semantics: np.ndarray,
+    styles: list[Style],
+    rho: float,
+    params: Params = Params(),  # noqa: B008 -- frozen
+    opening_triangles: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    cache: ChartCache | None = None,
+    store: bool = False,
+) -> TileTexture:
     """Charts, pages and per-corner UVs for one tile.
 
     triangles (m, 3, 3) in a metric CRS with z up (the working CRS), ``feature`` (m,) index into ``styles``,
@@ -928,8 +1020,23 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
     ``cache``: reuse chart pixels and openings found there; ``store``: add this tile's to it (leaves)."""
     tri, feat, sem = _checked(triangles, feature, semantics, styles, rho)
     m = len(tri)
-    stats = dict.fromkeys(("charts", "wall_charts", "roof_charts", "sheets", "flat", "panels_mapped",
-                           "openings", "copied", "resized", "rendered_texels", "content_texels", "scaled"), 0)
+    stats = dict.fromkeys(
+        (
+            "charts",
+            "wall_charts",
+            "roof_charts",
+            "sheets",
+            "flat",
+            "panels_mapped",
+            "openings",
+            "copied",
+            "resized",
+            "rendered_texels",
+            "content_texels",
+            "scaled",
+        ),
+        0,
+    )
     kinds = _kinds(tri, sem)
     pal = _palette(styles, feat, sem, kinds)
     ch = _charts(tri, feat, kinds, styles, rho, params)
@@ -952,10 +1059,16 @@ def texture_tile(triangles: np.ndarray, feature: np.ndarray, semantics: np.ndarr
     pages = [_render_page(lay, p, req, palette, given) for p in range(lay.n_pages)]
     uv = _page_uvs(lay, ins, tri_chart, tri_local)
     content = lay.w * lay.h
-    stats.update(charts=len(kinds_of), wall_charts=int((kinds_of == KIND_WALL).sum()), walls=len(ch.wc.size),
-                 roof_charts=int((kinds_of == KIND_ROOF).sum()), sheets=int((kinds_of == KIND_SHEET).sum()),
-                 content_texels=int(content.sum()), scaled=int(lay.scaled.sum()),
-                 rendered_texels=int(content.sum() - sum(content[j] for j in given)))
+    stats.update(
+        charts=len(kinds_of),
+        wall_charts=int((kinds_of == KIND_WALL).sum()),
+        walls=len(ch.wc.size),
+        roof_charts=int((kinds_of == KIND_ROOF).sum()),
+        sheets=int((kinds_of == KIND_SHEET).sum()),
+        content_texels=int(content.sum()),
+        scaled=int(lay.scaled.sum()),
+        rendered_texels=int(content.sum() - sum(content[j] for j in given)),
+    )
     if cache is not None and store:
         _store(cache, ckeys, lay, pages, pl.members, walls, styles, feat)
     return TileTexture(pages, lay, kinds_of, lay.page[tri_chart].astype(np.int16), uv, stats)

@@ -140,8 +140,15 @@ def _style(r: Feature) -> X.Style:
     """The look of a feature from its tags; blocks keyed apart from buildings (BLOCK_KEY)."""
     bid = int(r["building_id"])
     key = BLOCK_KEY + bid if r["feature_kind"] == "block" else bid
-    return X.Style.from_tags(key, r["building_material"], r["building_colour"], r["roof_material"], r["roof_colour"],
-                             r["levels"], generic_openings=r["gen_level"] <= 2)
+    return X.Style.from_tags(
+        key,
+        r["building_material"],
+        r["building_colour"],
+        r["roof_material"],
+        r["roof_colour"],
+        r["levels"],
+        generic_openings=r["gen_level"] <= 2,
+    )
 
 
 def _arrays(rows: list[Feature]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
@@ -149,34 +156,48 @@ def _arrays(rows: list[Feature]) -> tuple[np.ndarray, np.ndarray, np.ndarray, li
     tris, sems, counts = [], [], []
     for r in rows:
         t = decode_triangles(r["mesh"])
-        s = (np.full(len(t), X.SEM_UNKNOWN, np.uint8) if r["semantics"] is None
-             else np.frombuffer(bytes(r["semantics"]), np.uint8))
+        s = (
+            np.full(len(t), X.SEM_UNKNOWN, np.uint8)
+            if r["semantics"] is None
+            else np.frombuffer(bytes(r["semantics"]), np.uint8)
+        )
         if len(s) != len(t):
             raise ValueError(f"{len(s)} semantics bytes for {len(t)} triangles")
         tris.append(t)
         sems.append(s)
         counts.append(len(t))
     feat = np.repeat(np.arange(len(rows)), counts)
-    return (np.concatenate(tris) if tris else np.zeros((0, 3, 3)), feat,
-            np.concatenate(sems) if sems else np.zeros(0, np.uint8), counts)
+    return (
+        np.concatenate(tris) if tris else np.zeros((0, 3, 3)),
+        feat,
+        np.concatenate(sems) if sems else np.zeros(0, np.uint8),
+        counts,
+    )
 
 
-def _texture(rows: list[Feature], conn: psycopg.Connection, rho: float, params: X.Params,
-             cache: X.ChartCache | None, store: bool) -> tuple[X.TileTexture, list[int]]:
+def _texture(
+    rows: list[Feature], conn: psycopg.Connection, rho: float, params: X.Params, cache: X.ChartCache | None, store: bool
+) -> tuple[X.TileTexture, list[int]]:
     """texturing.texture_tile of the rows, with the LOD3 openings of their LOD2 buildings the cache lacks; and
     the triangles per row."""
     tri, feat, sem, counts = _arrays(rows)
     styles = [_style(r) for r in rows]
     # LOD2 features whose leaves were not textured in this unit: their openings from the LOD3 meshes
     lod2 = [r["gen_level"] == 3 and r["feature_kind"] != "block" for r in rows]
-    need = sorted({int(r["building_id"]) for r, s, is2 in zip(rows, styles, lod2, strict=True)
-                   if is2 and (cache is None or s.key not in cache.buildings)})
+    need = sorted(
+        {
+            int(r["building_id"])
+            for r, s, is2 in zip(rows, styles, lod2, strict=True)
+            if is2 and (cache is None or s.key not in cache.buildings)
+        }
+    )
     extra: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     if need:
         index = {int(r["building_id"]): i for i, (r, is2) in enumerate(zip(rows, lod2, strict=True)) if is2}
         ot, of, os_ = [], [], []
-        for bid, s3, g3 in conn.execute("SELECT building_id, semantics, mesh FROM tex.opening_meshes(%s)",
-                                        (need,)).fetchall():
+        for bid, s3, g3 in conn.execute(
+            "SELECT building_id, semantics, mesh FROM tex.opening_meshes(%s)", (need,)
+        ).fetchall():
             t3 = decode_triangles(g3)
             s = np.frombuffer(bytes(s3), np.uint8) if s3 is not None else np.zeros(0, np.uint8)
             if len(s) != len(t3):
@@ -193,8 +214,15 @@ def _texture(rows: list[Feature], conn: psycopg.Connection, rho: float, params: 
 
 def _failure(key: Key, row: Feature, reason: str, detail: str) -> tuple:
     """A tex.failure row (stage._FAIL_COLUMNS) of the feature ``row`` (of tex.tile_features)."""
-    return (*key, row["feature_kind"], int(row["building_id"]), row["osm_type"], int(row["osm_id"]), reason,
-            detail[:2000])
+    return (
+        *key,
+        row["feature_kind"],
+        int(row["building_id"]),
+        row["osm_type"],
+        int(row["osm_id"]),
+        reason,
+        detail[:2000],
+    )
 
 
 def _features(conn: psycopg.Connection, tile: Tile, query: LiteralString) -> list[Feature]:
@@ -203,9 +231,15 @@ def _features(conn: psycopg.Connection, tile: Tile, query: LiteralString) -> lis
         return cur.execute(query, (tile.level, tile.x, tile.y)).fetchall()
 
 
-def _texture_isolating(rows: list[Feature], conn: psycopg.Connection, rho: float, params: X.Params,
-                       cache: X.ChartCache | None, store: bool,
-                       res: TileResult) -> tuple[X.TileTexture | None, list[int], list[int]]:
+def _texture_isolating(
+    rows: list[Feature],
+    conn: psycopg.Connection,
+    rho: float,
+    params: X.Params,
+    cache: X.ChartCache | None,
+    store: bool,
+    res: TileResult,
+) -> tuple[X.TileTexture | None, list[int], list[int]]:
     """(texture, triangles per textured row, the rows textured) of the tile; when it fails, of the tile without
     the features that fail alone (_texture_without_failing)."""
     try:
@@ -215,9 +249,15 @@ def _texture_isolating(rows: list[Feature], conn: psycopg.Connection, rho: float
     return tt, counts, list(range(len(rows)))
 
 
-def _texture_without_failing(rows: list[Feature], conn: psycopg.Connection, rho: float, params: X.Params,
-                             cache: X.ChartCache | None, store: bool,
-                             res: TileResult) -> tuple[X.TileTexture | None, list[int], list[int]]:
+def _texture_without_failing(
+    rows: list[Feature],
+    conn: psycopg.Connection,
+    rho: float,
+    params: X.Params,
+    cache: X.ChartCache | None,
+    store: bool,
+    res: TileResult,
+) -> tuple[X.TileTexture | None, list[int], list[int]]:
     """The tile textured again without the features that fail on their own (texturing is pure and per tile, so
     this is exact and rare), those listed in ``res.failures``; if even that fails, every feature is."""
     key = (res.tile.level, res.tile.x, res.tile.y)
@@ -247,8 +287,9 @@ def _encode_pages(res: TileResult, tt: X.TileTexture, settings: Settings, jobs: 
     refused: dict[int, str] = {}
     # basisu's processes encode the KTX2 while this one writes the WebP (the bytes do not depend on ``jobs``)
     t1 = time.perf_counter()
-    pending = K.start_many(list(tt.pages), settings.tex_ktx2_quality, settings.tex_ktx2_comp_level,
-                           settings.tex_ktx2_timeout_s, jobs)
+    pending = K.start_many(
+        list(tt.pages), settings.tex_ktx2_quality, settings.tex_ktx2_comp_level, settings.tex_ktx2_timeout_s, jobs
+    )
     try:
         webp = [A.encode_image(img, FORMAT, settings.tex_quality, method=WEBP_METHOD) for img in tt.pages]
     except BaseException:
@@ -265,15 +306,34 @@ def _encode_pages(res: TileResult, tt: X.TileTexture, settings: Settings, jobs: 
         else:
             k2 = got
         h, w = img.shape[:2]
-        res.pages.append((*key, p, FORMAT, mime, w, h, len(data), data, float(util[p]), res.rho, res.distance,
-                          len(rects[p]), int(tt.layout.scaled[tt.layout.page == p].sum()), res.padding,
-                          rects[p].astype("<i4").tobytes(), k2, len(k2) if k2 else None,
-                          max(w, h).bit_length() if k2 else None))
+        res.pages.append(
+            (
+                *key,
+                p,
+                FORMAT,
+                mime,
+                w,
+                h,
+                len(data),
+                data,
+                float(util[p]),
+                res.rho,
+                res.distance,
+                len(rects[p]),
+                int(tt.layout.scaled[tt.layout.page == p].sum()),
+                res.padding,
+                rects[p].astype("<i4").tobytes(),
+                k2,
+                len(k2) if k2 else None,
+                max(w, h).bit_length() if k2 else None,
+            )
+        )
     return refused
 
 
-def _add_uvs(res: TileResult, tt: X.TileTexture, rows: list[Feature], good: list[int], counts: list[int],
-             refused: dict[int, str]) -> None:
+def _add_uvs(
+    res: TileResult, tt: X.TileTexture, rows: list[Feature], good: list[int], counts: list[int], refused: dict[int, str]
+) -> None:
     """The tex.feature_uv row of every textured feature into ``res.uvs``; a feature on a page without KTX2 also
     into ``res.failures`` (ktx2_encode_failed)."""
     key = (res.tile.level, res.tile.x, res.tile.y)
@@ -282,8 +342,16 @@ def _add_uvs(res: TileResult, tt: X.TileTexture, rows: list[Feature], good: list
     for j, i in enumerate(good):
         r = rows[i]
         sl = slice(off[j], off[j + 1])
-        res.uvs.append((*key, r["feature_kind"], int(r["building_id"]), int(counts[j]),
-                        tt.tri_page[sl].astype("<i2").tobytes(), tt.tri_uv[sl].astype("<f4").tobytes()))
+        res.uvs.append(
+            (
+                *key,
+                r["feature_kind"],
+                int(r["building_id"]),
+                int(counts[j]),
+                tt.tri_page[sl].astype("<i2").tobytes(),
+                tt.tri_uv[sl].astype("<f4").tobytes(),
+            )
+        )
         hit = np.intersect1d(tt.tri_page[sl], refused_pages) if len(refused_pages) else refused_pages
         if len(hit):
             first = int(hit[0])
@@ -291,8 +359,16 @@ def _add_uvs(res: TileResult, tt: X.TileTexture, rows: list[Feature], good: list
             res.ktx2_failed += 1
 
 
-def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X.ChartCache | None,
-              store: bool, rows: list[Feature] | None = None, encode: bool = True, jobs: int = 1) -> TileResult:
+def _one_tile(
+    tile: Tile,
+    conn: psycopg.Connection,
+    settings: Settings,
+    cache: X.ChartCache | None,
+    store: bool,
+    rows: list[Feature] | None = None,
+    encode: bool = True,
+    jobs: int = 1,
+) -> TileResult:
     """Texture ``tile``. ``encode`` False: only draw it, for the charts it adds to ``cache`` (its pages are
     kept from the last run, so neither encoded nor returned). ``jobs``: basisu processes for its pages (the
     cores this unit has to itself)."""
@@ -300,9 +376,13 @@ def _one_tile(tile: Tile, conn: psycopg.Connection, settings: Settings, cache: X
     rho, distance = resolution(tile.geometric_error, settings)
     pad = padding_for(rho, settings)
     res = TileResult(tile, rho, distance, pad)
-    params = X.Params(page_size=settings.tex_page_size, padding=pad, packer=settings.tex_packer,
-                      min_chart_texels=settings.tex_min_chart_texels,
-                      xatlas_min_planes=settings.tex_xatlas_min_planes)
+    params = X.Params(
+        page_size=settings.tex_page_size,
+        padding=pad,
+        packer=settings.tex_packer,
+        min_chart_texels=settings.tex_min_chart_texels,
+        xatlas_min_planes=settings.tex_xatlas_min_planes,
+    )
     rows = _features(conn, tile, _FEATURES) if rows is None else rows
     res.features = len(rows)
     tt, counts, good = _texture_isolating(rows, conn, rho, params, cache, store, res)
@@ -318,8 +398,9 @@ def _kept_result(t: Tile, fingerprint: str, features: int, settings: Settings) -
     """A tile of a unit whose input did not change (``features``: as tex.input_digests counted them): its rows
     stay as the last run wrote them."""
     rho, distance = resolution(t.geometric_error, settings)
-    return TileResult(t, rho, distance, padding_for(rho, settings), features=features, fingerprint=fingerprint,
-                      kept=True)
+    return TileResult(
+        t, rho, distance, padding_for(rho, settings), features=features, fingerprint=fingerprint, kept=True
+    )
 
 
 _WORKER: dict[str, Any] = {}
@@ -372,8 +453,9 @@ def _map_units(work: list[Unit], url: str, settings: Settings, workers: int) -> 
         return
     # fewer units than workers (an update of a few buildings): the cores no unit takes encode their pages
     jobs = max(1, workers // len(work))
-    yield from imap_isolated(_do_unit, work, min(workers, len(work)), settings.tex_unit_timeout_s, _init_worker,
-                             (url, settings, jobs))
+    yield from imap_isolated(
+        _do_unit, work, min(workers, len(work)), settings.tex_unit_timeout_s, _init_worker, (url, settings, jobs)
+    )
 
 
 def _lost(conn: psycopg.Connection, unit: list[Tile], lost: Lost, settings: Settings) -> list[TileResult]:
