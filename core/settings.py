@@ -140,7 +140,7 @@ class Settings:
     #: quadruples the stage's time and bytes.
     tex_max_texels_per_metre: float = 2.0
     #: Gutter texels around each chart (bilinear filtering and the first mip levels never mix in a
-    #: neighbour) at the cap; coarser tiles get less (etl/textures/stage.py padding_for).
+    #: neighbour) at the cap; coarser tiles get less (etl/textures/tile.py padding_for).
     tex_padding: int = 2
     #: Charts with fewer texels than this (or thinner than 2) are drawn in their flat tagged colour.
     tex_min_chart_texels: int = 16
