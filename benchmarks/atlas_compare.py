@@ -48,13 +48,30 @@ def requests(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     d = rng.uniform(6, 25, n)
     storeys = rng.choice(np.arange(1, 13), n, p=np.r_[[0.1, 0.2, 0.2, 0.15, 0.1, 0.08, 0.06], [0.022] * 5])
     h = storeys * 3.0
-    metres = np.concatenate([np.column_stack([w, h]), np.column_stack([d, h]), np.column_stack([w, h]),
-                             np.column_stack([d, h]), np.column_stack([w, d])])
+    metres = np.concatenate(
+        [
+            np.column_stack([w, h]),
+            np.column_stack([d, h]),
+            np.column_stack([w, h]),
+            np.column_stack([d, h]),
+            np.column_stack([w, d]),
+        ]
+    )
     return metres, np.tile(np.arange(n), 5)
 
 
-def run(n: int, distances: list[float], page_size: int, padding: int, seed: int, fov_deg: float,
-        screen_px: int, brute_force: bool, draw: bool, fmt: str) -> list[Row]:
+def run(
+    n: int,
+    distances: list[float],
+    page_size: int,
+    padding: int,
+    seed: int,
+    fov_deg: float,
+    screen_px: int,
+    brute_force: bool,
+    draw: bool,
+    fmt: str,
+) -> list[Row]:
     metres, owner = requests(n, seed)
     rows = []
     packers = ["shelf", "xatlas"] + (["xatlas-brute"] if brute_force else [])
@@ -63,22 +80,39 @@ def run(n: int, distances: list[float], page_size: int, padding: int, seed: int,
         sizes = A.texels(metres, rho)
         for name in packers:
             packer = name.split("-")[0]
-            lay = A.layout(sizes, page_size=page_size, packer=packer, padding=padding,
-                           brute_force=name.endswith("brute"))
+            lay = A.layout(
+                sizes, page_size=page_size, packer=packer, padding=padding, brute_force=name.endswith("brute")
+            )
             area = lay.page_dims[:, 0] * lay.page_dims[:, 1]
-            row = Row(distance_m=dist, texels_per_metre=round(rho, 3), packer=name, requests=len(sizes),
-                      content_texels=int((lay.w * lay.h).sum()), pages=lay.n_pages, page_texels=int(area.sum()),
-                      utilization=round(lay.total_utilization, 4),
-                      min_page_utilization=round(float(lay.utilization.min()), 4), scaled=int(lay.scaled.sum()),
-                      seconds=round(lay.seconds, 4))
+            row = Row(
+                distance_m=dist,
+                texels_per_metre=round(rho, 3),
+                packer=name,
+                requests=len(sizes),
+                content_texels=int((lay.w * lay.h).sum()),
+                pages=lay.n_pages,
+                page_texels=int(area.sum()),
+                utilization=round(lay.total_utilization, 4),
+                min_page_utilization=round(float(lay.utilization.min()), 4),
+                scaled=int(lay.scaled.sum()),
+                seconds=round(lay.seconds, 4),
+            )
             if draw:
                 row.draw_seconds, row.page_bytes = _draw(metres, owner, sizes, page_size, packer, padding, fmt, seed)
             rows.append(row)
     return rows
 
 
-def _draw(metres: np.ndarray, owner: np.ndarray, sizes: np.ndarray, page_size: int, packer: str, padding: int,
-          fmt: str, seed: int) -> tuple[float, int]:
+def _draw(
+    metres: np.ndarray,
+    owner: np.ndarray,
+    sizes: np.ndarray,
+    page_size: int,
+    packer: str,
+    padding: int,
+    fmt: str,
+    seed: int,
+) -> tuple[float, int]:
     from etl.textures import procedural as T
 
     rng = np.random.default_rng(seed + 1)
@@ -86,6 +120,7 @@ def _draw(metres: np.ndarray, owner: np.ndarray, sizes: np.ndarray, page_size: i
     wall_mat = rng.choice(T.WALL_MATERIALS, n)
     roof_mat = rng.choice(T.ROOF_MATERIALS, n)
     t0 = time.perf_counter()
+
     def wall(wm: float, hm: float, b: int) -> Callable[[int, int], np.ndarray]:
         return lambda w, h: T.facade_texture(None, wall_mat[b], hm / 3.0, wm, hm, size=(w, h), seed=b)
 
@@ -104,8 +139,13 @@ def _draw(metres: np.ndarray, owner: np.ndarray, sizes: np.ndarray, page_size: i
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--buildings", type=int, default=200, help="buildings in the tile (default 200)")
-    ap.add_argument("--distances", type=float, nargs="+", default=[100.0, 200.0, 400.0, 800.0, 1600.0],
-                    help="view distances in metres, one tile level each")
+    ap.add_argument(
+        "--distances",
+        type=float,
+        nargs="+",
+        default=[100.0, 200.0, 400.0, 800.0, 1600.0],
+        help="view distances in metres, one tile level each",
+    )
     ap.add_argument("--page-size", type=int, default=A.PAGE_SIZE)
     ap.add_argument("--padding", type=int, default=2)
     ap.add_argument("--fov", type=float, default=60.0, help="vertical field of view in degrees")
@@ -116,18 +156,34 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--format", default="webp", help="page format for --draw (webp, png, jpeg)")
     ap.add_argument("--json", help="write the rows to this file as JSON")
     args = ap.parse_args(argv)
-    rows = run(args.buildings, args.distances, args.page_size, args.padding, args.seed, args.fov, args.screen,
-               args.brute_force, args.draw, args.format)
-    head = f"{'dist m':>7} {'tex/m':>6} {'packer':<13} {'charts':>6} {'pages':>5} {'util':>6} {'worst':>6} " \
-           f"{'scaled':>6} {'layout s':>9}"
+    rows = run(
+        args.buildings,
+        args.distances,
+        args.page_size,
+        args.padding,
+        args.seed,
+        args.fov,
+        args.screen,
+        args.brute_force,
+        args.draw,
+        args.format,
+    )
+    head = (
+        f"{'dist m':>7} {'tex/m':>6} {'packer':<13} {'charts':>6} {'pages':>5} {'util':>6} {'worst':>6} "
+        f"{'scaled':>6} {'layout s':>9}"
+    )
     if args.draw:
         head += f" {'draw s':>7} {'bytes':>9}"
-    print(f"{args.buildings} buildings, page {args.page_size}, padding {args.padding}, fov {args.fov:g}°, "
-          f"{args.screen} px")
+    print(
+        f"{args.buildings} buildings, page {args.page_size}, padding {args.padding}, fov {args.fov:g}°, "
+        f"{args.screen} px"
+    )
     print(head)
     for r in rows:
-        line = f"{r.distance_m:7.0f} {r.texels_per_metre:6.2f} {r.packer:<13} {r.requests:6d} {r.pages:5d} " \
-               f"{r.utilization:6.1%} {r.min_page_utilization:6.1%} {r.scaled:6d} {r.seconds:9.3f}"
+        line = (
+            f"{r.distance_m:7.0f} {r.texels_per_metre:6.2f} {r.packer:<13} {r.requests:6d} {r.pages:5d} "
+            f"{r.utilization:6.1%} {r.min_page_utilization:6.1%} {r.scaled:6d} {r.seconds:9.3f}"
+        )
         if args.draw:
             line += f" {r.draw_seconds:7.2f} {r.page_bytes:9d}"
         print(line)

@@ -73,8 +73,15 @@ DEFAULT_EXTRACTS = (
 BENCH_DB = "citylod_bench"
 STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export")
 # Which pipeline_run count is "the buildings this stage handled".
-BUILDINGS_KEY = {"ingest": "in", "lod": "in", "landmarks": "buildings", "tiles": "features", "generalize": "buildings",
-                 "textures": "buildings", "export": "buildings"}
+BUILDINGS_KEY = {
+    "ingest": "in",
+    "lod": "in",
+    "landmarks": "buildings",
+    "tiles": "features",
+    "generalize": "buildings",
+    "textures": "buildings",
+    "export": "buildings",
+}
 SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
 # serve --db before and after exporter/serve.py (http.server, a hand-written pool) became exporter/serve/
 # (Starlette on uvicorn, psycopg_pool), issue 16. make bench measures only the code it runs, so both are recorded
@@ -83,16 +90,50 @@ SERVER_TARGET = 1000.0  # warm tiles/s with 64 clients (issue 4)
 # same client; medians of 5 runs each, on 2026-11-25 while other test suites loaded the machine (load 4-32).
 SERVER_SPLIT = {
     "runs": 5,
-    "before": {"commit": "40af573", "stack": "http.server, hand-written pool",
-               "cold": {"requests": 133, "tiles_per_s": 6.8, "p50_ms": 8689.8, "p99_ms": 12551.3,
-                        "max_ms": 13741.0, "bytes": 113132583, "errors": 0},
-               "warm": {"requests": 42880, "tiles_per_s": 1485.0, "p50_ms": 29.8, "p99_ms": 221.5,
-                        "max_ms": 816.9, "bytes": 36210195840, "errors": 0}},
-    "after": {"commit": "775e741", "stack": "Starlette on uvicorn, psycopg_pool",
-              "cold": {"requests": 133, "tiles_per_s": 7.1, "p50_ms": 8453.0, "p99_ms": 10250.7,
-                       "max_ms": 11459.2, "bytes": 113132583, "errors": 0},
-              "warm": {"requests": 42880, "tiles_per_s": 1716.1, "p50_ms": 35.7, "p99_ms": 99.6,
-                       "max_ms": 1126.8, "bytes": 36210195840, "errors": 0}},
+    "before": {
+        "commit": "40af573",
+        "stack": "http.server, hand-written pool",
+        "cold": {
+            "requests": 133,
+            "tiles_per_s": 6.8,
+            "p50_ms": 8689.8,
+            "p99_ms": 12551.3,
+            "max_ms": 13741.0,
+            "bytes": 113132583,
+            "errors": 0,
+        },
+        "warm": {
+            "requests": 42880,
+            "tiles_per_s": 1485.0,
+            "p50_ms": 29.8,
+            "p99_ms": 221.5,
+            "max_ms": 816.9,
+            "bytes": 36210195840,
+            "errors": 0,
+        },
+    },
+    "after": {
+        "commit": "775e741",
+        "stack": "Starlette on uvicorn, psycopg_pool",
+        "cold": {
+            "requests": 133,
+            "tiles_per_s": 7.1,
+            "p50_ms": 8453.0,
+            "p99_ms": 10250.7,
+            "max_ms": 11459.2,
+            "bytes": 113132583,
+            "errors": 0,
+        },
+        "warm": {
+            "requests": 42880,
+            "tiles_per_s": 1716.1,
+            "p50_ms": 35.7,
+            "p99_ms": 99.6,
+            "max_ms": 1126.8,
+            "bytes": 36210195840,
+            "errors": 0,
+        },
+    },
 }
 # Counts that legitimately differ between repeats of the same input (at any depth: textures has them per band).
 VOLATILE_COUNTS = frozenset({"seconds", "directory", "seconds_by_step", "buildings_per_s"})
@@ -117,8 +158,13 @@ def measure_server(url: str, logfile: Path) -> dict[str, Any]:
     GIL nor inflate its memory, which every later child would inherit in its peak RSS."""
     logfile.parent.mkdir(parents=True, exist_ok=True)
     with logfile.open("wb") as err:
-        out = subprocess.run([sys.executable, "-m", "benchmarks.serve_bench", "--database-url", url], cwd=REPO,
-                             stdout=subprocess.PIPE, stderr=err, check=True).stdout
+        out = subprocess.run(
+            [sys.executable, "-m", "benchmarks.serve_bench", "--database-url", url],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=err,
+            check=True,
+        ).stdout
     return json.loads(out)
 
 
@@ -166,6 +212,7 @@ class ExtractResult:
     def drift(self) -> list[str]:
         """Stages whose counts changed between repeats: the pipeline code (or its input) changed while the
         benchmark ran, so the runs did not measure the same work."""
+
         def stable(c: Any) -> Any:
             if isinstance(c, dict):
                 return {k: stable(v) for k, v in c.items() if k not in VOLATILE_COUNTS}
@@ -180,8 +227,9 @@ class ExtractResult:
         return statistics.median(s.seconds for s in self.o2p)
 
 
-def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, stream: bool = True,
-                  fidelity: bool = True) -> ExtractResult:
+def bench_extract(
+    path: Path, repeat: int, admin_url: str, server: bool = True, stream: bool = True, fidelity: bool = True
+) -> ExtractResult:
     res = ExtractResult(path=path)
     url = cluster.database_url(BENCH_DB)
     o2p_url = cluster.database_url(O2P_DB)
@@ -206,8 +254,10 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, 
             seconds, rss = run_child(cmd, env, logs / f"{stage}-{r}.log")
             counts, stage_s = last_run(url, stage)
             res.stages[stage].append(Sample(seconds, rss, counts, stage_s))
-            log(f"{res.name} #{r} {stage:<6} {seconds:7.2f} s  {rss:6.0f} MiB  "
-                f"{int(counts.get(BUILDINGS_KEY[stage], 0)):,} buildings")
+            log(
+                f"{res.name} #{r} {stage:<6} {seconds:7.2f} s  {rss:6.0f} MiB  "
+                f"{int(counts.get(BUILDINGS_KEY[stage], 0)):,} buildings"
+            )
         # osm2pgsql interleaved with citylod, so a noisy neighbour on the shared machine hits both alike.
         seconds, rss = run_child(o2p_cmd, o2p_env, logs / f"osm2pgsql-{r}.log")
         res.o2p.append(Sample(seconds, rss))
@@ -218,11 +268,15 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, 
     res.o2p_rows = {k: int(n) for k, n in rows}
 
     res.views = view_bench.triangles_per_view(url)
-    log(f"{res.name} triangles per view: overview {res.views['overview']['triangles']:,} vs all LOD3 "
-        f"{res.views['all_lod3']['triangles']:,} ({res.views['overview_reduction']}x fewer)")
+    log(
+        f"{res.name} triangles per view: overview {res.views['overview']['triangles']:,} vs all LOD3 "
+        f"{res.views['all_lod3']['triangles']:,} ({res.views['overview_reduction']}x fewer)"
+    )
     res.textures = report_textures.measure(url)
-    log(f"{res.name} textures: utilization {res.textures['totals']['utilization']}, overview "
-        f"{res.textures['views']['overview']['draw_call_ratio']}x fewer draw calls than one texture per building")
+    log(
+        f"{res.name} textures: utilization {res.textures['totals']['utilization']}, overview "
+        f"{res.textures['views']['overview']['draw_call_ratio']}x fewer draw calls than one texture per building"
+    )
     if stream:
         # the database this run built, exported again per stream (interleaved, `repeat` times)
         try:
@@ -240,8 +294,10 @@ def bench_extract(path: Path, repeat: int, admin_url: str, server: bool = True, 
     if server and res.name == HEADLINE:
         res.server = measure_server(url, logs / "serve_bench.log")
         w, c = res.server["warm"], res.server["cold"]
-        log(f"{res.name} serve --db, 64 clients: warm {w['tiles_per_s']:,.0f} tiles/s p99 {w['p99_ms']} ms, "
-            f"cold {c['tiles_per_s']:,.0f} tiles/s p99 {c['p99_ms']} ms")
+        log(
+            f"{res.name} serve --db, 64 clients: warm {w['tiles_per_s']:,.0f} tiles/s p99 {w['p99_ms']} ms, "
+            f"cold {c['tiles_per_s']:,.0f} tiles/s p99 {c['p99_ms']} ms"
+        )
     if drift := res.drift():
         log(f"WARNING {res.name}: counts of {', '.join(drift)} changed between repeats (code edited?)")
     return res
@@ -340,12 +396,15 @@ def _headline(r: ExtractResult) -> str:
         f"citylod ingest takes {r.median_s('ingest') / r.o2p_median():.1f}× as long as osm2pgsql."
     )
     if r.views:
-        text += (f" An overview camera draws {r.views['overview']['triangles']:,} triangles, "
-                 f"{r.views['overview_reduction']:.1f}× fewer than all buildings at LOD3.")
+        text += (
+            f" An overview camera draws {r.views['overview']['triangles']:,} triangles, "
+            f"{r.views['overview_reduction']:.1f}× fewer than all buildings at LOD3."
+        )
     if r.server:
         w = r.server["warm"]
-        text += (f" serve --db: {w['tiles_per_s']:,.0f} warm tiles/s, p99 {w['p99_ms']:.0f} ms with "
-                 f"{w['clients']} clients.")
+        text += (
+            f" serve --db: {w['tiles_per_s']:,.0f} warm tiles/s, p99 {w['p99_ms']:.0f} ms with {w['clients']} clients."
+        )
     return text
 
 
@@ -354,26 +413,56 @@ def _generalize_section(results: list[ExtractResult], head: ExtractResult | None
     for r in results:
         gc = r.counts("generalize")
         st = gc.get("seconds_by_step", {})
-        rows.append([r.name, f"{r.buildings('generalize'):,}", f"{r.median_s('generalize'):.2f}",
-                     _rate(r.buildings("generalize"), r.median_s("generalize")),
-                     " / ".join(f"{st.get(k, 0):.2f}" for k in ("footprints", "decimation", "blocks", "hierarchy")),
-                     f"{int(gc.get('blocks', {}).get('blocks', 0)):,}",
-                     f"{int(gc.get('decimation', {}).get('decimated', 0)):,}"])
-    header = ["extract", "buildings", f"seconds (median of {len(results[0].stages['generalize'])})",
-              "buildings/s", "s in footprints / decimation / blocks / hierarchy (last run)", "blocks",
-              "LOD2 meshes decimated"]
+        rows.append(
+            [
+                r.name,
+                f"{r.buildings('generalize'):,}",
+                f"{r.median_s('generalize'):.2f}",
+                _rate(r.buildings("generalize"), r.median_s("generalize")),
+                " / ".join(f"{st.get(k, 0):.2f}" for k in ("footprints", "decimation", "blocks", "hierarchy")),
+                f"{int(gc.get('blocks', {}).get('blocks', 0)):,}",
+                f"{int(gc.get('decimation', {}).get('decimated', 0)):,}",
+            ]
+        )
+    header = [
+        "extract",
+        "buildings",
+        f"seconds (median of {len(results[0].stages['generalize'])})",
+        "buildings/s",
+        "s in footprints / decimation / blocks / hierarchy (last run)",
+        "blocks",
+        "LOD2 meshes decimated",
+    ]
     out = ["### generalize by step", "", GEN_NOTE, "", *markdown_table(header, rows, "lrrrrrr"), ""]
     if head is not None:
         bands = head.counts("generalize").get("bands", [])
-        names = {0: "blocks 10 m", 1: "blocks 5 m", 2: "LOD1, footprints 2.5 m", 3: "LOD2, decimated ≤ 1.25 m",
-                 4: "LOD3 (leaves)"}
+        names = {
+            0: "blocks 10 m",
+            1: "blocks 5 m",
+            2: "LOD1, footprints 2.5 m",
+            3: "LOD2, decimated ≤ 1.25 m",
+            4: "LOD3 (leaves)",
+        }
         names.update({b["gen_level"]: f"blocks {10 * 2 ** -b['gen_level']:g} m" for b in bands if b["gen_level"] < 0})
-        rows = [[f"{b['gen_level']} ({names.get(b['gen_level'], '?')})", f"{b['tiles']:,}", f"{b['features']:,}",
-                 f"{b['triangles']:,}", f"{b['max_geometric_error_m']:.2f}"] for b in bands]
-        out += [f"### generalize bands ({head.name})", "",
-                "Per generalization band (gen_level) of the tile hierarchy: tiles, the features and triangles "
-                "of their content, and the largest measured geometric error (m) of a tile in the band.", "",
-                *markdown_table(["band", "tiles", "features", "triangles", "max geometric error m"], rows, "lrrrr"), ""]
+        rows = [
+            [
+                f"{b['gen_level']} ({names.get(b['gen_level'], '?')})",
+                f"{b['tiles']:,}",
+                f"{b['features']:,}",
+                f"{b['triangles']:,}",
+                f"{b['max_geometric_error_m']:.2f}",
+            ]
+            for b in bands
+        ]
+        out += [
+            f"### generalize bands ({head.name})",
+            "",
+            "Per generalization band (gen_level) of the tile hierarchy: tiles, the features and triangles "
+            "of their content, and the largest measured geometric error (m) of a tile in the band.",
+            "",
+            *markdown_table(["band", "tiles", "features", "triangles", "max geometric error m"], rows, "lrrrr"),
+            "",
+        ]
     return out
 
 
@@ -384,12 +473,18 @@ def _views_section(results: list[ExtractResult]) -> list[str]:
         if not v:
             continue
         o, st = v["overview"], v["street"]
-        rows.append([r.name, f"{v['all_lod3']['triangles']:,}",
-                     f"{o['triangles']:,} ({o['features']:,} features, {o['tiles']} tiles, "
-                     f"{o['camera']['height'] / 1000:.1f} km up)",
-                     f"{v['overview_reduction']:.1f}×" + (f" {pass_mark(v['pass'])}" if r.name == HEADLINE else ""),
-                     f"{st['triangles']:,} ({st['features']:,} features, LOD "
-                     + "/".join(str(k) for k in sorted(st["by_lod"])) + ")"])
+        rows.append(
+            [
+                r.name,
+                f"{v['all_lod3']['triangles']:,}",
+                f"{o['triangles']:,} ({o['features']:,} features, {o['tiles']} tiles, "
+                f"{o['camera']['height'] / 1000:.1f} km up)",
+                f"{v['overview_reduction']:.1f}×" + (f" {pass_mark(v['pass'])}" if r.name == HEADLINE else ""),
+                f"{st['triangles']:,} ({st['features']:,} features, LOD "
+                + "/".join(str(k) for k in sorted(st["by_lod"]))
+                + ")",
+            ]
+        )
     if not rows:
         return []
     header = ["extract", "all buildings at LOD3", "overview camera", "fewer (target ≥ 5×)", "street camera"]
@@ -407,16 +502,32 @@ def _textures_section(results: list[ExtractResult], head: ExtractResult | None) 
         util, ratio = f"{100 * (tt['utilization'] or 0):.1f} %", f"({over['draw_call_ratio']}×)"
         if r.name == HEADLINE:
             util, ratio = f"{util} {pass_mark(t['utilization_pass'])}", f"{ratio} {pass_mark(t['draw_call_pass'])}"
-        rows.append([r.name, f"{tt['textured_tiles']}", f"{tt['pages']:,}", f"{tt['bytes'] / 1e6:.1f}", util,
-                     f"{tt['draw_calls_per_tile']:.1f}",
-                     f"{near['atlas']['draw_calls']:,} vs {near['per_building']['draw_calls']:,}",
-                     f"{over['atlas']['draw_calls']:,} vs {over['per_building']['draw_calls']:,} {ratio}",
-                     " / ".join(f"{100 * (pk[p]['utilization'] or 0):.1f} %" for p in ("shelf", "xatlas"))])
+        rows.append(
+            [
+                r.name,
+                f"{tt['textured_tiles']}",
+                f"{tt['pages']:,}",
+                f"{tt['bytes'] / 1e6:.1f}",
+                util,
+                f"{tt['draw_calls_per_tile']:.1f}",
+                f"{near['atlas']['draw_calls']:,} vs {near['per_building']['draw_calls']:,}",
+                f"{over['atlas']['draw_calls']:,} vs {over['per_building']['draw_calls']:,} {ratio}",
+                " / ".join(f"{100 * (pk[p]['utilization'] or 0):.1f} %" for p in ("shelf", "xatlas")),
+            ]
+        )
     if not rows:
         return []
-    header = ["extract", "textured tiles", "pages", "MB", "utilization (target ≥ 80 %)", "draw calls/tile",
-              "near: draw calls atlases vs one texture per building", "overview (target ≥ 10× fewer)",
-              "shelf / xatlas utilization (largest tiles)"]
+    header = [
+        "extract",
+        "textured tiles",
+        "pages",
+        "MB",
+        "utilization (target ≥ 80 %)",
+        "draw calls/tile",
+        "near: draw calls atlases vs one texture per building",
+        "overview (target ≥ 10× fewer)",
+        "shelf / xatlas utilization (largest tiles)",
+    ]
     out = ["", "## Textures", "", TEXTURES_NOTE, "", *markdown_table(header, rows, "lrrrrrrrr")]
     if head is not None and head.textures:
         out += ["", f"Per band, per view and per packer on {head.name}:", ""]
@@ -434,29 +545,49 @@ def _server_section(results: list[ExtractResult]) -> list[str]:
         return f"{x:,.1f}" if x < 100 else f"{x:,.0f}"
 
     def row(cache: str, server: str, m: dict[str, Any]) -> list[str]:
-        return [cache, server, f"{m['requests']:,}", rate(m), f"{m['p50_ms']:.1f}", f"{m['p99_ms']:.1f}",
-                f"{m['max_ms']:.1f}", f"{m['bytes'] / 1e6:.1f}", str(m["errors"])]
+        return [
+            cache,
+            server,
+            f"{m['requests']:,}",
+            rate(m),
+            f"{m['p50_ms']:.1f}",
+            f"{m['p99_ms']:.1f}",
+            f"{m['max_ms']:.1f}",
+            f"{m['bytes'] / 1e6:.1f}",
+            str(m["errors"]),
+        ]
 
     rows = [row(key, "this run", r.server[key]) for key in ("cold", "warm")]
     for side in ("before", "after"):
         rec = SERVER_SPLIT[side]
-        rows += [row(key, f"{rec['commit']} {rec['stack']} (recorded, {side} the split)", rec[key])
-                 for key in ("cold", "warm")]
+        rows += [
+            row(key, f"{rec['commit']} {rec['stack']} (recorded, {side} the split)", rec[key])
+            for key in ("cold", "warm")
+        ]
     bw, aw = SERVER_SPLIT["before"]["warm"], SERVER_SPLIT["after"]["warm"]
     bc, ac = SERVER_SPLIT["before"]["cold"], SERVER_SPLIT["after"]["cold"]
     warm = r.server["warm"]["tiles_per_s"]
-    return ["", f"## Server ({r.name}, {r.server['tiles']} tiles)", "",
-            SERVER_NOTE.format(rounds=5, target=SERVER_TARGET), "",
-            *markdown_table(["cache", "server", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent",
-                             "errors"], rows, "llrrrrrrr"), "",
-            f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: "
-            f"{pass_mark(warm >= SERVER_TARGET)}.", "",
-            "Before and after the server moved from http.server to Starlette on uvicorn (exporter/serve/, issue "
-            f"16): the recorded rows, medians of {SERVER_SPLIT['runs']} alternating runs each of "
-            "`python -m benchmarks.serve_bench --database-url URL` from a checkout of each commit on the same "
-            "database (a busy machine: compare them with each other, not with this run): "
-            f"warm {rate(bw)} → {rate(aw)} tiles/s, p99 {bw['p99_ms']:.0f} → {aw['p99_ms']:.0f} ms; "
-            f"cold {rate(bc)} → {rate(ac)} tiles/s."]
+    return [
+        "",
+        f"## Server ({r.name}, {r.server['tiles']} tiles)",
+        "",
+        SERVER_NOTE.format(rounds=5, target=SERVER_TARGET),
+        "",
+        *markdown_table(
+            ["cache", "server", "requests", "tiles/s", "p50 ms", "p99 ms", "max ms", "MB sent", "errors"],
+            rows,
+            "llrrrrrrr",
+        ),
+        "",
+        f"Warm: {warm:,.0f} tiles/s against the target of {SERVER_TARGET:,.0f}: {pass_mark(warm >= SERVER_TARGET)}.",
+        "",
+        "Before and after the server moved from http.server to Starlette on uvicorn (exporter/serve/, issue "
+        f"16): the recorded rows, medians of {SERVER_SPLIT['runs']} alternating runs each of "
+        "`python -m benchmarks.serve_bench --database-url URL` from a checkout of each commit on the same "
+        "database (a busy machine: compare them with each other, not with this run): "
+        f"warm {rate(bw)} → {rate(aw)} tiles/s, p99 {bw['p99_ms']:.0f} → {aw['p99_ms']:.0f} ms; "
+        f"cold {rate(bc)} → {rate(ac)} tiles/s.",
+    ]
 
 
 def _num(x: float | None) -> str:
@@ -477,16 +608,43 @@ def _scale_section(scale: dict[str, Any] | None) -> list[str]:
         def ms(x: float, cap: float = cap) -> str:
             return f"≥ {cap:,.0f}" if x >= cap else f"{x:,.1f}"
 
-        rows.append([label, f"{m['buildings']:,}", f"{m['tiles']:,}", ms(m["p50_ms"]), ms(m["p95_ms"]),
-                     ms(m["max_ms"]), _num(m.get("mean_features")), _num(m.get("max_features")),
-                     f"{m.get('timeouts', 0)}", pass_mark(m["pass"]) if key == "1m" else "–"])
+        rows.append(
+            [
+                label,
+                f"{m['buildings']:,}",
+                f"{m['tiles']:,}",
+                ms(m["p50_ms"]),
+                ms(m["p95_ms"]),
+                ms(m["max_ms"]),
+                _num(m.get("mean_features")),
+                _num(m.get("max_features")),
+                f"{m.get('timeouts', 0)}",
+                pass_mark(m["pass"]) if key == "1m" else "–",
+            ]
+        )
     if first is None:
         return []
-    header = ["database", "buildings (features)", "tiles", "p50 ms", "p95 ms", "max ms",
-              "mean features/view (completed calls)", "max features/view", "calls over the time limit",
-              "p95 ≤ 10 ms"]
-    out = ["", "## api.lod_for_view latency at scale", "", SCALE_NOTE.format(n=first["cameras"], seed=first["seed"]),
-           "", *markdown_table(header, rows, "lrrrrrrrrl"), ""]
+    header = [
+        "database",
+        "buildings (features)",
+        "tiles",
+        "p50 ms",
+        "p95 ms",
+        "max ms",
+        "mean features/view (completed calls)",
+        "max features/view",
+        "calls over the time limit",
+        "p95 ≤ 10 ms",
+    ]
+    out = [
+        "",
+        "## api.lod_for_view latency at scale",
+        "",
+        SCALE_NOTE.format(n=first["cameras"], seed=first["seed"]),
+        "",
+        *markdown_table(header, rows, "lrrrrrrrrl"),
+        "",
+    ]
     for key, label in (("100k", "~100k"), ("1m", "~1M")):
         m = scale.get(key)
         if not m:
@@ -498,31 +656,71 @@ def _scale_section(scale: dict[str, Any] | None) -> list[str]:
             f"execution {p95['execution_ms']:.1f} ms; of the slowest ({c['height']:.0f} m, pitch "
             f"{c['pitch']:.0f}°, {_num(sl['features'] if sl['features'] is not None else sl.get('rows'))} features): "
             f"planning {sl['planning_ms']:.1f} ms, execution "
-            f"{sl['execution_ms']:.1f} ms.")
-    sizes = [(label, scale[key]["tileset"]) for key, label in (("100k", "~100k"), ("1m", "~1M"))
-             if scale.get(key) and "tileset" in scale[key]]
+            f"{sl['execution_ms']:.1f} ms."
+        )
+    sizes = [
+        (label, scale[key]["tileset"])
+        for key, label in (("100k", "~100k"), ("1m", "~1M"))
+        if scale.get(key) and "tileset" in scale[key]
+    ]
     if sizes:
-        out += ["", "tileset.json of each database's tile tree (benchmarks/tileset_size.py: the bytes the export "
-                "writes, from the tile records alone). Target (issue 17): implicit ≤ 100 kB at ~1M.", "",
-                *markdown_table(
-                    ["database", "tiles", "levels", "implicit tileset.json", "explicit tileset.json",
-                     "subtrees (files, bytes)", "≤ 100 kB"],
-                    [[label, f"{t['tiles']:,}", f"{t['levels']}", f"{t['implicit_tileset_json_bytes']:,} B",
-                      f"{t['explicit_tileset_json_bytes']:,} B", f"{t['subtrees']}, {t['subtree_bytes']:,} B",
-                      pass_mark(t["implicit_tileset_json_bytes"] <= 100_000) if label == "~1M" else "–"]
-                     for label, t in sizes], "lrrrrrl"), ""]
+        out += [
+            "",
+            "tileset.json of each database's tile tree (benchmarks/tileset_size.py: the bytes the export "
+            "writes, from the tile records alone). Target (issue 17): implicit ≤ 100 kB at ~1M.",
+            "",
+            *markdown_table(
+                [
+                    "database",
+                    "tiles",
+                    "levels",
+                    "implicit tileset.json",
+                    "explicit tileset.json",
+                    "subtrees (files, bytes)",
+                    "≤ 100 kB",
+                ],
+                [
+                    [
+                        label,
+                        f"{t['tiles']:,}",
+                        f"{t['levels']}",
+                        f"{t['implicit_tileset_json_bytes']:,} B",
+                        f"{t['explicit_tileset_json_bytes']:,} B",
+                        f"{t['subtrees']}, {t['subtree_bytes']:,} B",
+                        pass_mark(t["implicit_tileset_json_bytes"] <= 100_000) if label == "~1M" else "–",
+                    ]
+                    for label, t in sizes
+                ],
+                "lrrrrrl",
+            ),
+            "",
+        ]
     if "build_s" in scale:
-        out.append(f"* Databases built or reused in {scale['build_s']:.0f} s this run (cached between runs by a "
-                   "marker of their inputs and code).")
+        out.append(
+            f"* Databases built or reused in {scale['build_s']:.0f} s this run (cached between runs by a "
+            "marker of their inputs and code)."
+        )
     return out
 
 
-def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, command: str,
-           scale: dict[str, Any] | None = None, scale_stages: dict[str, Any] | None = None) -> str:
+def render(
+    results: list[ExtractResult],
+    mach: dict[str, str],
+    repeat: int,
+    command: str,
+    scale: dict[str, Any] | None = None,
+    scale_stages: dict[str, Any] | None = None,
+) -> str:
     n = f"{repeat} run" + ("s" if repeat != 1 else "")
     lines = [
-        "# citylod benchmarks", "",
-        "Generated by `make bench`, i.e.", "", "```bash", command, "```", "",
+        "# citylod benchmarks",
+        "",
+        "Generated by `make bench`, i.e.",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
         "Regenerated in full on every run; do not edit by hand. benchmarks/README.md explains the figures.",
         "",
     ]
@@ -536,58 +734,98 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
         rows = []
         for r in results:
             inner = r.median_stage_s(stage)
-            rows.append([
-                r.name, f"{r.buildings(stage):,}", f"{r.median_s(stage):.2f}",
-                f"{inner:.2f}" if inner is not None else "–",
-                _rate(r.buildings(stage), r.median_s(stage)), f"{r.peak_rss(stage):.0f}",
-            ])
-        header = ["extract", "buildings", f"seconds (median of {repeat})", "in-stage s", "buildings/s",
-                  "peak RSS MiB"]
+            rows.append(
+                [
+                    r.name,
+                    f"{r.buildings(stage):,}",
+                    f"{r.median_s(stage):.2f}",
+                    f"{inner:.2f}" if inner is not None else "–",
+                    _rate(r.buildings(stage), r.median_s(stage)),
+                    f"{r.peak_rss(stage):.0f}",
+                ]
+            )
+        header = ["extract", "buildings", f"seconds (median of {repeat})", "in-stage s", "buildings/s", "peak RSS MiB"]
         lines += [f"### {stage}", "", *markdown_table(header, rows, "lrrrrr"), ""]
 
     rows = []
     for r in results:
         lc = r.counts("lod")
         steps = lc.get("seconds_by_step", {})
-        rows.append([
-            r.name, f"{r.buildings('lod'):,}", f"{int(lc.get('pitched_roofs', 0)):,}",
-            f"{lc.get('lod2_closed_pct', 0)}%",
-            " / ".join(f"{lc.get(f'triangles_per_building_lod{k}', 0)}" for k in (1, 2, 3)),
-            " / ".join(f"{steps.get(k, 0):.2f}" for k in ("lod1", "lod2", "lod3", "encode", "copy")),
-            _rate(r.buildings("lod"), r.median_s("lod")),
-        ])
-    header = ["extract", "buildings", "pitched roofs", "LOD2 closed", "triangles/building LOD1 / 2 / 3",
-              "s in LOD1 / LOD2 / LOD3 / encode / COPY (last run)", "LOD1+2+3 buildings/s"]
-    lines += ["### lod by level of detail", "",
-              "The lod stage builds all three LODs in one pass; the split is its own timing of each step (COPY "
-              "runs in a second thread, overlapping the others). LOD3 openings: "
-              f"{Settings.from_env().lod3_openings} (settings.lod3_openings).", "",
-              *markdown_table(header, rows, "lrrrrrr"), ""]
+        rows.append(
+            [
+                r.name,
+                f"{r.buildings('lod'):,}",
+                f"{int(lc.get('pitched_roofs', 0)):,}",
+                f"{lc.get('lod2_closed_pct', 0)}%",
+                " / ".join(f"{lc.get(f'triangles_per_building_lod{k}', 0)}" for k in (1, 2, 3)),
+                " / ".join(f"{steps.get(k, 0):.2f}" for k in ("lod1", "lod2", "lod3", "encode", "copy")),
+                _rate(r.buildings("lod"), r.median_s("lod")),
+            ]
+        )
+    header = [
+        "extract",
+        "buildings",
+        "pitched roofs",
+        "LOD2 closed",
+        "triangles/building LOD1 / 2 / 3",
+        "s in LOD1 / LOD2 / LOD3 / encode / COPY (last run)",
+        "LOD1+2+3 buildings/s",
+    ]
+    lines += [
+        "### lod by level of detail",
+        "",
+        "The lod stage builds all three LODs in one pass; the split is its own timing of each step (COPY "
+        "runs in a second thread, overlapping the others). LOD3 openings: "
+        f"{Settings.from_env().lod3_openings} (settings.lod3_openings).",
+        "",
+        *markdown_table(header, rows, "lrrrrrr"),
+        "",
+    ]
 
     rows = []
     for r in results:
         slowest = max(STAGES, key=r.median_s)
-        rows.append([r.name, f"{r.buildings('ingest'):,}", f"{r.end_to_end():.2f}",
-                     _rate(r.buildings("ingest"), r.end_to_end()),
-                     f"{slowest} ({r.median_s(slowest) / r.end_to_end():.0%})"])
-    header = ["extract", "buildings (ingest in)", f"seconds (median of {repeat})", "buildings/s",
-              "slowest stage (share)"]
+        rows.append(
+            [
+                r.name,
+                f"{r.buildings('ingest'):,}",
+                f"{r.end_to_end():.2f}",
+                _rate(r.buildings("ingest"), r.end_to_end()),
+                f"{slowest} ({r.median_s(slowest) / r.end_to_end():.0%})",
+            ]
+        )
+    header = [
+        "extract",
+        "buildings (ingest in)",
+        f"seconds (median of {repeat})",
+        "buildings/s",
+        "slowest stage (share)",
+    ]
     lines += _generalize_section(results, head)
     lines += ["### end to end (" + " + ".join(STAGES) + ")", "", *markdown_table(header, rows, "lrrrl")]
 
     rows = []
     for r in results:
         ic = r.counts("ingest")
-        rows.append([
-            r.name, f"{r.o2p_median():.2f}", f"{r.median_s('ingest'):.2f}",
-            f"{r.median_s('ingest') / r.o2p_median():.1f}×",
-            f"{sum(r.o2p_rows.values()):,} "
-            f"({r.o2p_rows.get('building', 0):,} + {r.o2p_rows.get('part', 0):,})",
-            f"{int(ic.get('loaded', 0)):,} ({int(ic.get('buildings', 0)):,} + {int(ic.get('parts', 0)):,}), "
-            f"{int(ic.get('rejected', 0)):,} rejected",
-        ])
-    header = ["extract", "osm2pgsql s", "citylod ingest s", "ratio", "osm2pgsql rows (buildings + parts)",
-              "citylod rows (buildings + parts)"]
+        rows.append(
+            [
+                r.name,
+                f"{r.o2p_median():.2f}",
+                f"{r.median_s('ingest'):.2f}",
+                f"{r.median_s('ingest') / r.o2p_median():.1f}×",
+                f"{sum(r.o2p_rows.values()):,} ({r.o2p_rows.get('building', 0):,} + {r.o2p_rows.get('part', 0):,})",
+                f"{int(ic.get('loaded', 0)):,} ({int(ic.get('buildings', 0)):,} + {int(ic.get('parts', 0)):,}), "
+                f"{int(ic.get('rejected', 0)):,} rejected",
+            ]
+        )
+    header = [
+        "extract",
+        "osm2pgsql s",
+        "citylod ingest s",
+        "ratio",
+        "osm2pgsql rows (buildings + parts)",
+        "citylod rows (buildings + parts)",
+    ]
     lines += ["", "## osm2pgsql side by side", "", O2P_NOTE, "", *markdown_table(header, rows, "lrrrrr")]
 
     rows = []
@@ -595,12 +833,28 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
         ec = r.counts("export")
         feats, tris, size = int(ec.get("features", 0)), int(ec.get("triangles", 0)), int(ec.get("bytes", 0))
         blds = int(ec.get("buildings", feats))
-        rows.append([
-            r.name, f"{blds:,}", f"{feats:,}", f"{int(r.counts('tiles').get('tiles', 0)):,}",
-            f"{int(ec.get('glb', 0)):,}", f"{tris:,}", f"{size / 1e6:.2f}", f"{size / max(blds, 1):,.0f}",
-        ])
-    header = ["extract", "buildings", "features (all bands)", "tiles", "glb", "triangles (all bands)",
-              "tileset MB", "bytes/building"]
+        rows.append(
+            [
+                r.name,
+                f"{blds:,}",
+                f"{feats:,}",
+                f"{int(r.counts('tiles').get('tiles', 0)):,}",
+                f"{int(ec.get('glb', 0)):,}",
+                f"{tris:,}",
+                f"{size / 1e6:.2f}",
+                f"{size / max(blds, 1):,.0f}",
+            ]
+        )
+    header = [
+        "extract",
+        "buildings",
+        "features (all bands)",
+        "tiles",
+        "glb",
+        "triangles (all bands)",
+        "tileset MB",
+        "bytes/building",
+    ]
     lines += ["", "## Output", "", OUTPUT_NOTE, "", *markdown_table(header, rows, "lrrrrrrr")]
     lines += _views_section(results)
     lines += _textures_section(results, head)
@@ -612,10 +866,14 @@ def render(results: list[ExtractResult], mach: dict[str, str], repeat: int, comm
 
     drifted = [f"{r.name} ({', '.join(d)})" for r in results if (d := r.drift())]
     if drifted:
-        lines += ["", "## Warning", "",
-                  "Stage counts changed between repeats for " + "; ".join(drifted) + ". The pipeline code "
-                  "changed while the benchmark ran, so those runs did not all do the same work; the tables "
-                  "use the last run's counts. Rerun `make bench` on a quiet tree."]
+        lines += [
+            "",
+            "## Warning",
+            "",
+            "Stage counts changed between repeats for " + "; ".join(drifted) + ". The pipeline code "
+            "changed while the benchmark ran, so those runs did not all do the same work; the tables "
+            "use the last run's counts. Rerun `make bench` on a quiet tree.",
+        ]
     lines += ["", "## How to read this", ""]
     lines += [line.format(n=n, cores=mach.get("cores", "?")) for line in HOW_TO_READ]
     return "\n".join(lines) + "\n"
@@ -638,28 +896,52 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--files", nargs="+", type=Path, help="OSM extracts (default: ../shared/data/osm + demo)")
     p.add_argument("--keep", action="store_true", help=f"keep {BENCH_DB} and {O2P_DB} afterwards")
     p.add_argument("--no-server", action="store_true", help="skip the serve --db load test")
-    p.add_argument("--no-stream", action="store_true",
-                   help="skip the Stream section (compact vs plain exports, CesiumJS in headless Chromium)")
-    p.add_argument("--no-fidelity", action="store_true",
-                   help="skip the Far view fidelity section (building masks streamed vs full detail in CesiumJS)")
-    p.add_argument("--scale-json", type=Path,
-                   help="take the latency at scale from this output of `python -m benchmarks.view_bench scale` "
-                        "(a run on a quiet machine) instead of measuring it here")
-    p.add_argument("--scale-stages-json", type=Path,
-                   help="take the Scale section (every stage on the extract and its replicas) from this output of "
-                        "`python -m benchmarks.scale_bench --json` (make bench-scale: with the ~1M replica)")
-    p.add_argument("--soak-json", type=Path,
-                   help="take the Soak section from this output of `python -m benchmarks.soak_bench --json` "
-                        "(serve --db under 200 requests/s while the benchmark extract is rebuilt, ~6 min)")
+    p.add_argument(
+        "--no-stream",
+        action="store_true",
+        help="skip the Stream section (compact vs plain exports, CesiumJS in headless Chromium)",
+    )
+    p.add_argument(
+        "--no-fidelity",
+        action="store_true",
+        help="skip the Far view fidelity section (building masks streamed vs full detail in CesiumJS)",
+    )
+    p.add_argument(
+        "--scale-json",
+        type=Path,
+        help="take the latency at scale from this output of `python -m benchmarks.view_bench scale` "
+        "(a run on a quiet machine) instead of measuring it here",
+    )
+    p.add_argument(
+        "--scale-stages-json",
+        type=Path,
+        help="take the Scale section (every stage on the extract and its replicas) from this output of "
+        "`python -m benchmarks.scale_bench --json` (make bench-scale: with the ~1M replica)",
+    )
+    p.add_argument(
+        "--soak-json",
+        type=Path,
+        help="take the Soak section from this output of `python -m benchmarks.soak_bench --json` "
+        "(serve --db under 200 requests/s while the benchmark extract is rebuilt, ~6 min)",
+    )
     p.add_argument("--no-soak", action="store_true", help="skip the Soak section")
-    p.add_argument("--update-json", type=Path,
-                   help="take the Updates section from this output of `python -m benchmarks.update_bench --json` "
-                        "(a 1 %% change file against the full rebuild of the benchmark extract, ~8 min)")
+    p.add_argument(
+        "--update-json",
+        type=Path,
+        help="take the Updates section from this output of `python -m benchmarks.update_bench --json` "
+        "(a 1 %% change file against the full rebuild of the benchmark extract, ~8 min)",
+    )
     p.add_argument("--no-update", action="store_true", help="skip the Updates section")
-    p.add_argument("--no-scale-stages", action="store_true",
-                   help="skip the Scale section (the pipeline on the benchmark extract and its 6x replica, ~10 min)")
-    p.add_argument("--no-scale", action="store_true",
-                   help="skip api.lod_for_view at ~100k/~1M buildings (its cached databases take ~15 min to build)")
+    p.add_argument(
+        "--no-scale-stages",
+        action="store_true",
+        help="skip the Scale section (the pipeline on the benchmark extract and its 6x replica, ~10 min)",
+    )
+    p.add_argument(
+        "--no-scale",
+        action="store_true",
+        help="skip api.lod_for_view at ~100k/~1M buildings (its cached databases take ~15 min to build)",
+    )
     return p
 
 
@@ -684,8 +966,9 @@ def _command(args: argparse.Namespace) -> str:
     return command
 
 
-def _section(given: Path | None, skip: bool, head: Path | None, measure: Callable[[], dict[str, Any]]
-             ) -> dict[str, Any] | None:
+def _section(
+    given: Path | None, skip: bool, head: Path | None, measure: Callable[[], dict[str, Any]]
+) -> dict[str, Any] | None:
     """A section's figures: read from the JSON of a run elsewhere (``given``), measured on the headline extract,
     or none."""
     if given:
@@ -711,12 +994,21 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         for f in files:
-            results.append(bench_extract(f, args.repeat, admin_url, server=not args.no_server,
-                                         stream=not args.no_stream, fidelity=not args.no_fidelity))
+            results.append(
+                bench_extract(
+                    f,
+                    args.repeat,
+                    admin_url,
+                    server=not args.no_server,
+                    stream=not args.no_stream,
+                    fidelity=not args.no_fidelity,
+                )
+            )
         mach = machine(cluster.database_url(BENCH_DB))
         head = next((f for f in files if extract_name(f) == HEADLINE), None)
-        scale_stages = _section(args.scale_stages_json, args.no_scale_stages, head,
-                                lambda: scale_bench.measure(head, [1, 6], admin_url))
+        scale_stages = _section(
+            args.scale_stages_json, args.no_scale_stages, head, lambda: scale_bench.measure(head, [1, 6], admin_url)
+        )
         soak = _section(args.soak_json, args.no_soak, head, lambda: soak_bench.measure(head, admin_url))
         update = _section(args.update_json, args.no_update, head, lambda: update_bench.measure(head, admin_url))
         scale = _section(args.scale_json, args.no_scale, head, lambda: view_bench.scale(admin_url, head))
@@ -738,7 +1030,6 @@ def main(argv: list[str] | None = None) -> int:
         print(report)
     log(f"done in {time.perf_counter() - t0:.0f} s")
     return 0
-
 
 
 if __name__ == "__main__":

@@ -73,8 +73,7 @@ def osm2pgsql_cmd(url: str, path: Path) -> tuple[list[str], dict[str, str]]:
 def last_run(url: str, stage: str) -> tuple[dict[str, Any], float | None]:
     with psycopg.connect(url) as conn:
         row = conn.execute(
-            "SELECT status, counts, duration_s FROM meta.pipeline_run"
-            " WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
+            "SELECT status, counts, duration_s FROM meta.pipeline_run WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
             (stage,),
         ).fetchone()
     if row is None or row[0] != "ok":
@@ -117,8 +116,11 @@ def build_pipeline_db(osm: Path, admin_url: str, name: str, logs_sub: str) -> st
     run_child([sys.executable, "-m", "etl", "migrate"], env, logs / "migrate.log")
     for stage in PIPELINE:
         log(f"{extract_name(osm)}: {stage}")
-        run_child([sys.executable, "-m", "etl", stage, *(["--osm", str(osm)] if stage == "ingest" else [])],
-                  env, logs / f"{stage}.log")
+        run_child(
+            [sys.executable, "-m", "etl", stage, *(["--osm", str(osm)] if stage == "ingest" else [])],
+            env,
+            logs / f"{stage}.log",
+        )
     return url
 
 
@@ -247,10 +249,9 @@ def pass_mark(ok: bool) -> str:
     return "**pass**" if ok else "**FAIL**"
 
 
-
-
-def section_bench(argv: list[str] | None, prog: str, doc: str, default_osm: Path, db: str,
-                  measure: Any, section: Any, heading: str) -> int:
+def section_bench(
+    argv: list[str] | None, prog: str, doc: str, default_osm: Path, db: str, measure: Any, section: Any, heading: str
+) -> int:
     """The command line of a bench that measures one section on one extract in a database of its own (soak_bench,
     update_bench): --osm, --json (the figures), --write (replace the report's section whose heading starts with
     ``heading``), --keep (the database)."""

@@ -124,10 +124,16 @@ def area_ratio(streamed: np.ndarray, full: np.ndarray) -> float | None:
 def compare_masks(streamed_rgb: np.ndarray, full_rgb: np.ndarray) -> dict[str, Any]:
     """IoU, drawn-area ratio, building pixels and grey shares of a camera's two mask pictures."""
     s, f = mask_of(streamed_rgb), mask_of(full_rgb)
-    return {"iou": round(iou(s, f), 4), "area_ratio": None if (r := area_ratio(s, f)) is None else round(r, 4),
-            "pixels": int(s.size), "streamed_px": int(np.count_nonzero(s)), "full_px": int(np.count_nonzero(f)),
-            "missed_px": int(np.count_nonzero(f & ~s)), "extra_px": int(np.count_nonzero(s & ~f)),
-            "grey": {"streamed": grey_share(streamed_rgb), "full": grey_share(full_rgb)}}
+    return {
+        "iou": round(iou(s, f), 4),
+        "area_ratio": None if (r := area_ratio(s, f)) is None else round(r, 4),
+        "pixels": int(s.size),
+        "streamed_px": int(np.count_nonzero(s)),
+        "full_px": int(np.count_nonzero(f)),
+        "missed_px": int(np.count_nonzero(f & ~s)),
+        "extra_px": int(np.count_nonzero(s & ~f)),
+        "grey": {"streamed": grey_share(streamed_rgb), "full": grey_share(full_rgb)},
+    }
 
 
 def side_by_side(streamed_rgb: np.ndarray, full_rgb: np.ndarray, gap: int = 8) -> np.ndarray:
@@ -144,8 +150,9 @@ def side_by_side(streamed_rgb: np.ndarray, full_rgb: np.ndarray, gap: int = 8) -
     return np.concatenate([white[0], sep, white[1], sep, diff], axis=1)
 
 
-def camera_set(overview: Camera, target: tuple[float, float], ground: float,
-               spec: Sequence[tuple[str, float, float]] = CAMERAS) -> list[tuple[str, Camera]]:
+def camera_set(
+    overview: Camera, target: tuple[float, float], ground: float, spec: Sequence[tuple[str, float, float]] = CAMERAS
+) -> list[tuple[str, Camera]]:
     """The cameras of ``spec``, far to near: the first (share 1, straight down) is ``overview`` itself; the others
     are at ``share`` × the overview's height above ``ground`` (m above the ellipsoid) and look north at ``target``
     (lon, lat in degrees): straight down over it, or from the south at ``pitch`` so that it is in the middle of
@@ -159,13 +166,33 @@ def camera_set(overview: Camera, target: tuple[float, float], ground: float,
             continue
         h = share * above
         back = 0.0 if pitch <= -89.999 else h / math.tan(math.radians(-pitch))  # metres south of the target
-        out.append((name, Camera(lon, lat - math.degrees(back / EARTH_R), ground + h, 0.0, pitch, overview.fov,
-                                 overview.viewport_height, overview.aspect)))
+        out.append(
+            (
+                name,
+                Camera(
+                    lon,
+                    lat - math.degrees(back / EARTH_R),
+                    ground + h,
+                    0.0,
+                    pitch,
+                    overview.fov,
+                    overview.viewport_height,
+                    overview.aspect,
+                ),
+            )
+        )
     return out
 
 
-def level_rows(level: np.ndarray, leaf: np.ndarray, members: np.ndarray, vertices: np.ndarray,
-               triangles: np.ndarray, tile_level: np.ndarray, tile_leaf: np.ndarray) -> list[dict[str, Any]]:
+def level_rows(
+    level: np.ndarray,
+    leaf: np.ndarray,
+    members: np.ndarray,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    tile_level: np.ndarray,
+    tile_leaf: np.ndarray,
+) -> list[dict[str, Any]]:
     """The city per level of the tile tree, from one row per feature of every tile's content (its tile's level
     and leaf flag, the buildings it stands for, its vertices and triangles) and one row per tile: at level L the
     tiles of level L and the leaves above it (where the traversal stopping at L draws from). The deepest level is
@@ -178,9 +205,16 @@ def level_rows(level: np.ndarray, leaf: np.ndarray, members: np.ndarray, vertice
     for lv in range(int(tile_level.max()) + 1):
         f = (level == lv) | (leaf & (level < lv))
         t = (tile_level == lv) | (tile_leaf & (tile_level < lv))
-        rows.append({"level": lv, "tiles": int(t.sum()), "features": int(f.sum()),
-                     "members": int(np.asarray(members)[f].sum()), "vertices": int(np.asarray(vertices)[f].sum()),
-                     "triangles": int(np.asarray(triangles)[f].sum())})
+        rows.append(
+            {
+                "level": lv,
+                "tiles": int(t.sum()),
+                "features": int(f.sum()),
+                "members": int(np.asarray(members)[f].sum()),
+                "vertices": int(np.asarray(vertices)[f].sum()),
+                "triangles": int(np.asarray(triangles)[f].sum()),
+            }
+        )
     full = rows[-1]
     for r in rows:
         r["vertex_reduction_pct"] = round(reduction_pct(full["vertices"], r["vertices"]), 2)
@@ -226,8 +260,12 @@ def judge(res: dict[str, Any]) -> dict[str, dict[str, bool | None]]:
 MIN_PRISM_TRIANGLES = 10
 
 
-def budget_bound(areas: np.ndarray, full_triangles: int, share: float = TARGET_OVERVIEW_TRIANGLES,
-                 per_outline: int = MIN_PRISM_TRIANGLES) -> dict[str, Any]:
+def budget_bound(
+    areas: np.ndarray,
+    full_triangles: int,
+    share: float = TARGET_OVERVIEW_TRIANGLES,
+    per_outline: int = MIN_PRISM_TRIANGLES,
+) -> dict[str, Any]:
     """The best footprint IoU any drawing of the city within ``share`` × ``full_triangles`` can reach without
     filling gaps between outlines: ``areas`` are the city's separate outlines (touching buildings unioned), each
     drawn costs at least ``per_outline`` triangles, so at most budget // per_outline of them fit; drawn exactly
@@ -238,9 +276,13 @@ def budget_bound(areas: np.ndarray, full_triangles: int, share: float = TARGET_O
     budget = int(full_triangles * share)
     k = min(len(a), budget // per_outline)
     total = float(a.sum())
-    return {"outlines": int(len(a)), "budget_triangles": budget, "outlines_in_budget": int(k),
-            "min_triangles_all": int(len(a) * per_outline),
-            "iou_bound": round(float(a[:k].sum()) / total, 4) if total > 0 else None}
+    return {
+        "outlines": int(len(a)),
+        "budget_triangles": budget,
+        "outlines_in_budget": int(k),
+        "min_triangles_all": int(len(a) * per_outline),
+        "iou_bound": round(float(a[:k].sum()) / total, 4) if total > 0 else None,
+    }
 
 
 # --- measuring ----------------------------------------------------------------------------------------------
@@ -255,7 +297,8 @@ def cameras_of(url: str) -> list[tuple[str, Camera]]:
         lon, lat = conn.execute(
             "SELECT percentile_disc(0.5) WITHIN GROUP (ORDER BY ST_X(c)),"
             "       percentile_disc(0.5) WITHIN GROUP (ORDER BY ST_Y(c))"
-            " FROM (SELECT ST_Centroid(geom) AS c FROM osm.building WHERE parent_id IS NULL) b").fetchone()  # type: ignore[misc]
+            " FROM (SELECT ST_Centroid(geom) AS c FROM osm.building WHERE parent_id IS NULL) b"
+        ).fetchone()  # type: ignore[misc]
     return camera_set(over, (float(lon), float(lat)), float(lo))
 
 
@@ -287,8 +330,15 @@ def level_figures(url: str) -> list[dict[str, Any]]:
                 cols["leaf"].append(np.array([bool(r[1]) for r in rows]))
                 cols["members"].append(np.array([int(r[2]) for r in rows]))
     cat = {k: np.concatenate(v) if v else np.zeros(0, dtype=np.int64) for k, v in cols.items()}
-    return level_rows(cat["level"], cat["leaf"], cat["members"], cat["vertices"], cat["triangles"],
-                      np.array([t[0] for t in tiles]), np.array([bool(t[1]) for t in tiles]))
+    return level_rows(
+        cat["level"],
+        cat["leaf"],
+        cat["members"],
+        cat["vertices"],
+        cat["triangles"],
+        np.array([t[0] for t in tiles]),
+        np.array([bool(t[1]) for t in tiles]),
+    )
 
 
 _OUTLINES = """
@@ -317,8 +367,9 @@ def outline_bound(url: str) -> dict[str, Any]:
     ``iou_boxes``, the footprint IoU of one drawing within the budget: the largest outlines that fit, each as
     its oriented bounding box (10 triangles)."""
     with psycopg.connect(url) as conn:
-        full = int(conn.execute("SELECT coalesce(sum(n_triangles), 0) FROM lod.building_mesh WHERE lod = 3"
-                                ).fetchone()[0])  # type: ignore[index]
+        full = int(
+            conn.execute("SELECT coalesce(sum(n_triangles), 0) FROM lod.building_mesh WHERE lod = 3").fetchone()[0]
+        )  # type: ignore[index]
         areas = np.array([r[0] for r in conn.execute(_OUTLINES)], dtype=np.float64)
         out = {"full_triangles": full, **budget_bound(areas, full)}
         boxes = conn.execute(_BOXES, {"k": out["outlines_in_budget"]}).fetchone()[0]  # type: ignore[index]
@@ -345,13 +396,13 @@ def compare_views(views: dict[str, dict[str, Any]], out: Path) -> None:
 
 def export(url: str, out: Path, logfile: Path) -> Path:
     """The database exported as make exports it (every band, the default stream) into ``out``."""
-    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], {**os.environ, "DATABASE_URL": url},
-              logfile)
+    run_child([sys.executable, "-m", "etl", "export", "--out", str(out)], {**os.environ, "DATABASE_URL": url}, logfile)
     return out
 
 
-def measure(url: str, name: str, tiles: Path | None = None, client: bool = True,
-            timeout_s: float = 3600.0) -> dict[str, Any]:
+def measure(
+    url: str, name: str, tiles: Path | None = None, client: bool = True, timeout_s: float = 3600.0
+) -> dict[str, Any]:
     """The fidelity figures of one database (see the module docstring), its export at ``tiles`` (exported into
     build/bench/fidelity/<name>/tiles first when None); never raises for a failed part."""
     t0 = time.perf_counter()
@@ -375,8 +426,9 @@ def measure(url: str, name: str, tiles: Path | None = None, client: bool = True,
             masks = root / "masks"
             if masks.exists():
                 shutil.rmtree(masks)
-            c = stream_bench.browse(tiles, res["cameras"], masks, logs / "client.log", timeout_s=timeout_s,
-                                    driver=DRIVER)
+            c = stream_bench.browse(
+                tiles, res["cameras"], masks, logs / "client.log", timeout_s=timeout_s, driver=DRIVER
+            )
             if "error" in c:
                 raise RuntimeError(c["error"])
             res["views"] = c["views"]
@@ -387,8 +439,14 @@ def measure(url: str, name: str, tiles: Path | None = None, client: bool = True,
         for n, v in res["views"].items():
             m = v.get("masks") or {}
             tri = [_pass(v, p).get("trianglesSelected", 0) for p in PASSES]
-            log(f"fidelity {name} {n}: " + (v.get("error") or m.get("error") or
-                f"IoU {m['iou']:.3f}, area {m['area_ratio'] or 0:.3f}, triangles {tri[0]:,} / {tri[1]:,}"))
+            log(
+                f"fidelity {name} {n}: "
+                + (
+                    v.get("error")
+                    or m.get("error")
+                    or f"IoU {m['iou']:.3f}, area {m['area_ratio'] or 0:.3f}, triangles {tri[0]:,} / {tri[1]:,}"
+                )
+            )
     res["seconds"] = round(time.perf_counter() - t0, 1)
     # for make report-generalization, which carries the last run's pictures (report_generalization.FIDELITY_DIR)
     root.mkdir(parents=True, exist_ok=True)
@@ -425,7 +483,8 @@ BOUND_NOTE = (
     "simplified at 3 m are at footprint IoU 0.85, over 20 m and at 5 m at 0.59). *… as oriented boxes*: the "
     "footprint IoU of one such drawing, those outlines as their oriented bounding boxes. On the aggregated "
     "tilesets of branch aggregate18, CesiumJS's IoU ran 0.03–0.04 below the footprint IoU (walls and roofs seen "
-    "at the edges of the view).")
+    "at the edges of the view)."
+)
 LEVELS_NOTE = (
     "The thesis' Table 3.1 per level of the tile tree, beside the fidelity above: the city as drawn if the "
     "traversal stopped at level L, i.e. the content of the tiles of level L and of the leaves above it "
@@ -473,19 +532,47 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]]) -> list[str]:
                 continue
             s, f = _pass(v, "streamed"), _pass(v, "full")
             share = triangle_share(v)
-            rows.append([
-                name, cam, where, f"{m['iou']:.3f}", _mark(ok[cam]["iou"]),
-                "–" if m.get("area_ratio") is None else f"{m['area_ratio']:.3f}",
-                f"{s.get('trianglesSelected', 0):,} / {f.get('trianglesSelected', 0):,}",
-                "–" if share is None else f"1/{1 / share:,.1f}" if share else "0",
-                _mark(ok[cam].get("triangles")) if cam == "overview" else "–",
-                *(f"{p.get('tilesDrawn', 0):,} ({p.get('leavesDrawn', 0):,}) / {p.get('tilesWithContent', 0):,}"
-                  for p in (s, f))])
-    out = ["", "## Far view fidelity", "", NOTE.format(cesium=_cesium_version(), iou=TARGET_IOU,
-                                                      tri=1 / TARGET_OVERVIEW_TRIANGLES), "",
-           *markdown_table(["extract", "camera", "height, pitch", "IoU", f"≥ {TARGET_IOU:.2f}", "area",
-                            "triangles streamed / full", "streamed share", "≤ 1/20 (overview)",
-                            "tiles drawn (leaves) / loaded, streamed", "… full"], rows, "lllrlrrrlrr")]
+            rows.append(
+                [
+                    name,
+                    cam,
+                    where,
+                    f"{m['iou']:.3f}",
+                    _mark(ok[cam]["iou"]),
+                    "–" if m.get("area_ratio") is None else f"{m['area_ratio']:.3f}",
+                    f"{s.get('trianglesSelected', 0):,} / {f.get('trianglesSelected', 0):,}",
+                    "–" if share is None else f"1/{1 / share:,.1f}" if share else "0",
+                    _mark(ok[cam].get("triangles")) if cam == "overview" else "–",
+                    *(
+                        f"{p.get('tilesDrawn', 0):,} ({p.get('leavesDrawn', 0):,}) / {p.get('tilesWithContent', 0):,}"
+                        for p in (s, f)
+                    ),
+                ]
+            )
+    out = [
+        "",
+        "## Far view fidelity",
+        "",
+        NOTE.format(cesium=_cesium_version(), iou=TARGET_IOU, tri=1 / TARGET_OVERVIEW_TRIANGLES),
+        "",
+        *markdown_table(
+            [
+                "extract",
+                "camera",
+                "height, pitch",
+                "IoU",
+                f"≥ {TARGET_IOU:.2f}",
+                "area",
+                "triangles streamed / full",
+                "streamed share",
+                "≤ 1/20 (overview)",
+                "tiles drawn (leaves) / loaded, streamed",
+                "… full",
+            ],
+            rows,
+            "lllrlrrrlrr",
+        ),
+    ]
     misses = [f"{name} {cam}" for name, r in results for cam, ok in judge(r).items() if False in ok.values()]
     if misses:
         out += ["", f"Targets missed: {', '.join(misses)}."]
@@ -494,29 +581,75 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]]) -> list[str]:
         if "levels_error" in r:
             level_rows_out.append([name, _fail(r["levels_error"])] + ["–"] * 6)
         for lv in r.get("levels", []):
-            level_rows_out.append([name, str(lv["level"]), f"{lv['tiles']:,}",
-                                   f"{lv['features']:,} ({lv['members']:,})", f"{lv['vertices']:,}",
-                                   f"{lv['vertex_reduction_pct']:.1f} %", f"{lv['triangles']:,}",
-                                   f"{lv['triangle_reduction_pct']:.1f} %"])
+            level_rows_out.append(
+                [
+                    name,
+                    str(lv["level"]),
+                    f"{lv['tiles']:,}",
+                    f"{lv['features']:,} ({lv['members']:,})",
+                    f"{lv['vertices']:,}",
+                    f"{lv['vertex_reduction_pct']:.1f} %",
+                    f"{lv['triangles']:,}",
+                    f"{lv['triangle_reduction_pct']:.1f} %",
+                ]
+            )
     bound_rows = []
     for name, r in results:
         if "bound_error" in r:
             bound_rows.append([name, _fail(r["bound_error"])] + ["–"] * 4)
         elif b := r.get("bound"):
-            bound_rows.append([name, f"{b['outlines']:,}", f"{b['min_triangles_all']:,}",
-                               f"{b['budget_triangles']:,} ({b['outlines_in_budget']:,} outlines)",
-                               "–" if b["iou_bound"] is None else f"{b['iou_bound']:.3f}",
-                               "–" if b.get("iou_boxes") is None else f"{b['iou_boxes']:.3f}"])
+            bound_rows.append(
+                [
+                    name,
+                    f"{b['outlines']:,}",
+                    f"{b['min_triangles_all']:,}",
+                    f"{b['budget_triangles']:,} ({b['outlines_in_budget']:,} outlines)",
+                    "–" if b["iou_bound"] is None else f"{b['iou_bound']:.3f}",
+                    "–" if b.get("iou_boxes") is None else f"{b['iou_boxes']:.3f}",
+                ]
+            )
     if bound_rows:
-        out += ["", "### What 1/20 of the triangles can draw", "", BOUND_NOTE, "",
-                *markdown_table(["extract", "separate outlines", "≥ triangles to draw each",
-                                 "1/20 of full detail (fits)", "IoU bound within it", "… as oriented boxes"],
-                                bound_rows, "lrrrrr")]
+        out += [
+            "",
+            "### What 1/20 of the triangles can draw",
+            "",
+            BOUND_NOTE,
+            "",
+            *markdown_table(
+                [
+                    "extract",
+                    "separate outlines",
+                    "≥ triangles to draw each",
+                    "1/20 of full detail (fits)",
+                    "IoU bound within it",
+                    "… as oriented boxes",
+                ],
+                bound_rows,
+                "lrrrrr",
+            ),
+        ]
     if level_rows_out:
-        out += ["", "### Vertices and polygons per level", "", LEVELS_NOTE, "",
-                *markdown_table(["extract", "level", "tiles", "features (stand for)", "vertices",
-                                 "vertex reduction", "polygons", "polygon reduction"],
-                                level_rows_out, "lrrrrrrr")]
+        out += [
+            "",
+            "### Vertices and polygons per level",
+            "",
+            LEVELS_NOTE,
+            "",
+            *markdown_table(
+                [
+                    "extract",
+                    "level",
+                    "tiles",
+                    "features (stand for)",
+                    "vertices",
+                    "vertex reduction",
+                    "polygons",
+                    "polygon reduction",
+                ],
+                level_rows_out,
+                "lrrrrrrr",
+            ),
+        ]
     return out
 
 
@@ -534,8 +667,11 @@ def main(argv: list[str] | None = None) -> int:
     src.add_argument("--osm", type=Path, help=f"build a fresh {FIDELITY_DB} database from this extract first")
     src.add_argument("--database-url", help="measure this database (the pipeline has run up to textures)")
     p.add_argument("--tiles", type=Path, help="the database's export (default: export it again)")
-    p.add_argument("--name", help="the extract's name in the report and under build/bench/fidelity/ "
-                                  "(default: the --osm file's name, else the database's)")
+    p.add_argument(
+        "--name",
+        help="the extract's name in the report and under build/bench/fidelity/ "
+        "(default: the --osm file's name, else the database's)",
+    )
     p.add_argument("--no-client", action="store_true", help="only the per-level figures (no CesiumJS)")
     p.add_argument("--keep", action="store_true", help="keep the --osm database")
     p.add_argument("--json", type=Path, help="also write the measurement as JSON here")

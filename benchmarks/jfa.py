@@ -49,8 +49,7 @@ def jump_flood(seeds: np.ndarray, extra_pass: bool = True) -> tuple[np.ndarray, 
     return distance, nearest
 
 
-def _pass(k: int, sy: np.ndarray, sx: np.ndarray, d2: np.ndarray, yy: np.ndarray, xx: np.ndarray,
-          big: int) -> None:
+def _pass(k: int, sy: np.ndarray, sx: np.ndarray, d2: np.ndarray, yy: np.ndarray, xx: np.ndarray, big: int) -> None:
     """One jump-flooding pass of step k, in place: each pixel takes the nearest of its own seed and those held
     by the pixels (y + dy, x + dx), dy, dx in {-k, 0, k}. Offsets are applied one after another on the updated
     arrays, which can only find nearer seeds sooner than reading a frozen copy."""

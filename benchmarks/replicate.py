@@ -56,8 +56,10 @@ def layout(max_id: int, bounds: tuple[float, float, float, float], n: int) -> La
     dlat = (nn - s) * (1 + GAP)
     # The last row and column must stay on the globe (a Mercator-safe latitude and the antimeridian).
     if e + (columns - 1) * dlon > 180.0 or nn + (rows - 1) * dlat > 85.0:
-        raise ValueError(f"{n} copies of an extract {e - w:.3f}° × {nn - s:.3f}° at ({w:.3f}, {s:.3f}) "
-                         "do not fit east and north of it on the globe")
+        raise ValueError(
+            f"{n} copies of an extract {e - w:.3f}° × {nn - s:.3f}° at ({w:.3f}, {s:.3f}) "
+            "do not fit east and north of it on the globe"
+        )
     return Layout(id_step(max_id), columns, dlon, dlat)
 
 
@@ -99,24 +101,29 @@ def replicate(src: Path, n: int, dst: Path) -> dict[str, float]:
             dx, dy = lay.shift(k)
             for node in osmium.FileProcessor(str(src), osmium.osm.NODE):
                 loc = node.location
-                writer.add_node(node.replace(
-                    id=_shift_ref(node.id, off),
-                    location=(loc.lon + dx, loc.lat + dy) if loc.valid() else loc,
-                ))
+                writer.add_node(
+                    node.replace(
+                        id=_shift_ref(node.id, off),
+                        location=(loc.lon + dx, loc.lat + dy) if loc.valid() else loc,
+                    )
+                )
                 counts["nodes"] += 1
         for k in range(n):
             off = lay.offset(k)
             for way in osmium.FileProcessor(str(src), osmium.osm.WAY):
-                writer.add_way(way.replace(id=_shift_ref(way.id, off),
-                                           nodes=[_shift_ref(r.ref, off) for r in way.nodes]))
+                writer.add_way(
+                    way.replace(id=_shift_ref(way.id, off), nodes=[_shift_ref(r.ref, off) for r in way.nodes])
+                )
                 counts["ways"] += 1
         for k in range(n):
             off = lay.offset(k)
             for rel in osmium.FileProcessor(str(src), osmium.osm.RELATION):
-                writer.add_relation(rel.replace(
-                    id=_shift_ref(rel.id, off),
-                    members=[(m.type, _shift_ref(m.ref, off), m.role) for m in rel.members],
-                ))
+                writer.add_relation(
+                    rel.replace(
+                        id=_shift_ref(rel.id, off),
+                        members=[(m.type, _shift_ref(m.ref, off), m.role) for m in rel.members],
+                    )
+                )
                 counts["relations"] += 1
     finally:
         writer.close()
@@ -130,8 +137,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("out", type=Path)
     args = ap.parse_args(argv)
     r = replicate(args.extract, args.copies, args.out)
-    print(f"{args.out}: {r['copies']} copies, {r['nodes']:,} nodes, {r['ways']:,} ways, "
-          f"{r['relations']:,} relations, id step {r['id_step']:,}, {r['seconds']} s", file=sys.stderr)
+    print(
+        f"{args.out}: {r['copies']} copies, {r['nodes']:,} nodes, {r['ways']:,} ways, "
+        f"{r['relations']:,} relations, id step {r['id_step']:,}, {r['seconds']} s",
+        file=sys.stderr,
+    )
     return 0
 
 

@@ -177,8 +177,18 @@ class Row:
     over_threshold: int = 0  # simplified outlines measured farther than the tolerance from the original ...
     over_threshold_holes: int = 0  # ... of which had a hole below tolerance² dropped (simplified only)
 
-    def add(self, *, features_in: int, features_out: int, vertices_before: int, vertices_after: int,
-            polygons_before: int, polygons_after: int, errors: np.ndarray, status: Iterable[str]) -> None:
+    def add(
+        self,
+        *,
+        features_in: int,
+        features_out: int,
+        vertices_before: int,
+        vertices_after: int,
+        polygons_before: int,
+        polygons_after: int,
+        errors: np.ndarray,
+        status: Iterable[str],
+    ) -> None:
         self.features_in += features_in
         self.features_out += features_out
         self.vertices_before += vertices_before
@@ -271,8 +281,10 @@ def measure_footprints(url: str, settings: Settings, tolerances: Sequence[float]
     with psycopg.connect(url) as reader, psycopg.connect(url) as work:
         reader.execute("SET cursor_tuple_fraction = 1.0")
         work.execute("SET cursor_tuple_fraction = 1.0")
-        work.execute("CREATE TEMP TABLE _simplified (k smallint, id bigint, geom geometry, n_vertices integer,"
-                     " n_polygons integer)")
+        work.execute(
+            "CREATE TEMP TABLE _simplified (k smallint, id bigint, geom geometry, n_vertices integer,"
+            " n_polygons integer)"
+        )
         done = 0
         with reader.cursor(name="report_outlines") as src, work.cursor() as cur:
             src.itersize = BATCH
@@ -287,19 +299,25 @@ def measure_footprints(url: str, settings: Settings, tolerances: Sequence[float]
                     ch = np.flatnonzero(s.status.astype(str) != "unchanged")
                     ch = ch[~np.array([str(x).startswith("kept_original") for x in s.status[ch]], dtype=bool)]
                     err = np.nan_to_num(outline_hausdorff(geoms[ch], s.geoms[ch]), nan=0.0)
-                    simplified[k].add(features_in=len(rows), features_out=len(rows),
-                                      vertices_before=int(s.n_vertices_in.sum()),
-                                      vertices_after=int(s.n_vertices_out.sum()),
-                                      polygons_before=int(parts_in.sum()), polygons_after=int(_parts(s.geoms).sum()),
-                                      errors=err, status=map(_status_key, s.status))
+                    simplified[k].add(
+                        features_in=len(rows),
+                        features_out=len(rows),
+                        vertices_before=int(s.n_vertices_in.sum()),
+                        vertices_after=int(s.n_vertices_out.sum()),
+                        polygons_before=int(parts_in.sum()),
+                        polygons_after=int(_parts(s.geoms).sum()),
+                        errors=err,
+                        status=map(_status_key, s.status),
+                    )
                     over = err > t
                     simplified[k].over_threshold += int(over.sum())
                     simplified[k].over_threshold_holes += sum("dropped" in str(x) for x in s.status[ch[over]])
                     # what aggregation counts "before" is the original outline: its counts go with the geometry
                     ewkb = shapely.to_wkb(s.geoms, hex=True, include_srid=False)
                     with cur.copy("COPY _simplified (k, id, geom, n_vertices, n_polygons) FROM STDIN") as copy:
-                        for row in zip([k] * len(rows), ids, ewkb, s.n_vertices_in.tolist(), parts_in.tolist(),
-                                       strict=True):
+                        for row in zip(
+                            [k] * len(rows), ids, ewkb, s.n_vertices_in.tolist(), parts_in.tolist(), strict=True
+                        ):
                             copy.write_row(row)
                 done += len(rows)
         log(f"  footprints simplified: {done:,} outlines x {len(tolerances)} tolerances")
@@ -315,14 +333,20 @@ def measure_footprints(url: str, settings: Settings, tolerances: Sequence[float]
                     n_members = np.array([int(r[0]) for r in rows])
                     err = np.nan_to_num(outline_hausdorff(members, s.geoms), nan=0.0)
                     status = np.where(n_members > 1, "merged", "alone")
-                    aggregated[k].add(features_in=int(n_members.sum()), features_out=len(rows),
-                                      vertices_before=sum(int(r[1]) for r in rows),
-                                      vertices_after=int(s.n_vertices_out.sum()),
-                                      polygons_before=sum(int(r[2]) for r in rows),
-                                      polygons_after=int(_parts(s.geoms).sum()),
-                                      errors=err[err > 0], status=status.tolist())
-            log(f"  footprints aggregated at {t:g} m: {aggregated[k].features_in:,} outlines -> "
-                f"{aggregated[k].features_out:,} blocks")
+                    aggregated[k].add(
+                        features_in=int(n_members.sum()),
+                        features_out=len(rows),
+                        vertices_before=sum(int(r[1]) for r in rows),
+                        vertices_after=int(s.n_vertices_out.sum()),
+                        polygons_before=sum(int(r[2]) for r in rows),
+                        polygons_after=int(_parts(s.geoms).sum()),
+                        errors=err[err > 0],
+                        status=status.tolist(),
+                    )
+            log(
+                f"  footprints aggregated at {t:g} m: {aggregated[k].features_in:,} outlines -> "
+                f"{aggregated[k].features_out:,} blocks"
+            )
         work.rollback()
     return [r for pair in zip(simplified, aggregated, strict=True) for r in pair]
 
@@ -351,9 +375,16 @@ def measure_meshes(url: str, reductions: Sequence[float], min_triangles: int) ->
                 status = [str(x) for x in d.status]
                 c_out = np.bincount(out_own, minlength=n)
                 v_out = distinct_vertices(out_tri, out_own, n)
-                rows_out[k].add(features_in=n, features_out=n, vertices_before=int(v_in.sum()),
-                                vertices_after=int(v_out.sum()), polygons_before=int(counts.sum()),
-                                polygons_after=int(c_out.sum()), errors=error[decimated], status=status)
+                rows_out[k].add(
+                    features_in=n,
+                    features_out=n,
+                    vertices_before=int(v_in.sum()),
+                    vertices_after=int(v_out.sum()),
+                    polygons_before=int(counts.sum()),
+                    polygons_after=int(c_out.sum()),
+                    errors=error[decimated],
+                    status=status,
+                )
                 rows_out[k].batches += 1
             done += n
             log(f"  LOD2 meshes decimated: {done:,}")
@@ -376,11 +407,19 @@ class ExtractReport:
     rows: list[Row] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"key": self.key, "name": self.name, "path": self.path, "outlines": self.outlines,
-                "meshes": self.meshes,
-                "seconds": {"build": round(self.build_s, 2), "footprints": round(self.footprints_s, 2),
-                            "meshes": round(self.meshes_s, 2)},
-                "rows": [r.as_dict() for r in self.rows]}
+        return {
+            "key": self.key,
+            "name": self.name,
+            "path": self.path,
+            "outlines": self.outlines,
+            "meshes": self.meshes,
+            "seconds": {
+                "build": round(self.build_s, 2),
+                "footprints": round(self.footprints_s, 2),
+                "meshes": round(self.meshes_s, 2),
+            },
+            "rows": [r.as_dict() for r in self.rows],
+        }
 
 
 def _db_ready(admin_url: str, name: str) -> bool:
@@ -412,8 +451,9 @@ def build_db(key: str, path: Path, admin_url: str, logs: Path, reuse: bool) -> t
     return url, time.perf_counter() - t0
 
 
-def report_extract(key: str, path: Path, admin_url: str, out: Path, settings: Settings, pin: bool,
-                   reuse: bool) -> ExtractReport:
+def report_extract(
+    key: str, path: Path, admin_url: str, out: Path, settings: Settings, pin: bool, reuse: bool
+) -> ExtractReport:
     rep = ExtractReport(key=key, name=extract_name(path), path=str(path))
     url, rep.build_s = build_db(key, path, admin_url, out / "logs" / key, reuse)
     with psycopg.connect(url) as conn:
@@ -515,15 +555,34 @@ def render_markdown(report: dict[str, Any]) -> str:
         ]
         rows = []
         for r in ex["rows"]:
-            rows.append([
-                r["kind"], threshold_label(r), f"{r['changed']:,} / {r['features_out']:,}",
-                f"{r['vertices_before']:,}", f"{r['vertices_after']:,}", f"{r['vertex_reduction_pct']:.1f} %",
-                f"{r['polygons_before']:,}", f"{r['polygons_after']:,}", f"{r['polygon_reduction_pct']:.1f} %",
-                _f(r["max_error_m"]), _f(r["mean_error_m"], 3),
-            ])
-        header = ["generalization", "threshold", "changed / features", "vertices before", "vertices after",
-                  "vertex reduction", "polygons before", "polygons after", "polygon reduction",
-                  "max Hausdorff m", "mean Hausdorff m"]
+            rows.append(
+                [
+                    r["kind"],
+                    threshold_label(r),
+                    f"{r['changed']:,} / {r['features_out']:,}",
+                    f"{r['vertices_before']:,}",
+                    f"{r['vertices_after']:,}",
+                    f"{r['vertex_reduction_pct']:.1f} %",
+                    f"{r['polygons_before']:,}",
+                    f"{r['polygons_after']:,}",
+                    f"{r['polygon_reduction_pct']:.1f} %",
+                    _f(r["max_error_m"]),
+                    _f(r["mean_error_m"], 3),
+                ]
+            )
+        header = [
+            "generalization",
+            "threshold",
+            "changed / features",
+            "vertices before",
+            "vertices after",
+            "vertex reduction",
+            "polygons before",
+            "polygons after",
+            "polygon reduction",
+            "max Hausdorff m",
+            "mean Hausdorff m",
+        ]
         lines += markdown_table(header, rows, "llrrrrrrrrr")
         lines += [""]
         notes = _status_notes(ex)
@@ -531,8 +590,13 @@ def render_markdown(report: dict[str, Any]) -> str:
             lines += notes + [""]
     lines += fidelity_lines(report.get("fidelity") or [])
     lines += machine_section(report["machine"])
-    lines += ["", f"Total run time {report['seconds']:.0f} s.", "", "![reduction and error against threshold]"
-              "(generalization.png)", ""]
+    lines += [
+        "",
+        f"Total run time {report['seconds']:.0f} s.",
+        "",
+        "![reduction and error against threshold](generalization.png)",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -542,16 +606,21 @@ def _status_notes(ex: dict[str, Any]) -> list[str]:
     for r in ex["rows"]:
         if r["kind"] == KIND_AGGREGATED:
             continue
-        kept = {k: v for k, v in r["status"].items() if k not in ("simplified", "simplified (holes dropped)",
-                                                                  "decimated", "unchanged")}
+        kept = {
+            k: v
+            for k, v in r["status"].items()
+            if k not in ("simplified", "simplified (holes dropped)", "decimated", "unchanged")
+        }
         if kept:
             why = ", ".join(f"{v:,} {k}" for k, v in kept.items())
             out.append(f"* {r['kind']} at {threshold_label(r)}: {why}.")
         n, holes = r.get("over_threshold", 0), r.get("over_threshold_holes", 0)
         if r["kind"] == KIND_SIMPLIFIED and n:
-            out.append(f"* {r['kind']} at {threshold_label(r)}: {n:,} outline{'s' if n != 1 else ''} measured "
-                       f"farther than the tolerance from the original, {holes:,} of them where a hole below "
-                       "tolerance² was dropped.")
+            out.append(
+                f"* {r['kind']} at {threshold_label(r)}: {n:,} outline{'s' if n != 1 else ''} measured "
+                f"farther than the tolerance from the original, {holes:,} of them where a hole below "
+                "tolerance² was dropped."
+            )
     return out
 
 
@@ -577,11 +646,18 @@ def collect_fidelity(src: Path, out: Path) -> list[dict[str, Any]]:
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(pic, dest)
                 rel = str(dest.relative_to(out))
-            rows.append({"camera": name, "height": cams.get(name, {}).get("height"),
-                         "pitch": cams.get(name, {}).get("pitch"), "iou": m.get("iou"),
-                         "area_ratio": m.get("area_ratio"), "error": v.get("error") or m.get("error"),
-                         "triangles": [passes.get(p, {}).get("trianglesSelected") for p in ("streamed", "full")],
-                         "picture": rel})
+            rows.append(
+                {
+                    "camera": name,
+                    "height": cams.get(name, {}).get("height"),
+                    "pitch": cams.get(name, {}).get("pitch"),
+                    "iou": m.get("iou"),
+                    "area_ratio": m.get("area_ratio"),
+                    "error": v.get("error") or m.get("error"),
+                    "triangles": [passes.get(p, {}).get("trianglesSelected") for p in ("streamed", "full")],
+                    "picture": rel,
+                }
+            )
         found.append({"name": res.get("name", f.parent.name), "cameras": rows, "error": res.get("error")})
     return found
 
@@ -590,12 +666,16 @@ def fidelity_lines(fidelity: Sequence[dict[str, Any]]) -> list[str]:
     """The report's far view fidelity section (see collect_fidelity); nothing when no run was found."""
     if not fidelity:
         return []
-    out = ["## Far view fidelity", "",
-           "From the last far view fidelity run (make bench or `python -m benchmarks.fidelity_bench`, "
-           "`benchmarks/fidelity_bench.py`): CesiumJS draws the export as a building mask at cameras far to "
-           "near, once as a client streams it (maximumScreenSpaceError 16) and once at full detail; *IoU* = "
-           "building pixels in both / in either, *area* = streamed / full. Pictures: streamed | full detail | "
-           "difference (red: only at full detail, cyan: only streamed). Target (issue 18): IoU ≥ 0.90.", ""]
+    out = [
+        "## Far view fidelity",
+        "",
+        "From the last far view fidelity run (make bench or `python -m benchmarks.fidelity_bench`, "
+        "`benchmarks/fidelity_bench.py`): CesiumJS draws the export as a building mask at cameras far to "
+        "near, once as a client streams it (maximumScreenSpaceError 16) and once at full detail; *IoU* = "
+        "building pixels in both / in either, *area* = streamed / full. Pictures: streamed | full detail | "
+        "difference (red: only at full detail, cyan: only streamed). Target (issue 18): IoU ≥ 0.90.",
+        "",
+    ]
     for ex in fidelity:
         out += [f"### {ex['name']}", ""]
         if ex.get("error") and not ex["cameras"]:
@@ -608,13 +688,20 @@ def fidelity_lines(fidelity: Sequence[dict[str, Any]]) -> list[str]:
                 rows.append([c["camera"], where, f"failed: {c['error'] or 'not measured'}", "–", "–"])
                 continue
             tri = " / ".join("–" if t is None else f"{t:,}" for t in c["triangles"])
-            rows.append([c["camera"], where, f"{c['iou']:.3f}",
-                         "–" if c["area_ratio"] is None else f"{c['area_ratio']:.3f}", tri])
-        out += markdown_table(["camera", "height, pitch", "IoU", "area", "triangles streamed / full"], rows,
-                              "llrrr")
+            rows.append(
+                [
+                    c["camera"],
+                    where,
+                    f"{c['iou']:.3f}",
+                    "–" if c["area_ratio"] is None else f"{c['area_ratio']:.3f}",
+                    tri,
+                ]
+            )
+        out += markdown_table(["camera", "height, pitch", "IoU", "area", "triangles streamed / full"], rows, "llrrr")
         out += [""]
-        out += [f"{c['camera']}:\n\n![{ex['name']} {c['camera']}]({c['picture']})\n" for c in ex["cameras"]
-                if c["picture"]]
+        out += [
+            f"{c['camera']}:\n\n![{ex['name']} {c['camera']}]({c['picture']})\n" for c in ex["cameras"] if c["picture"]
+        ]
     return out
 
 
@@ -653,32 +740,56 @@ def plot(report: dict[str, Any], path: Path) -> None:
                 ax[1, 0].plot(x, mean, style[kind], color=c, alpha=0.45, marker="s", markersize=4)
     tol = report["parameters"]["tolerances_m"]
     ax[1, 0].plot(tol, tol, color="grey", lw=0.8, ls="-.")
-    ax[0, 0].set(title="Footprints: reduction", xlabel="tolerance / aggregation distance (m)", ylabel="reduction (%)",
-                 xticks=tol)
-    ax[0, 1].set(title="LOD2 meshes: reduction", xlabel="decimation target (% of triangles)",
-                 ylabel="reduction (%)", xticks=[100 * r for r in report["parameters"]["reductions"]])
-    ax[1, 0].set(title="Footprints: Hausdorff error of the changed outlines", xlabel="tolerance (m)",
-                 ylabel="Hausdorff distance (m)", xticks=tol, yscale="log")
-    ax[1, 1].set(title="LOD2 meshes: Hausdorff error of the decimated meshes", xlabel="decimation target (%)",
-                 ylabel="Hausdorff distance (m)", xticks=[100 * r for r in report["parameters"]["reductions"]],
-                 yscale="log")
+    ax[0, 0].set(
+        title="Footprints: reduction", xlabel="tolerance / aggregation distance (m)", ylabel="reduction (%)", xticks=tol
+    )
+    ax[0, 1].set(
+        title="LOD2 meshes: reduction",
+        xlabel="decimation target (% of triangles)",
+        ylabel="reduction (%)",
+        xticks=[100 * r for r in report["parameters"]["reductions"]],
+    )
+    ax[1, 0].set(
+        title="Footprints: Hausdorff error of the changed outlines",
+        xlabel="tolerance (m)",
+        ylabel="Hausdorff distance (m)",
+        xticks=tol,
+        yscale="log",
+    )
+    ax[1, 1].set(
+        title="LOD2 meshes: Hausdorff error of the decimated meshes",
+        xlabel="decimation target (%)",
+        ylabel="Hausdorff distance (m)",
+        xticks=[100 * r for r in report["parameters"]["reductions"]],
+        yscale="log",
+    )
     for a in ax.flat:
         a.grid(True, alpha=0.3)
-    names = [Line2D([], [], color=colours[i % len(colours)], lw=2, label=ex["name"])
-             for i, ex in enumerate(report["extracts"])]
+    names = [
+        Line2D([], [], color=colours[i % len(colours)], lw=2, label=ex["name"])
+        for i, ex in enumerate(report["extracts"])
+    ]
     fig.legend(handles=names, loc="outside lower center", ncol=len(names), frameon=False)
     styles = {
-        (0, 0): [Line2D([], [], color="k", ls="-", marker="o", label="simplified:\nvertices"),
-                 Line2D([], [], color="k", ls="--", marker="o", label="aggregated:\nvertices"),
-                 Line2D([], [], color="k", ls=":", marker="s", label="aggregated:\npolygons")],
-        (0, 1): [Line2D([], [], color="k", ls="-", marker="o", label="vertices"),
-                 Line2D([], [], color="k", ls=":", marker="s", label="triangles")],
-        (1, 0): [Line2D([], [], color="k", ls="-", marker="o", label="simplified:\nmax"),
-                 Line2D([], [], color="k", ls="--", marker="o", label="aggregated:\nmax"),
-                 Line2D([], [], color="k", alpha=0.45, marker="s", markersize=4, label="mean (faint,\nsame style)"),
-                 Line2D([], [], color="grey", ls="-.", lw=0.8, label="error =\ntolerance")],
-        (1, 1): [Line2D([], [], color="k", ls="-", marker="o", label="max"),
-                 Line2D([], [], color="k", ls=":", marker="s", label="mean")],
+        (0, 0): [
+            Line2D([], [], color="k", ls="-", marker="o", label="simplified:\nvertices"),
+            Line2D([], [], color="k", ls="--", marker="o", label="aggregated:\nvertices"),
+            Line2D([], [], color="k", ls=":", marker="s", label="aggregated:\npolygons"),
+        ],
+        (0, 1): [
+            Line2D([], [], color="k", ls="-", marker="o", label="vertices"),
+            Line2D([], [], color="k", ls=":", marker="s", label="triangles"),
+        ],
+        (1, 0): [
+            Line2D([], [], color="k", ls="-", marker="o", label="simplified:\nmax"),
+            Line2D([], [], color="k", ls="--", marker="o", label="aggregated:\nmax"),
+            Line2D([], [], color="k", alpha=0.45, marker="s", markersize=4, label="mean (faint,\nsame style)"),
+            Line2D([], [], color="grey", ls="-.", lw=0.8, label="error =\ntolerance"),
+        ],
+        (1, 1): [
+            Line2D([], [], color="k", ls="-", marker="o", label="max"),
+            Line2D([], [], color="k", ls=":", marker="s", label="mean"),
+        ],
     }
     for (i, j), handles in styles.items():
         ax[i, j].legend(handles=handles, fontsize=8, handlelength=3.5, loc="center left", bbox_to_anchor=(1.01, 0.5))
@@ -692,16 +803,22 @@ def plot(report: dict[str, Any], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.report_generalization",
-                                description=__doc__.split("\n\n")[0])
-    p.add_argument("--extracts", default=",".join(DEFAULT_EXTRACTS),
-                   help=f"comma-separated, of {', '.join(EXTRACTS)} (default: {','.join(DEFAULT_EXTRACTS)})")
+    p = argparse.ArgumentParser(prog="python -m benchmarks.report_generalization", description=__doc__.split("\n\n")[0])
+    p.add_argument(
+        "--extracts",
+        default=",".join(DEFAULT_EXTRACTS),
+        help=f"comma-separated, of {', '.join(EXTRACTS)} (default: {','.join(DEFAULT_EXTRACTS)})",
+    )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default: {DEFAULT_OUT})")
     p.add_argument("--keep", action="store_true", help=f"keep the {DB_PREFIX}<extract> databases afterwards")
-    p.add_argument("--reuse", action="store_true",
-                   help="use a kept database as it is instead of building it again (implies --keep)")
-    p.add_argument("--no-pin", action="store_true",
-                   help="simplify footprints without pinning vertices on touching neighbours")
+    p.add_argument(
+        "--reuse",
+        action="store_true",
+        help="use a kept database as it is instead of building it again (implies --keep)",
+    )
+    p.add_argument(
+        "--no-pin", action="store_true", help="simplify footprints without pinning vertices on touching neighbours"
+    )
     args = p.parse_args(argv)
     keys = [k.strip() for k in args.extracts.split(",") if k.strip()]
     unknown = [k for k in keys if k not in EXTRACTS]
@@ -738,10 +855,17 @@ def main(argv: list[str] | None = None) -> int:
     report = {
         "command": command,
         "machine": mach,
-        "parameters": {"tolerances_m": list(TOLERANCES_M), "reductions": list(REDUCTIONS),
-                       "min_triangles": MIN_TRIANGLES, "batch": BATCH, "spacing_footprint_m": SPACING_FOOTPRINT_M,
-                       "spacing_mesh_m": SPACING_MESH_M, "weld_m": WELD_M,
-                       "pin": not args.no_pin, "max_area_change": settings.gen_max_area_change},
+        "parameters": {
+            "tolerances_m": list(TOLERANCES_M),
+            "reductions": list(REDUCTIONS),
+            "min_triangles": MIN_TRIANGLES,
+            "batch": BATCH,
+            "spacing_footprint_m": SPACING_FOOTPRINT_M,
+            "spacing_mesh_m": SPACING_MESH_M,
+            "weld_m": WELD_M,
+            "pin": not args.no_pin,
+            "max_area_change": settings.gen_max_area_change,
+        },
         "extracts": [r.as_dict() for r in reports],
         "fidelity": collect_fidelity(FIDELITY_DIR, out),
         "seconds": round(time.perf_counter() - t0, 1),

@@ -181,14 +181,25 @@ class Landmark:
     def as_dict(self, frames: int) -> dict[str, Any]:
         w, wo = sum(self.with_rule), sum(self.without_rule)
         return {
-            "rank": self.rank, "building_id": self.building_id, "osm": f"{self.osm_type}{self.osm_id}",
-            "osm_type": self.osm_type, "osm_id": self.osm_id, "name": self.name, "is_landmark": self.is_landmark,
-            "level": self.level, "lod2_band": self.lod2_band, "score": round(self.score, 4),
-            "height_m": self.height_m, "frames_visible_with": w, "frames_visible_without": wo,
-            "fraction_with": w / frames if frames else 0.0, "fraction_without": wo / frames if frames else 0.0,
+            "rank": self.rank,
+            "building_id": self.building_id,
+            "osm": f"{self.osm_type}{self.osm_id}",
+            "osm_type": self.osm_type,
+            "osm_id": self.osm_id,
+            "name": self.name,
+            "is_landmark": self.is_landmark,
+            "level": self.level,
+            "lod2_band": self.lod2_band,
+            "score": round(self.score, 4),
+            "height_m": self.height_m,
+            "frames_visible_with": w,
+            "frames_visible_without": wo,
+            "fraction_with": w / frames if frames else 0.0,
+            "fraction_without": wo / frames if frames else 0.0,
             "mean_saliency_with": _nanmean(self.saliency_with),
             "mean_saliency_without": _nanmean(self.saliency_without),
-            "mean_lod_with": _mean_lod(self.lod_with), "mean_lod_without": _mean_lod(self.lod_without),
+            "mean_lod_with": _mean_lod(self.lod_with),
+            "mean_lod_without": _mean_lod(self.lod_without),
         }
 
 
@@ -212,15 +223,29 @@ def read_city(conn: psycopg.Connection) -> City:
 
 
 def read_top(conn: psycopg.Connection, top: int) -> list[Landmark]:
-    return [Landmark(int(r[0]), int(r[1]), r[2], int(r[3]), r[4], bool(r[5]), int(r[6]),
-                     None if r[7] is None else int(r[7]), float(r[8]), float(r[9]))
-            for r in conn.execute(_TOP, {"top": top}).fetchall()]
+    return [
+        Landmark(
+            int(r[0]),
+            int(r[1]),
+            r[2],
+            int(r[3]),
+            r[4],
+            bool(r[5]),
+            int(r[6]),
+            None if r[7] is None else int(r[7]),
+            float(r[8]),
+            float(r[9]),
+        )
+        for r in conn.execute(_TOP, {"top": top}).fetchall()
+    ]
 
 
 def read_without(conn: psycopg.Connection, top: int) -> dict[tuple[int, int, int, int], tuple[bool, bool]]:
     """(building_id, level, x, y) of a block-band tile -> (would be merged, would be omitted) without the rule."""
-    return {(int(r[0]), int(r[1]), int(r[2]), int(r[3])): (bool(r[4]), bool(r[5]))
-            for r in conn.execute(_WITHOUT, {"top": top}).fetchall()}
+    return {
+        (int(r[0]), int(r[1]), int(r[2]), int(r[3])): (bool(r[4]), bool(r[5]))
+        for r in conn.execute(_WITHOUT, {"top": top}).fetchall()
+    }
 
 
 def far_distance(city: City, fov: float = FOV, viewport_height: int = VIEWPORT_H, max_sse: float = MAX_SSE) -> float:
@@ -248,13 +273,25 @@ class Frame:
     unplaced: int
 
 
-def measure_frame(cur: psycopg.Cursor, pf: vs.PathFrame, city: City, roi_m: float, grid_w: int, min_px: float,
-                  max_sse: float) -> tuple[Frame, float]:
+def measure_frame(
+    cur: psycopg.Cursor, pf: vs.PathFrame, city: City, roi_m: float, grid_w: int, min_px: float, max_sse: float
+) -> tuple[Frame, float]:
     cam = pf.camera
     t0 = time.perf_counter()
-    rows = cur.execute(_FRAME, {"lon": cam.lon, "lat": cam.lat, "h": cam.height, "heading": cam.heading,
-                                "pitch": cam.pitch, "fov": cam.fov, "vh": cam.viewport_height, "sse": max_sse,
-                                "aspect": cam.aspect}).fetchall()
+    rows = cur.execute(
+        _FRAME,
+        {
+            "lon": cam.lon,
+            "lat": cam.lat,
+            "h": cam.height,
+            "heading": cam.heading,
+            "pitch": cam.pitch,
+            "fov": cam.fov,
+            "vh": cam.viewport_height,
+            "sse": max_sse,
+            "aspect": cam.aspect,
+        },
+    ).fetchall()
     query_s = time.perf_counter() - t0
     placed = [r for r in rows if r[7] is not None]
     n = len(placed)
@@ -266,14 +303,23 @@ def measure_frame(cur: psycopg.Cursor, pf: vs.PathFrame, city: City, roi_m: floa
     tile = np.array(list(zip(col[4], col[5], col[6], strict=True)), dtype=np.int64).reshape(n, 3)
     member = np.array([-1 if m is None else m for m in col[11]], dtype=np.int64)
     roi_centre = vs.ecef(pf.target_lon, pf.target_lat, pf.target_h)
-    m = vs.frame_metrics(cam, np.array(col[7], float), np.array(col[8], float), city.ground_h,
-                         np.array(col[9], float), np.array(col[10], float), roi_centre, roi_m, grid_w, min_px,
-                         WEIGHTS)
+    m = vs.frame_metrics(
+        cam,
+        np.array(col[7], float),
+        np.array(col[8], float),
+        city.ground_h,
+        np.array(col[9], float),
+        np.array(col[10], float),
+        roi_centre,
+        roi_m,
+        grid_w,
+        min_px,
+        WEIGHTS,
+    )
     return Frame(is_block, fid, lod, band, tile, member, m, m.interest * vs.lod_weight(lod), len(rows) - n), query_s
 
 
-def record_top(frame: Frame, tops: list[Landmark],
-               without: dict[tuple[int, int, int, int], tuple[bool, bool]]) -> None:
+def record_top(frame: Frame, tops: list[Landmark], without: dict[tuple[int, int, int, int], tuple[bool, bool]]) -> None:
     """Append this frame's visibility, saliency and LOD of each top building, with and without the rule.
 
     Saliency and LOD are recorded for the frames in which it is visible with the rule (NaN / -1 otherwise), so
@@ -321,15 +367,25 @@ def frame_stats(k: int, pf: vs.PathFrame, frame: Frame, tops: list[Landmark], qu
     sw = [t.saliency_with[-1] for t in tops if t.is_landmark and t.with_rule[-1]]
     swo = [t.saliency_without[-1] for t in tops if t.is_landmark and t.with_rule[-1]]
     return {
-        "frame": k, "lon": round(cam.lon, 6), "lat": round(cam.lat, 6), "height_m": round(cam.height, 1),
-        "heading": round(cam.heading, 2), "pitch": round(cam.pitch, 2), "distance_m": round(pf.distance_m, 1),
-        "drawn": int(len(frame.fid)), "visible": int(v.sum()), "unplaced": frame.unplaced,
+        "frame": k,
+        "lon": round(cam.lon, 6),
+        "lat": round(cam.lat, 6),
+        "height_m": round(cam.height, 1),
+        "heading": round(cam.heading, 2),
+        "pitch": round(cam.pitch, 2),
+        "distance_m": round(pf.distance_m, 1),
+        "drawn": int(len(frame.fid)),
+        "visible": int(v.sum()),
+        "unplaced": frame.unplaced,
         "visible_by_lod": {str(lv): int((v & (frame.lod == lv)).sum()) for lv in range(4)},
         "bands": sorted({int(b) for b in frame.band}),
         "roi_on_screen": bool(m.roi_mask.any()),
-        "mean_distance_n": mean(m.distance_n[v]), "mean_angle_deg": mean(m.angle_deg[v]),
-        "mean_roi_n": mean(m.roi_n[v]), "mean_interest": mean(m.interest[v]),
-        "mean_saliency_others": mean(frame.saliency[others]), "visible_others": int(others.sum()),
+        "mean_distance_n": mean(m.distance_n[v]),
+        "mean_angle_deg": mean(m.angle_deg[v]),
+        "mean_roi_n": mean(m.roi_n[v]),
+        "mean_interest": mean(m.interest[v]),
+        "mean_saliency_others": mean(frame.saliency[others]),
+        "visible_others": int(others.sum()),
         "mean_saliency_landmarks_with": round(float(np.mean(sw)), 4) if sw else None,
         "mean_saliency_landmarks_without": round(float(np.mean(swo)), 4) if swo else None,
         "top_visible_with": int(sum(t.with_rule[-1] for t in tops)),
@@ -340,8 +396,22 @@ def frame_stats(k: int, pf: vs.PathFrame, frame: Frame, tops: list[Landmark], qu
 
 # --- output ----------------------------------------------------------------------------------------------------
 
-_CSV_HEADER = ["frame", "kind", "id", "top_rank", "lod", "band", "distance_m", "distance_n", "angle_deg", "angle_n",
-               "roi_px", "roi_n", "interest", "saliency"]
+_CSV_HEADER = [
+    "frame",
+    "kind",
+    "id",
+    "top_rank",
+    "lod",
+    "band",
+    "distance_m",
+    "distance_n",
+    "angle_deg",
+    "angle_n",
+    "roi_px",
+    "roi_n",
+    "interest",
+    "saliency",
+]
 
 
 def feature_rows(k: int, frame: Frame, rank_of: dict[int, int]) -> list[list[Any]]:
@@ -350,12 +420,25 @@ def feature_rows(k: int, frame: Frame, rank_of: dict[int, int]) -> list[list[Any
     v = np.flatnonzero(frame.metrics.visible)
     m = frame.metrics
     ranks = [rank_of.get(int(b), "") for b in frame.member[v]]
-    cols = [np.full(len(v), k), np.where(frame.is_block[v], "block", "building"), frame.fid[v], ranks,
-            frame.lod[v], frame.band[v], np.round(m.distance_m[v], 1), np.round(m.distance_n[v], 4),
-            np.round(m.angle_deg[v], 2), np.round(m.angle_n[v], 4), np.round(m.roi_px[v], 1),
-            np.round(m.roi_n[v], 4), np.round(m.interest[v], 4), np.round(frame.saliency[v], 4)]
-    return [list(r) for r in zip(*[np.asarray(c).tolist() if not isinstance(c, list) else c for c in cols],
-                                 strict=True)]
+    cols = [
+        np.full(len(v), k),
+        np.where(frame.is_block[v], "block", "building"),
+        frame.fid[v],
+        ranks,
+        frame.lod[v],
+        frame.band[v],
+        np.round(m.distance_m[v], 1),
+        np.round(m.distance_n[v], 4),
+        np.round(m.angle_deg[v], 2),
+        np.round(m.angle_n[v], 4),
+        np.round(m.roi_px[v], 1),
+        np.round(m.roi_n[v], 4),
+        np.round(m.interest[v], 4),
+        np.round(frame.saliency[v], 4),
+    ]
+    return [
+        list(r) for r in zip(*[np.asarray(c).tolist() if not isinstance(c, list) else c for c in cols], strict=True)
+    ]
 
 
 def plot_frame(path: Path, k: int, pf: vs.PathFrame, frame: Frame, tops: list[Landmark]) -> None:
@@ -376,10 +459,23 @@ def plot_frame(path: Path, k: int, pf: vs.PathFrame, frame: Frame, tops: list[La
     im = ax.imshow(sal, cmap="inferno", vmin=0, vmax=1, interpolation="nearest", extent=(0, w, h, 0))
     if m.roi_mask.any() and not m.roi_mask.all():
         far = float(m.roi_distance[np.isfinite(m.roi_distance)].max())
-        ax.contour(np.arange(w) + 0.5, np.arange(h) + 0.5, m.roi_distance, levels=np.linspace(0, far, 7)[1:-1],
-                   colors="0.75", linewidths=0.4, alpha=0.6)
-        ax.contour(np.arange(w) + 0.5, np.arange(h) + 0.5, m.roi_mask.astype(float), levels=[0.5], colors="cyan",
-                   linewidths=0.9)
+        ax.contour(
+            np.arange(w) + 0.5,
+            np.arange(h) + 0.5,
+            m.roi_distance,
+            levels=np.linspace(0, far, 7)[1:-1],
+            colors="0.75",
+            linewidths=0.4,
+            alpha=0.6,
+        )
+        ax.contour(
+            np.arange(w) + 0.5,
+            np.arange(h) + 0.5,
+            m.roi_mask.astype(float),
+            levels=[0.5],
+            colors="cyan",
+            linewidths=0.9,
+        )
     for t in tops:
         if not t.with_rule[-1]:
             continue
@@ -395,15 +491,24 @@ def plot_frame(path: Path, k: int, pf: vs.PathFrame, frame: Frame, tops: list[La
     ax.set_yticks([])
     cam = pf.camera
     bands = ",".join(str(b) for b in sorted(set(frame.band.tolist())))
-    ax.set_title(f"frame {k}: {cam.height:.0f} m up, pitch {cam.pitch:.0f}°, {pf.distance_m:.0f} m to the focus, "
-                 f"bands {bands}, {int(v.sum())} visible", fontsize=8)
+    ax.set_title(
+        f"frame {k}: {cam.height:.0f} m up, pitch {cam.pitch:.0f}°, {pf.distance_m:.0f} m to the focus, "
+        f"bands {bands}, {int(v.sum())} visible",
+        fontsize=8,
+    )
     fig.colorbar(im, cax=cax, label="saliency")
     fig.savefig(path)
     plt.close(fig)
 
 
-def plot_summary(report: dict[str, Any], path_xy: np.ndarray, target_xy: np.ndarray, buildings_xy: np.ndarray,
-                 tops_xy: np.ndarray, path: Path) -> None:
+def plot_summary(
+    report: dict[str, Any],
+    path_xy: np.ndarray,
+    target_xy: np.ndarray,
+    buildings_xy: np.ndarray,
+    tops_xy: np.ndarray,
+    path: Path,
+) -> None:
     """saliency.png: the path over the city, its distance and pitch per frame, the mean saliency per frame,
     and the share of frames each top building is visible with and without the rule."""
     import matplotlib.pyplot as plt
@@ -418,8 +523,12 @@ def plot_summary(report: dict[str, Any], path_xy: np.ndarray, target_xy: np.ndar
     for t, (x, y) in zip(report["top"], tops_xy, strict=True):
         a.plot(x, y, "o" if t["is_landmark"] else "s", ms=5, mfc="none", mec="red" if t["is_landmark"] else "blue")
         a.annotate(str(t["rank"]), (x, y), xytext=(3, 3), textcoords="offset points", fontsize=8)
-    a.set(aspect="equal", title="Camera path (top buildings: red landmarks, blue others)", xlabel="east (m)",
-          ylabel="north (m)")
+    a.set(
+        aspect="equal",
+        title="Camera path (top buildings: red landmarks, blue others)",
+        xlabel="east (m)",
+        ylabel="north (m)",
+    )
     a.legend(fontsize=8, loc="lower right")
     fig.colorbar(sc, ax=a, label="frame", shrink=0.8)
 
@@ -441,11 +550,16 @@ def plot_summary(report: dict[str, Any], path_xy: np.ndarray, target_xy: np.ndar
         return _column(frames, key)
 
     a.plot(k, series("mean_saliency_landmarks_with"), "-o", ms=3, c="tab:red", label="landmarks, with the rule")
-    a.plot(k, series("mean_saliency_landmarks_without"), "--s", ms=3, c="tab:purple",
-           label="landmarks, without (0 where not seen as itself)")
+    a.plot(
+        k,
+        series("mean_saliency_landmarks_without"),
+        "--s",
+        ms=3,
+        c="tab:purple",
+        label="landmarks, without (0 where not seen as itself)",
+    )
     a.plot(k, series("mean_saliency_others"), "-", c="0.4", label="other visible features")
-    a.set(title="Mean saliency per frame", xlabel="frame",
-          ylabel="saliency", ylim=(0, 1))
+    a.set(title="Mean saliency per frame", xlabel="frame", ylabel="saliency", ylim=(0, 1))
     b = a.twinx()
     b.step(k, series("top_visible_with"), where="mid", c="tab:red", alpha=0.35, lw=1)
     b.step(k, series("top_visible_without"), where="mid", c="tab:purple", alpha=0.35, lw=1)
@@ -458,8 +572,9 @@ def plot_summary(report: dict[str, Any], path_xy: np.ndarray, target_xy: np.ndar
     y = np.arange(len(tops))
     a.barh(y - 0.2, [t["fraction_with"] for t in tops], 0.4, color="tab:red", label="with the landmark rule")
     a.barh(y + 0.2, [t["fraction_without"] for t in tops], 0.4, color="tab:purple", label="without")
-    a.set_yticks(y, [f"{t['rank']}. {(t['name'] or t['osm'])[:28]}{' *' if t['is_landmark'] else ''}" for t in tops],
-                 fontsize=8)
+    a.set_yticks(
+        y, [f"{t['rank']}. {(t['name'] or t['osm'])[:28]}{' *' if t['is_landmark'] else ''}" for t in tops], fontsize=8
+    )
     a.invert_yaxis()
     a.set(title="Share of frames visible as itself (* landmark)", xlabel="fraction of frames", xlim=(0, 1))
     a.legend(fontsize=8, loc="lower right")
@@ -527,14 +642,38 @@ def render_markdown(report: dict[str, Any]) -> str:
     ]
     rows = []
     for t in report["top"]:
-        rows.append([t["rank"], t["osm"], t["name"] or "–", "yes" if t["is_landmark"] else "no", t["level"],
-                     f"{t['frames_visible_with']} ({t['fraction_with']:.2f})",
-                     f"{t['frames_visible_without']} ({t['fraction_without']:.2f})",
-                     _f(t["mean_saliency_with"]), _f(t["mean_saliency_without"]),
-                     _f(t["mean_lod_with"], 1), _f(t["mean_lod_without"], 1)])
-    lines += markdown_table(["rank", "OSM", "name", "landmark", "level", "frames visible with rule (fraction)",
-                            "without", "mean saliency with", "without", "mean LOD with", "without"], rows,
-                           "rlllrrrrrrr")
+        rows.append(
+            [
+                t["rank"],
+                t["osm"],
+                t["name"] or "–",
+                "yes" if t["is_landmark"] else "no",
+                t["level"],
+                f"{t['frames_visible_with']} ({t['fraction_with']:.2f})",
+                f"{t['frames_visible_without']} ({t['fraction_without']:.2f})",
+                _f(t["mean_saliency_with"]),
+                _f(t["mean_saliency_without"]),
+                _f(t["mean_lod_with"], 1),
+                _f(t["mean_lod_without"], 1),
+            ]
+        )
+    lines += markdown_table(
+        [
+            "rank",
+            "OSM",
+            "name",
+            "landmark",
+            "level",
+            "frames visible with rule (fraction)",
+            "without",
+            "mean saliency with",
+            "without",
+            "mean LOD with",
+            "without",
+        ],
+        rows,
+        "rlllrrrrrrr",
+    )
     lines += [
         "",
         "Mean saliency and LOD drawn over the frames in which it is visible with the rule; *without*: the same "
@@ -568,14 +707,25 @@ def render_markdown(report: dict[str, Any]) -> str:
 def local_xy(lon: np.ndarray, lat: np.ndarray, city: City) -> np.ndarray:
     """(n, 2) east/north metres from the city centre (tangent plane), for the map of the path."""
     enu = enu_rotation(math.radians(city.lon), math.radians(city.lat))
-    d = vs.ecef(np.asarray(lon, float), np.asarray(lat, float), city.ground_h) - vs.ecef(city.lon, city.lat,
-                                                                                        city.ground_h)
+    d = vs.ecef(np.asarray(lon, float), np.asarray(lat, float), city.ground_h) - vs.ecef(
+        city.lon, city.lat, city.ground_h
+    )
     return (d @ enu)[:, :2]
 
 
-def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m: float = ROI_M,
-        min_px: float = MIN_PX, grid_w: int = GRID_W, max_sse: float = MAX_SSE, near_m: float = NEAR_M,
-        write_frames: bool = True, command: str = "") -> dict[str, Any]:
+def run(
+    url: str,
+    out: Path,
+    frames: int = DEFAULT_FRAMES,
+    top: int = TOP,
+    roi_m: float = ROI_M,
+    min_px: float = MIN_PX,
+    grid_w: int = GRID_W,
+    max_sse: float = MAX_SSE,
+    near_m: float = NEAR_M,
+    write_frames: bool = True,
+    command: str = "",
+) -> dict[str, Any]:
     t_start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     fdir = out / "saliency"
@@ -591,10 +741,13 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
         tops = read_top(conn, top)
         without = read_without(conn, top)
         far_m = far_distance(city, max_sse=max_sse)
-        path = vs.camera_path(city.lon, city.lat, city.radius_m, near_m, far_m, frames, city.ground_h, FOV,
-                              VIEWPORT_H, ASPECT)
-        log(f"{city.buildings:,} buildings, {len(tops)} top ({sum(t.is_landmark for t in tops)} landmarks), "
-            f"{frames} frames from {near_m:.0f} to {far_m:.0f} m")
+        path = vs.camera_path(
+            city.lon, city.lat, city.radius_m, near_m, far_m, frames, city.ground_h, FOV, VIEWPORT_H, ASPECT
+        )
+        log(
+            f"{city.buildings:,} buildings, {len(tops)} top ({sum(t.is_landmark for t in tops)} landmarks), "
+            f"{frames} frames from {near_m:.0f} to {far_m:.0f} m"
+        )
         rank_of = {t.building_id: t.rank for t in tops}
         stats: list[dict[str, Any]] = []
         png_s = 0.0
@@ -616,8 +769,13 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
                 if (k + 1) % 20 == 0:
                     log(f"frame {k + 1}/{frames}")
         # the scored buildings, for the map of the path
-        pts = np.array(conn.execute("SELECT ST_X(c), ST_Y(c), building_id FROM (SELECT building_id, "
-                                    "ST_Transform(centroid, 4326) AS c FROM lm.building) s").fetchall(), float)
+        pts = np.array(
+            conn.execute(
+                "SELECT ST_X(c), ST_Y(c), building_id FROM (SELECT building_id, "
+                "ST_Transform(centroid, 4326) AS c FROM lm.building) s"
+            ).fetchall(),
+            float,
+        )
         mach = machine(url, osm2pgsql=False)
 
     def col(key: str) -> np.ndarray:
@@ -636,7 +794,8 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
         "pitch": [float(col("pitch").min()), float(col("pitch").max())],
         "frames_with_blocks": int(sum(bool(f["bands"]) and min(f["bands"]) <= 1 for f in stats)),
         "frames_top_lost": int(sum(f["top_visible_without"] < f["top_visible_with"] for f in stats)),
-        "visible_median": float(np.median(weights_visible)), "visible_max": int(weights_visible.max()),
+        "visible_median": float(np.median(weights_visible)),
+        "visible_max": int(weights_visible.max()),
         "rows": n_rows,
         # means over all visible features of all frames (frames weighted by their visible features)
         "mean_distance_n": _weighted(col("mean_distance_n"), weights_visible),
@@ -653,12 +812,27 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
         "command": command or f"python -m benchmarks.report_saliency --frames {frames}",
         "database": db_name(url),
         "machine": mach,
-        "parameters": {"frames": frames, "fov": FOV, "viewport": [int(round(ASPECT * VIEWPORT_H)), VIEWPORT_H],
-                       "max_sse": max_sse, "near_m": near_m, "far_m": round(far_m, 1), "roi_m": roi_m,
-                       "min_px": min_px, "grid": [grid_w, int(round(grid_w / ASPECT))], "weights": list(WEIGHTS),
-                       "top": top},
-        "city": {"lon": city.lon, "lat": city.lat, "radius_m": round(city.radius_m, 1),
-                 "root_geometric_error": city.root_error, "ground_h": city.ground_h, "buildings": city.buildings},
+        "parameters": {
+            "frames": frames,
+            "fov": FOV,
+            "viewport": [int(round(ASPECT * VIEWPORT_H)), VIEWPORT_H],
+            "max_sse": max_sse,
+            "near_m": near_m,
+            "far_m": round(far_m, 1),
+            "roi_m": roi_m,
+            "min_px": min_px,
+            "grid": [grid_w, int(round(grid_w / ASPECT))],
+            "weights": list(WEIGHTS),
+            "top": top,
+        },
+        "city": {
+            "lon": city.lon,
+            "lat": city.lat,
+            "radius_m": round(city.radius_m, 1),
+            "root_geometric_error": city.root_error,
+            "ground_h": city.ground_h,
+            "buildings": city.buildings,
+        },
         "top": [t.as_dict(frames) for t in tops],
         "summary": summary,
         "frames": stats,
@@ -668,13 +842,22 @@ def run(url: str, out: Path, frames: int = DEFAULT_FRAMES, top: int = TOP, roi_m
     xy = local_xy(pts[:, 0], pts[:, 1], city) if len(pts) else np.zeros((0, 2))
     where = {int(b): i for i, b in enumerate(pts[:, 2])} if len(pts) else {}
     tops_xy = np.array([xy[where[t.building_id]] for t in tops]).reshape(-1, 2)
-    plot_summary(report, local_xy(cams[:, 0], cams[:, 1], city), local_xy(tgts[:, 0], tgts[:, 1], city), xy,
-                 tops_xy, out / "saliency.png")
+    plot_summary(
+        report,
+        local_xy(cams[:, 0], cams[:, 1], city),
+        local_xy(tgts[:, 0], tgts[:, 1], city),
+        xy,
+        tops_xy,
+        out / "saliency.png",
+    )
     report["seconds"] = round(time.perf_counter() - t_start, 1)
     (out / "saliency.json").write_text(json.dumps(report, indent=1, ensure_ascii=False) + "\n")
     (out / "saliency.md").write_text(render_markdown(report))
-    log(f"wrote {out}/saliency.md, .json, .png, saliency/features.csv"
-        + (f" and {frames} frame maps" if write_frames else "") + f" in {report['seconds']:.1f} s")
+    log(
+        f"wrote {out}/saliency.md, .json, .png, saliency/features.csv"
+        + (f" and {frames} frame maps" if write_frames else "")
+        + f" in {report['seconds']:.1f} s"
+    )
     return report
 
 

@@ -97,7 +97,7 @@ def log(msg: str) -> None:
 def band_name(g: int) -> str:
     """The generalization band of a gen_level (the names of BENCHMARKS.md's generalize bands)."""
     names = {0: "blocks 10 m", 1: "blocks 5 m", 2: "LOD1", 3: "LOD2", 4: "LOD3, leaves"}
-    return names.get(g, f"blocks {10 * 2 ** -g:g} m" if g < 0 else "?")
+    return names.get(g, f"blocks {10 * 2**-g:g} m" if g < 0 else "?")
 
 
 # --- per tile --------------------------------------------------------------------------------------------------
@@ -166,19 +166,34 @@ class TileStats:
         return self.textured + self.plain
 
     def as_dict(self) -> dict[str, Any]:
-        return {"level": self.level, "x": self.x, "y": self.y, "gen_level": self.gen_level,
-                "features": self.features, "textured": self.textured, "failed": self.failed,
-                "pages": self.pages, "used_pages": len(self.used_pages), "bytes": self.bytes,
-                "page_texels": self.page_texels, "content_texels": self.content_texels, "charts": self.charts,
-                "utilization": round(self.content_texels / self.page_texels, 4) if self.page_texels else None,
-                "texels_per_metre": self.texels_per_metre, "draw_calls": self.draw_calls,
-                "per_building_draw_calls": self.per_building_draw_calls}
+        return {
+            "level": self.level,
+            "x": self.x,
+            "y": self.y,
+            "gen_level": self.gen_level,
+            "features": self.features,
+            "textured": self.textured,
+            "failed": self.failed,
+            "pages": self.pages,
+            "used_pages": len(self.used_pages),
+            "bytes": self.bytes,
+            "page_texels": self.page_texels,
+            "content_texels": self.content_texels,
+            "charts": self.charts,
+            "utilization": round(self.content_texels / self.page_texels, 4) if self.page_texels else None,
+            "texels_per_metre": self.texels_per_metre,
+            "draw_calls": self.draw_calls,
+            "per_building_draw_calls": self.per_building_draw_calls,
+        }
 
 
 def read_tiles(conn: psycopg.Connection) -> dict[tuple[int, int, int], TileStats]:
-    tiles = {(int(r[0]), int(r[1]), int(r[2])): TileStats(int(r[0]), int(r[1]), int(r[2]), int(r[3]), bool(r[4]),
-                                                          float(r[5] or 0.0), int(r[6]))
-             for r in conn.execute(_TILES).fetchall()}
+    tiles = {
+        (int(r[0]), int(r[1]), int(r[2])): TileStats(
+            int(r[0]), int(r[1]), int(r[2]), int(r[3]), bool(r[4]), float(r[5] or 0.0), int(r[6])
+        )
+        for r in conn.execute(_TILES).fetchall()
+    }
     if not tiles:
         raise SystemExit("tiles.tile has no content: run the tiles and generalize stages first")
     for level, x, y, _p, w, h, nb, util, rho, dist, n, scaled, pad, rects in conn.execute(_PAGES):
@@ -218,10 +233,17 @@ def summarize(tiles: Iterable[TileStats]) -> dict[str, Any]:
     dist = [t.view_distance_m for t in tex if t.view_distance_m is not None]
     dc = [t.draw_calls for t in ts]
     return {
-        "tiles": len(ts), "textured_tiles": len(tex), "features": sum(t.features for t in ts),
-        "textured_features": sum(t.textured for t in ts), "failed_features": sum(t.failed for t in ts),
-        "pages": sum(t.pages for t in tex), "bytes": sum(t.bytes for t in tex), "page_texels": page_texels,
-        "content_texels": content, "charts": sum(t.charts for t in tex), "scaled": sum(t.scaled for t in tex),
+        "tiles": len(ts),
+        "textured_tiles": len(tex),
+        "features": sum(t.features for t in ts),
+        "textured_features": sum(t.textured for t in ts),
+        "failed_features": sum(t.failed for t in ts),
+        "pages": sum(t.pages for t in tex),
+        "bytes": sum(t.bytes for t in tex),
+        "page_texels": page_texels,
+        "content_texels": content,
+        "charts": sum(t.charts for t in tex),
+        "scaled": sum(t.scaled for t in tex),
         "utilization": round(content / page_texels, 4) if page_texels else None,
         "mean_page_utilization": round(float(np.mean(utils)), 4) if utils else None,
         "min_page_utilization": round(float(np.min(utils)), 4) if utils else None,
@@ -229,10 +251,12 @@ def summarize(tiles: Iterable[TileStats]) -> dict[str, Any]:
         "view_distance_m": [round(min(dist), 1), round(max(dist), 1)] if dist else None,
         "pages_per_tile": round(sum(t.pages for t in tex) / len(tex), 2) if tex else 0.0,
         "bytes_per_tile": round(sum(t.bytes for t in tex) / len(tex)) if tex else 0,
-        "draw_calls": sum(dc), "draw_calls_per_tile": round(float(np.mean(dc)), 2) if dc else 0.0,
+        "draw_calls": sum(dc),
+        "draw_calls_per_tile": round(float(np.mean(dc)), 2) if dc else 0.0,
         "max_draw_calls_per_tile": max(dc, default=0),
         "per_building_draw_calls_per_tile": round(float(np.mean([t.per_building_draw_calls for t in ts])), 1)
-        if ts else 0.0,
+        if ts
+        else 0.0,
     }
 
 
@@ -295,7 +319,7 @@ class TileCharts:
         for (w, h), r in zip(self.dims.tolist(), rects, strict=True):
             lab = np.full((h, w), -1, np.int32)
             for i, (x, y, cw, ch) in enumerate(r.tolist()):
-                lab[y:y + ch, x:x + cw] = base + i
+                lab[y : y + ch, x : x + cw] = base + i
             self.labels.append(lab)
             base += len(r)
         self.unassigned = 0  # triangles found in no chart (0 unless the UVs and rects disagree)
@@ -358,10 +382,10 @@ class TileCharts:
         used = [np.zeros((int(h), int(w)), bool) for w, h in lay.page_dims]
         for i, c in enumerate(f.charts.tolist()):
             x, y, w, h = self.rects[c].tolist()
-            img = src[int(self.rect_page[c])][y - pad:y + h + pad, x - pad:x + w + pad]
+            img = src[int(self.rect_page[c])][y - pad : y + h + pad, x - pad : x + w + pad]
             x0, y0 = int(lay.x[i]) - pad, int(lay.y[i]) - pad
-            pages[lay.page[i]][y0:y0 + h + 2 * pad, x0:x0 + w + 2 * pad] = img
-            used[lay.page[i]][y0:y0 + h + 2 * pad, x0:x0 + w + 2 * pad] = True
+            pages[lay.page[i]][y0 : y0 + h + 2 * pad, x0 : x0 + w + 2 * pad] = img
+            used[lay.page[i]][y0 : y0 + h + 2 * pad, x0 : x0 + w + 2 * pad] = True
         if len(f.palette):
             i = len(f.charts)
             w, h = (int(v) for v in f.sizes[i])
@@ -369,8 +393,8 @@ class TileCharts:
             img = cols[np.minimum(np.arange(w * h), len(cols) - 1)].reshape(h, w, 3)
             img = np.pad(img, ((pad, pad), (pad, pad), (0, 0)), mode="edge")
             x0, y0 = int(lay.x[i]) - pad, int(lay.y[i]) - pad
-            pages[lay.page[i]][y0:y0 + h + 2 * pad, x0:x0 + w + 2 * pad] = img
-            used[lay.page[i]][y0:y0 + h + 2 * pad, x0:x0 + w + 2 * pad] = True
+            pages[lay.page[i]][y0 : y0 + h + 2 * pad, x0 : x0 + w + 2 * pad] = img
+            used[lay.page[i]][y0 : y0 + h + 2 * pad, x0 : x0 + w + 2 * pad] = True
         n = 0
         for pg, u in zip(pages, used, strict=True):
             if not u.all():
@@ -384,14 +408,23 @@ class TileCharts:
 
 
 def view_tiles(conn: psycopg.Connection, cam: Any, max_sse: float) -> list[tuple[int, int, int]]:
-    rows = conn.execute(f"SELECT DISTINCT level, x, y FROM ({vb._VIEW_TILES}) q ORDER BY 1, 2, 3",
-                        vb._params(cam, max_sse)).fetchall()
+    rows = conn.execute(
+        f"SELECT DISTINCT level, x, y FROM ({vb._VIEW_TILES}) q ORDER BY 1, 2, 3", vb._params(cam, max_sse)
+    ).fetchall()
     return [(int(r[0]), int(r[1]), int(r[2])) for r in rows]
 
 
-def measure_view(conn: psycopg.Connection, name: str, cam: Any, tiles: dict[tuple[int, int, int], TileStats],
-                 charts: dict[tuple[int, int, int], TileCharts], settings: Settings, max_encode: int,
-                 seed: int, max_sse: float) -> dict[str, Any]:
+def measure_view(
+    conn: psycopg.Connection,
+    name: str,
+    cam: Any,
+    tiles: dict[tuple[int, int, int], TileStats],
+    charts: dict[tuple[int, int, int], TileCharts],
+    settings: Settings,
+    max_encode: int,
+    seed: int,
+    max_sse: float,
+) -> dict[str, Any]:
     """Draw calls and texture bytes of the tiles a camera loads: atlases against one texture per building."""
     t0 = time.perf_counter()
     keys = [k for k in view_tiles(conn, cam, max_sse) if k in tiles]
@@ -417,15 +450,28 @@ def measure_view(conn: psycopg.Connection, name: str, cam: Any, tiles: dict[tupl
     pb_dc = sum(f.layout.n_pages for _, f in feats) + sum(t.plain for t in ts)
     atlas_bytes = sum(t.used_bytes for t in ts)
     return {
-        "camera": vb._cam_dict(cam), "tiles": len(keys), "bands": sorted({t.gen_level for t in ts}),
-        "features": sum(t.features for t in ts), "textured_features": len(feats),
-        "atlas": {"draw_calls": atlas_dc, "pages": sum(len(t.used_pages) for t in ts), "bytes": atlas_bytes,
-                  "page_texels": sum(t.used_page_texels for t in ts)},
-        "per_building": {"draw_calls": pb_dc, "textures": sum(f.layout.n_pages for _, f in feats),
-                         "bytes": round(pb_bytes), "page_texels": pb_texels, "content_texels": pb_content,
-                         "utilization": round(pb_content / pb_texels, 4) if pb_texels else None,
-                         "encoded": len(done), "estimated": len(feats) - len(done),
-                         "bytes_per_page_texel": round(per_texel, 4)},
+        "camera": vb._cam_dict(cam),
+        "tiles": len(keys),
+        "bands": sorted({t.gen_level for t in ts}),
+        "features": sum(t.features for t in ts),
+        "textured_features": len(feats),
+        "atlas": {
+            "draw_calls": atlas_dc,
+            "pages": sum(len(t.used_pages) for t in ts),
+            "bytes": atlas_bytes,
+            "page_texels": sum(t.used_page_texels for t in ts),
+        },
+        "per_building": {
+            "draw_calls": pb_dc,
+            "textures": sum(f.layout.n_pages for _, f in feats),
+            "bytes": round(pb_bytes),
+            "page_texels": pb_texels,
+            "content_texels": pb_content,
+            "utilization": round(pb_content / pb_texels, 4) if pb_texels else None,
+            "encoded": len(done),
+            "estimated": len(feats) - len(done),
+            "bytes_per_page_texel": round(per_texel, 4),
+        },
         "draw_call_ratio": round(pb_dc / atlas_dc, 2) if atlas_dc else None,
         "bytes_ratio": round(pb_bytes / atlas_bytes, 3) if atlas_bytes else None,
         "unassigned_triangles": sum(charts[k].unassigned for k in keys if k in charts),
@@ -443,8 +489,13 @@ def _check_layout(lay: A.Layout, sizes: np.ndarray, page_size: int) -> bool:
     p = lay.padding
     x0, y0, x1, y1 = lay.x - p, lay.y - p, lay.x + lay.w + p, lay.y + lay.h + p
     dims = lay.page_dims[lay.page]
-    if (x0 < 0).any() or (y0 < 0).any() or (x1 > dims[:, 0]).any() or (y1 > dims[:, 1]).any() \
-            or (lay.page_dims > page_size).any():
+    if (
+        (x0 < 0).any()
+        or (y0 < 0).any()
+        or (x1 > dims[:, 0]).any()
+        or (y1 > dims[:, 1]).any()
+        or (lay.page_dims > page_size).any()
+    ):
         return False
     for pg in range(lay.n_pages):
         cover = np.zeros((int(lay.page_dims[pg, 1]), int(lay.page_dims[pg, 0])), np.int32)
@@ -455,28 +506,42 @@ def _check_layout(lay: A.Layout, sizes: np.ndarray, page_size: int) -> bool:
     return True
 
 
-def compare_packers(tiles: dict[tuple[int, int, int], TileStats], page_size: int, n_tiles: int = PACKER_TILES,
-                    stage_packer: str = "shelf") -> dict[str, Any]:
+def compare_packers(
+    tiles: dict[tuple[int, int, int], TileStats],
+    page_size: int,
+    n_tiles: int = PACKER_TILES,
+    stage_packer: str = "shelf",
+) -> dict[str, Any]:
     """Shelf against xatlas on the chart sizes of the tiles with the most charts (n_tiles = 0: every tile)."""
     chosen = sorted((t for t in tiles.values() if t.pages), key=lambda t: (-t.charts, t.key))
     if n_tiles > 0:
         chosen = chosen[:n_tiles]
     rows = []
-    totals = {p: {"pages": 0, "page_texels": 0, "content_texels": 0, "seconds": 0.0, "ok": True}
-              for p in A.PACKERS}
+    totals = {p: {"pages": 0, "page_texels": 0, "content_texels": 0, "seconds": 0.0, "ok": True} for p in A.PACKERS}
     for t in chosen:
         sizes = np.concatenate(t.chart_sizes).astype(np.int64)
         pad = t.padding
-        row: dict[str, Any] = {"level": t.level, "x": t.x, "y": t.y, "gen_level": t.gen_level,
-                               "charts": len(sizes), "padding": pad,
-                               "stored": {"pages": t.pages, "utilization": round(t.content_texels / t.page_texels, 4)}}
+        row: dict[str, Any] = {
+            "level": t.level,
+            "x": t.x,
+            "y": t.y,
+            "gen_level": t.gen_level,
+            "charts": len(sizes),
+            "padding": pad,
+            "stored": {"pages": t.pages, "utilization": round(t.content_texels / t.page_texels, 4)},
+        }
         for packer in A.PACKERS:
             lay = A.layout(sizes, page_size, packer, pad, pot=True)  # the stage's pages: powers of two a side
             area = int((lay.page_dims[:, 0] * lay.page_dims[:, 1]).sum())
             ok = _check_layout(lay, sizes, page_size)
-            row[packer] = {"pages": lay.n_pages, "page_texels": area, "utilization": round(lay.total_utilization, 4),
-                           "min_page_utilization": round(float(lay.utilization.min()), 4),
-                           "seconds": round(lay.seconds, 4), "placed_ok": ok}
+            row[packer] = {
+                "pages": lay.n_pages,
+                "page_texels": area,
+                "utilization": round(lay.total_utilization, 4),
+                "min_page_utilization": round(float(lay.utilization.min()), 4),
+                "seconds": round(lay.seconds, 4),
+                "placed_ok": ok,
+            }
             tot = totals[packer]
             tot["pages"] += lay.n_pages
             tot["page_texels"] += area
@@ -487,33 +552,53 @@ def compare_packers(tiles: dict[tuple[int, int, int], TileStats], page_size: int
     by_band = []
     for g in sorted({r["gen_level"] for r in rows}):
         rs = [r for r in rows if r["gen_level"] == g]
-        band: dict[str, Any] = {"gen_level": g, "band": band_name(g), "tiles": len(rs),
-                                "charts": sum(r["charts"] for r in rs)}
+        band: dict[str, Any] = {
+            "gen_level": g,
+            "band": band_name(g),
+            "tiles": len(rs),
+            "charts": sum(r["charts"] for r in rs),
+        }
         for packer in A.PACKERS:
             content = sum(r[packer]["utilization"] * r[packer]["page_texels"] for r in rs)
             area = sum(r[packer]["page_texels"] for r in rs)
-            band[packer] = {"pages": sum(r[packer]["pages"] for r in rs),
-                            "utilization": round(content / area, 4) if area else None,
-                            "seconds": round(sum(r[packer]["seconds"] for r in rs), 3)}
+            band[packer] = {
+                "pages": sum(r[packer]["pages"] for r in rs),
+                "utilization": round(content / area, 4) if area else None,
+                "seconds": round(sum(r[packer]["seconds"] for r in rs), 3),
+            }
         by_band.append(band)
     for tot in totals.values():
         tot["utilization"] = round(tot["content_texels"] / tot["page_texels"], 4) if tot["page_texels"] else None
         tot["seconds"] = round(tot["seconds"], 3)
-    return {"tiles": len(chosen), "of_tiles": sum(1 for t in tiles.values() if t.pages),
-            "charts": sum(r["charts"] for r in rows), "page_size": page_size, "totals": totals,
-            "xatlas_better": sum(r["xatlas"]["utilization"] > r["shelf"]["utilization"] for r in rows),
-            # the stage's own packer on these sizes gives its pages back: they are the sizes it packed
-            "stage_packer": stage_packer,
-            "stage_reproduced": all(r[stage_packer]["pages"] == r["stored"]["pages"] and abs(
-                r[stage_packer]["utilization"] - r["stored"]["utilization"]) < 1e-3 for r in rows),
-            "by_band": by_band, "rows": rows}
+    return {
+        "tiles": len(chosen),
+        "of_tiles": sum(1 for t in tiles.values() if t.pages),
+        "charts": sum(r["charts"] for r in rows),
+        "page_size": page_size,
+        "totals": totals,
+        "xatlas_better": sum(r["xatlas"]["utilization"] > r["shelf"]["utilization"] for r in rows),
+        # the stage's own packer on these sizes gives its pages back: they are the sizes it packed
+        "stage_packer": stage_packer,
+        "stage_reproduced": all(
+            r[stage_packer]["pages"] == r["stored"]["pages"]
+            and abs(r[stage_packer]["utilization"] - r["stored"]["utilization"]) < 1e-3
+            for r in rows
+        ),
+        "by_band": by_band,
+        "rows": rows,
+    }
 
 
 # --- the measurement -------------------------------------------------------------------------------------------
 
 
-def measure(url: str, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_ENCODE, seed: int = SEED,
-            settings: Settings | None = None) -> dict[str, Any]:
+def measure(
+    url: str,
+    packer_tiles: int = PACKER_TILES,
+    max_encode: int = MAX_ENCODE,
+    seed: int = SEED,
+    settings: Settings | None = None,
+) -> dict[str, Any]:
     """Every figure of the report (no files): the dict textures.json holds, minus machine and command."""
     settings = settings or Settings.from_env()
     t0 = time.perf_counter()
@@ -521,29 +606,41 @@ def measure(url: str, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_EN
         conn.execute("SET default_transaction_read_only = on")
         tiles = read_tiles(conn)
         total = summarize(tiles.values())
-        log(f"{total['textured_tiles']} textured tiles of {total['tiles']}, {total['pages']} pages, "
-            f"{total['bytes'] / 1e6:.1f} MB, utilization {100 * (total['utilization'] or 0):.1f} %")
+        log(
+            f"{total['textured_tiles']} textured tiles of {total['tiles']}, {total['pages']} pages, "
+            f"{total['bytes'] / 1e6:.1f} MB, utilization {100 * (total['utilization'] or 0):.1f} %"
+        )
         charts: dict[tuple[int, int, int], TileCharts] = {}
         views = {}
         for name, cam in (("near", vb.street_camera(conn)), ("overview", vb.overview_camera(conn))):
             views[name] = measure_view(conn, name, cam, tiles, charts, settings, max_encode, seed, vb.MAX_SSE)
             v = views[name]
-            log(f"{name}: {v['tiles']} tiles, {v['textured_features']} textured features: draw calls "
+            log(
+                f"{name}: {v['tiles']} tiles, {v['textured_features']} textured features: draw calls "
                 f"{v['atlas']['draw_calls']} vs {v['per_building']['draw_calls']} ({v['draw_call_ratio']}x), "
-                f"bytes {v['atlas']['bytes']:,} vs {v['per_building']['bytes']:,} ({v['seconds']} s)")
+                f"bytes {v['atlas']['bytes']:,} vs {v['per_building']['bytes']:,} ({v['seconds']} s)"
+            )
         t1 = time.perf_counter()
         packers = compare_packers(tiles, settings.tex_page_size, packer_tiles, settings.tex_packer)
         pt = packers["totals"]
-        log(f"packers on {packers['tiles']} tiles ({packers['charts']:,} charts): shelf "
+        log(
+            f"packers on {packers['tiles']} tiles ({packers['charts']:,} charts): shelf "
             f"{100 * (pt['shelf']['utilization'] or 0):.1f} % in {pt['shelf']['seconds']} s, xatlas "
             f"{100 * (pt['xatlas']['utilization'] or 0):.1f} % in {pt['xatlas']['seconds']} s "
-            f"({time.perf_counter() - t1:.1f} s)")
+            f"({time.perf_counter() - t1:.1f} s)"
+        )
     over = views["overview"]
     return {
         "database": db_name(url),
-        "settings": {"page_size": settings.tex_page_size, "max_texels_per_metre": settings.tex_max_texels_per_metre,
-                     "padding_max": settings.tex_padding, "quality": settings.tex_quality, "webp_method": WEBP_METHOD,
-                     "packer": settings.tex_packer, "max_sse": vb.MAX_SSE},
+        "settings": {
+            "page_size": settings.tex_page_size,
+            "max_texels_per_metre": settings.tex_max_texels_per_metre,
+            "padding_max": settings.tex_padding,
+            "quality": settings.tex_quality,
+            "webp_method": WEBP_METHOD,
+            "packer": settings.tex_packer,
+            "max_sse": vb.MAX_SSE,
+        },
         "parameters": {"packer_tiles": packer_tiles, "max_encode": max_encode, "seed": seed},
         "totals": total,
         "utilization_target": UTIL_TARGET,
@@ -579,18 +676,42 @@ def _rho(r: list[float] | None) -> str:
 def _group_rows(groups: list[dict[str, Any]], by: str) -> list[list[object]]:
     rows = []
     for g in groups:
-        label = f"{g['gen_level']} ({g['band']})" if by == "gen_level" else \
-            f"{g['level']} (bands {', '.join(str(b) for b in g['bands'])})"
-        rows.append([label, f"{g['textured_tiles']}/{g['tiles']}", f"{g['pages']:,}", _mb(g["bytes"]),
-                     _pct(g["utilization"]), _pct(g["mean_page_utilization"]), _pct(g["min_page_utilization"]),
-                     _rho(g["texels_per_metre"]), f"{g['pages_per_tile']:.1f}",
-                     f"{g['draw_calls_per_tile']:.1f} (max {g['max_draw_calls_per_tile']})",
-                     f"{g['per_building_draw_calls_per_tile']:,.0f}"])
+        label = (
+            f"{g['gen_level']} ({g['band']})"
+            if by == "gen_level"
+            else f"{g['level']} (bands {', '.join(str(b) for b in g['bands'])})"
+        )
+        rows.append(
+            [
+                label,
+                f"{g['textured_tiles']}/{g['tiles']}",
+                f"{g['pages']:,}",
+                _mb(g["bytes"]),
+                _pct(g["utilization"]),
+                _pct(g["mean_page_utilization"]),
+                _pct(g["min_page_utilization"]),
+                _rho(g["texels_per_metre"]),
+                f"{g['pages_per_tile']:.1f}",
+                f"{g['draw_calls_per_tile']:.1f} (max {g['max_draw_calls_per_tile']})",
+                f"{g['per_building_draw_calls_per_tile']:,.0f}",
+            ]
+        )
     return rows
 
 
-GROUP_HEADER = ["", "textured tiles", "pages", "MB", "utilization", "mean page", "worst page", "texels/m",
-                "pages/tile", "draw calls/tile", "one texture per building: draw calls/tile"]
+GROUP_HEADER = [
+    "",
+    "textured tiles",
+    "pages",
+    "MB",
+    "utilization",
+    "mean page",
+    "worst page",
+    "texels/m",
+    "pages/tile",
+    "draw calls/tile",
+    "one texture per building: draw calls/tile",
+]
 
 
 def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
@@ -600,7 +721,8 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
     v = r["views"]
     pk = r["packers"]
     lines = [
-        f"{h} Atlases per band", "",
+        f"{h} Atlases per band",
+        "",
         f"{t['textured_tiles']} of {t['tiles']} tiles textured, {t['textured_features']:,} features "
         f"({t['failed_features']:,} failed), {t['pages']:,} pages of at most {r['settings']['page_size']} texels, "
         f"{t['bytes'] / 1e6:.1f} MB of WebP; utilization {_pct(t['utilization'])} of the page texels hold chart "
@@ -608,81 +730,167 @@ def section_lines(r: dict[str, Any], h: str = "##") -> list[str]:
         "*utilization*: chart texels / page texels over the group's pages (texel-weighted); *mean page*, "
         "*worst page*: of the pages' own utilizations. *draw calls/tile*: glTF primitives the exporter writes "
         "(one per atlas page used, plus the vertex-coloured one where a feature has no UVs); one texture per "
-        "building: the tile's textured features + that primitive.", "",
-        *markdown_table(["band (gen_level)", *GROUP_HEADER[1:]], _group_rows(r["bands"], "gen_level"),
-                        "lrrrrrrrrrr"), "",
-        f"{h} Atlases per quadtree level", "",
-        *markdown_table(["level", *GROUP_HEADER[1:]], _group_rows(r["levels"], "level"), "lrrrrrrrrrr"), "",
-        f"{h} Atlases against one texture per building", "",
+        "building: the tile's textured features + that primitive.",
+        "",
+        *markdown_table(["band (gen_level)", *GROUP_HEADER[1:]], _group_rows(r["bands"], "gen_level"), "lrrrrrrrrrr"),
+        "",
+        f"{h} Atlases per quadtree level",
+        "",
+        *markdown_table(["level", *GROUP_HEADER[1:]], _group_rows(r["levels"], "level"), "lrrrrrrrrrr"),
+        "",
+        f"{h} Atlases against one texture per building",
+        "",
         "Draw calls and texture bytes of the tiles a client loads for a camera (api.lod_for_view, "
         "`cull_features => false`, 60°, 1080 px, 16:9, max SSE "
         f"{r['settings']['max_sse']:g}). *One texture per building*: each textured feature's own charts, at the "
         "same resolution and gutters, packed alone and encoded as its own WebP (for real, from the decoded atlas "
         "texels; *encoded* says how many), each its own material and draw call (one per page), plus the "
-        "vertex-coloured primitive where there is one.", "",
+        "vertex-coloured primitive where there is one.",
+        "",
     ]
     rows = []
     for name, label in (("near", "near (street camera)"), ("overview", "overview")):
         x = v[name]
         a, b = x["atlas"], x["per_building"]
-        rows.append([f"{label}: {x['camera']['height']:,.0f} m, pitch {x['camera']['pitch']:.0f}°",
-                     f"{x['tiles']} (bands {', '.join(str(g) for g in x['bands'])})", f"{x['textured_features']:,}",
-                     f"{a['draw_calls']:,}", f"{b['draw_calls']:,}", f"**{x['draw_call_ratio']}×**",
-                     _mb(a["bytes"]), _mb(b["bytes"]), f"{x['bytes_ratio']}×",
-                     f"{a['page_texels'] / 1e6:.2f} / {b['page_texels'] / 1e6:.2f} ({_pct(b['utilization'])})",
-                     f"{b['encoded']:,} of {x['textured_features']:,}"])
+        rows.append(
+            [
+                f"{label}: {x['camera']['height']:,.0f} m, pitch {x['camera']['pitch']:.0f}°",
+                f"{x['tiles']} (bands {', '.join(str(g) for g in x['bands'])})",
+                f"{x['textured_features']:,}",
+                f"{a['draw_calls']:,}",
+                f"{b['draw_calls']:,}",
+                f"**{x['draw_call_ratio']}×**",
+                _mb(a["bytes"]),
+                _mb(b["bytes"]),
+                f"{x['bytes_ratio']}×",
+                f"{a['page_texels'] / 1e6:.2f} / {b['page_texels'] / 1e6:.2f} ({_pct(b['utilization'])})",
+                f"{b['encoded']:,} of {x['textured_features']:,}",
+            ]
+        )
     over = v["overview"]
-    lines += [*markdown_table(["camera", "tiles", "textured features", "draw calls: atlases",
-                               "one texture per building", "fewer", "MB: atlases", "one per building", "more",
-                               "M page texels: atlases / per building (its utilization)", "encoded"], rows,
-                              "lrrrrrrrrrr"), "",
-              f"Overview: {over['draw_call_ratio']}× fewer draw calls with atlases (target ≥ "
-              f"{r['draw_call_target']:g}×: {pass_mark(r['draw_call_pass'])}).", "",
-              f"{h} Shelf packer against xatlas on real tiles", "",
-              f"The chart sizes the stage packed (tex.page.rects) of the {pk['tiles']} tiles with the most charts "
-              f"(of {pk['of_tiles']} textured; {pk['charts']:,} charts), laid out again by atlas.layout with each "
-              f"packer, the tile's gutter and {pk['page_size']}-texel pages; time = the packer alone. Every chart "
-              "placed once, unshrunk, inside its page, no slots overlapping: "
-              f"shelf {'yes' if pk['totals']['shelf']['ok'] else '**no**'}, xatlas "
-              f"{'yes' if pk['totals']['xatlas']['ok'] else '**no**'}. The stage's packer ({pk['stage_packer']}) "
-              f"gives the stored pages back: {'yes' if pk['stage_reproduced'] else '**no**'}.", ""]
+    lines += [
+        *markdown_table(
+            [
+                "camera",
+                "tiles",
+                "textured features",
+                "draw calls: atlases",
+                "one texture per building",
+                "fewer",
+                "MB: atlases",
+                "one per building",
+                "more",
+                "M page texels: atlases / per building (its utilization)",
+                "encoded",
+            ],
+            rows,
+            "lrrrrrrrrrr",
+        ),
+        "",
+        f"Overview: {over['draw_call_ratio']}× fewer draw calls with atlases (target ≥ "
+        f"{r['draw_call_target']:g}×: {pass_mark(r['draw_call_pass'])}).",
+        "",
+        f"{h} Shelf packer against xatlas on real tiles",
+        "",
+        f"The chart sizes the stage packed (tex.page.rects) of the {pk['tiles']} tiles with the most charts "
+        f"(of {pk['of_tiles']} textured; {pk['charts']:,} charts), laid out again by atlas.layout with each "
+        f"packer, the tile's gutter and {pk['page_size']}-texel pages; time = the packer alone. Every chart "
+        "placed once, unshrunk, inside its page, no slots overlapping: "
+        f"shelf {'yes' if pk['totals']['shelf']['ok'] else '**no**'}, xatlas "
+        f"{'yes' if pk['totals']['xatlas']['ok'] else '**no**'}. The stage's packer ({pk['stage_packer']}) "
+        f"gives the stored pages back: {'yes' if pk['stage_reproduced'] else '**no**'}.",
+        "",
+    ]
     prow = []
     for p in A.PACKERS:
         tt = pk["totals"][p]
-        prow.append([p, f"{tt['pages']:,}", _pct(tt["utilization"]), f"{tt['seconds']:.2f}",
-                     f"{1e3 * tt['seconds'] / max(pk['charts'], 1):.3f}"])
-    lines += [*markdown_table(["packer", "pages", "utilization", "seconds", "ms/chart"], prow, "lrrrr"), "",
-              f"xatlas reaches a higher utilization on {pk['xatlas_better']} of {pk['tiles']} tiles. By band:", ""]
-    brow = [[f"{b['gen_level']} ({b['band']})", str(b["tiles"]), f"{b['charts']:,}",
-             f"{b['shelf']['pages']} / {b['xatlas']['pages']}",
-             f"{_pct(b['shelf']['utilization'])} / {_pct(b['xatlas']['utilization'])}",
-             f"{b['shelf']['seconds']:.2f} / {b['xatlas']['seconds']:.2f}"] for b in pk["by_band"]]
-    lines += [*markdown_table(["band", "tiles", "charts", "pages shelf / xatlas", "utilization shelf / xatlas",
-                               "seconds shelf / xatlas"], brow, "lrrrrr"), ""]
-    rows = [[f"{x['level']}/{x['x']}/{x['y']} (band {x['gen_level']})", f"{x['charts']:,}", str(x["padding"]),
-             f"{x['shelf']['pages']} / {x['xatlas']['pages']}",
-             f"{_pct(x['shelf']['utilization'])} / {_pct(x['xatlas']['utilization'])}",
-             f"{x['shelf']['seconds']:.3f} / {x['xatlas']['seconds']:.3f}"] for x in pk["rows"][:10]]
-    lines += [f"The {min(10, len(pk['rows']))} tiles with the most charts:", "",
-              *markdown_table(["tile", "charts", "gutter", "pages shelf / xatlas", "utilization shelf / xatlas",
-                               "seconds shelf / xatlas"], rows, "lrrrrr")]
+        prow.append(
+            [
+                p,
+                f"{tt['pages']:,}",
+                _pct(tt["utilization"]),
+                f"{tt['seconds']:.2f}",
+                f"{1e3 * tt['seconds'] / max(pk['charts'], 1):.3f}",
+            ]
+        )
+    lines += [
+        *markdown_table(["packer", "pages", "utilization", "seconds", "ms/chart"], prow, "lrrrr"),
+        "",
+        f"xatlas reaches a higher utilization on {pk['xatlas_better']} of {pk['tiles']} tiles. By band:",
+        "",
+    ]
+    brow = [
+        [
+            f"{b['gen_level']} ({b['band']})",
+            str(b["tiles"]),
+            f"{b['charts']:,}",
+            f"{b['shelf']['pages']} / {b['xatlas']['pages']}",
+            f"{_pct(b['shelf']['utilization'])} / {_pct(b['xatlas']['utilization'])}",
+            f"{b['shelf']['seconds']:.2f} / {b['xatlas']['seconds']:.2f}",
+        ]
+        for b in pk["by_band"]
+    ]
+    lines += [
+        *markdown_table(
+            ["band", "tiles", "charts", "pages shelf / xatlas", "utilization shelf / xatlas", "seconds shelf / xatlas"],
+            brow,
+            "lrrrrr",
+        ),
+        "",
+    ]
+    rows = [
+        [
+            f"{x['level']}/{x['x']}/{x['y']} (band {x['gen_level']})",
+            f"{x['charts']:,}",
+            str(x["padding"]),
+            f"{x['shelf']['pages']} / {x['xatlas']['pages']}",
+            f"{_pct(x['shelf']['utilization'])} / {_pct(x['xatlas']['utilization'])}",
+            f"{x['shelf']['seconds']:.3f} / {x['xatlas']['seconds']:.3f}",
+        ]
+        for x in pk["rows"][:10]
+    ]
+    lines += [
+        f"The {min(10, len(pk['rows']))} tiles with the most charts:",
+        "",
+        *markdown_table(
+            [
+                "tile",
+                "charts",
+                "gutter",
+                "pages shelf / xatlas",
+                "utilization shelf / xatlas",
+                "seconds shelf / xatlas",
+            ],
+            rows,
+            "lrrrrr",
+        ),
+    ]
     return lines
 
 
 def render_markdown(report: dict[str, Any]) -> str:
-    lines = ["# Texture atlases", "", f"Generated by `{report['command']}` on `{report['database']}` in "
-             f"{report['seconds']:.0f} s; the database is only read. benchmarks/report_textures.py explains every "
-             "figure.", ""]
+    lines = [
+        "# Texture atlases",
+        "",
+        f"Generated by `{report['command']}` on `{report['database']}` in "
+        f"{report['seconds']:.0f} s; the database is only read. benchmarks/report_textures.py explains every "
+        "figure.",
+        "",
+    ]
     lines += section_lines(report)
-    lines += ["", "## How the baseline's bytes were computed", "",
-              "Each textured feature's texture is built for real: the charts its triangles' UVs fall in (tex.page."
-              "rects) and a small palette of the flat-colour texels it uses are laid out alone by the shelf packer "
-              "(the tile's gutter, page size), filled from the decoded atlas pages and encoded with the stage's "
-              f"WebP settings (quality {report['settings']['quality']}, method {report['settings']['webp_method']}). "
-              f"Above {report['parameters']['max_encode']:,} features per view a seeded sample is encoded and the "
-              "rest estimated at the sample's bytes per page texel. Re-encoding already WebP-decoded texels "
-              "compresses a little better than fresh ones would, so the baseline's bytes are if anything low.",
-              ""]
+    lines += [
+        "",
+        "## How the baseline's bytes were computed",
+        "",
+        "Each textured feature's texture is built for real: the charts its triangles' UVs fall in (tex.page."
+        "rects) and a small palette of the flat-colour texels it uses are laid out alone by the shelf packer "
+        "(the tile's gutter, page size), filled from the decoded atlas pages and encoded with the stage's "
+        f"WebP settings (quality {report['settings']['quality']}, method {report['settings']['webp_method']}). "
+        f"Above {report['parameters']['max_encode']:,} features per view a seeded sample is encoded and the "
+        "rest estimated at the sample's bytes per page texel. Re-encoding already WebP-decoded texels "
+        "compresses a little better than fresh ones would, so the baseline's bytes are if anything low.",
+        "",
+    ]
     lines += machine_section(report["machine"])
     lines += ["", "![utilization per band, draw calls and bytes per view, shelf vs xatlas](textures.png)", ""]
     return "\n".join(lines)
@@ -706,13 +914,20 @@ def plot(report: dict[str, Any], path: Path) -> None:
     a.axhline(100 * report["utilization_target"], color="grey", ls="--", lw=1, label="target")
     for i, b in enumerate(bands):
         a.annotate(f"{b['pages']} p\n{_mb(b['bytes'])} MB", (i, 2), ha="center", fontsize=8, color="white")
-    a.set(xticks=xs, xticklabels=[f"{b['gen_level']}\n{b['band'].replace(' ', chr(10), 1)}" for b in bands],
-          ylim=(0, 112), ylabel="utilization (%)", title="Atlas utilization per band (pages, MB)")
+    a.set(
+        xticks=xs,
+        xticklabels=[f"{b['gen_level']}\n{b['band'].replace(' ', chr(10), 1)}" for b in bands],
+        ylim=(0, 112),
+        ylabel="utilization (%)",
+        title="Atlas utilization per band (pages, MB)",
+    )
     a.legend(loc="upper center", fontsize=8, ncol=3)
     names = ["near", "overview"]
     views = [report["views"][n] for n in names]
-    for a, key, title, scale in ((ax[0, 1], "draw_calls", "Draw calls per view", 1.0),
-                                 (ax[1, 0], "bytes", "Texture MB per view", 1e-6)):
+    for a, key, title, scale in (
+        (ax[0, 1], "draw_calls", "Draw calls per view", 1.0),
+        (ax[1, 0], "bytes", "Texture MB per view", 1e-6),
+    ):
         w = 0.38
         at = [v["atlas"][key] * scale for v in views]
         pb = [v["per_building"][key] * scale for v in views]
@@ -721,8 +936,14 @@ def plot(report: dict[str, Any], path: Path) -> None:
         for i, v in enumerate(views):
             ratio = v["draw_call_ratio"] if key == "draw_calls" else v["bytes_ratio"]
             a.annotate(f"{ratio}×", (i, max(at[i], pb[i])), ha="center", va="bottom", fontsize=9)
-        a.set(xticks=[0, 1], xticklabels=[f"{n}\n({v['tiles']} tile{'s' if v['tiles'] != 1 else ''})"
-                                          for n, v in zip(names, views, strict=True)], title=title, yscale="log")
+        a.set(
+            xticks=[0, 1],
+            xticklabels=[
+                f"{n}\n({v['tiles']} tile{'s' if v['tiles'] != 1 else ''})" for n, v in zip(names, views, strict=True)
+            ],
+            title=title,
+            yscale="log",
+        )
         a.legend(fontsize=8)
     a = ax[1, 1]
     rows = report["packers"]["rows"]
@@ -733,9 +954,13 @@ def plot(report: dict[str, Any], path: Path) -> None:
     lo = min(su + xu, default=50) - 2
     a.plot([lo, 100], [lo, 100], color="grey", lw=0.8, ls="--")
     tt = report["packers"]["totals"]
-    a.set(xlabel=f"shelf utilization (%), {tt['shelf']['seconds']:.2f} s in all",
-          ylabel=f"xatlas utilization (%), {tt['xatlas']['seconds']:.2f} s in all",
-          title=f"Packers on {len(rows)} real tiles (dot size: charts)", xlim=(lo, 100), ylim=(lo, 100))
+    a.set(
+        xlabel=f"shelf utilization (%), {tt['shelf']['seconds']:.2f} s in all",
+        ylabel=f"xatlas utilization (%), {tt['xatlas']['seconds']:.2f} s in all",
+        title=f"Packers on {len(rows)} real tiles (dot size: charts)",
+        xlim=(lo, 100),
+        ylim=(lo, 100),
+    )
     for a in ax.flat:
         a.grid(True, alpha=0.3)
     fig.suptitle(f"citylod texture atlases ({report['database']})", fontsize=14)
@@ -747,11 +972,19 @@ def plot(report: dict[str, Any], path: Path) -> None:
 # --- main -------------------------------------------------------------------------------------------------------
 
 
-def run(url: str, out: Path, packer_tiles: int = PACKER_TILES, max_encode: int = MAX_ENCODE, seed: int = SEED,
-        command: str = "") -> dict[str, Any]:
+def run(
+    url: str,
+    out: Path,
+    packer_tiles: int = PACKER_TILES,
+    max_encode: int = MAX_ENCODE,
+    seed: int = SEED,
+    command: str = "",
+) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
-    report = {"command": command or "python -m benchmarks.report_textures", **measure(url, packer_tiles, max_encode,
-                                                                                     seed)}
+    report = {
+        "command": command or "python -m benchmarks.report_textures",
+        **measure(url, packer_tiles, max_encode, seed),
+    }
     report["machine"] = machine(url, osm2pgsql=False)
     (out / "textures.json").write_text(json.dumps(report, indent=1, ensure_ascii=False) + "\n")
     (out / "textures.md").write_text(render_markdown(report))
@@ -764,11 +997,18 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.report_textures", description=__doc__.split("\n\n")[0])
     p.add_argument("--db", help="database URL (default: DATABASE_URL, else the local cluster's city database)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default: {DEFAULT_OUT})")
-    p.add_argument("--packer-tiles", type=int, default=PACKER_TILES,
-                   help=f"tiles (most charts first) to pack with shelf and xatlas; 0 = all (default {PACKER_TILES})")
-    p.add_argument("--max-encode", type=int, default=MAX_ENCODE,
-                   help=f"per view, features whose own texture is encoded for real; the rest estimated "
-                        f"(default {MAX_ENCODE})")
+    p.add_argument(
+        "--packer-tiles",
+        type=int,
+        default=PACKER_TILES,
+        help=f"tiles (most charts first) to pack with shelf and xatlas; 0 = all (default {PACKER_TILES})",
+    )
+    p.add_argument(
+        "--max-encode",
+        type=int,
+        default=MAX_ENCODE,
+        help=f"per view, features whose own texture is encoded for real; the rest estimated (default {MAX_ENCODE})",
+    )
     p.add_argument("--seed", type=int, default=SEED, help=f"seed of the encoded sample (default {SEED})")
     args = p.parse_args(argv)
     if args.packer_tiles < 0 or args.max_encode < 1:

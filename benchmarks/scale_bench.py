@@ -70,9 +70,12 @@ class ServerMemory:
                     procs[pid] = cmd
         backends = {pid for pid, cmd in procs.items() if self.dbname in cmd.split(b" ")}
         # a parallel worker names its leader: "postgres: parallel worker for PID <pid>"
-        ours = backends | {pid for pid, cmd in procs.items()
-                           if cmd.rstrip(b"\0 ").rsplit(b" ", 1)[-1].decode(errors="replace") in backends
-                           and b"parallel worker for PID" in cmd}
+        ours = backends | {
+            pid
+            for pid, cmd in procs.items()
+            if cmd.rstrip(b"\0 ").rsplit(b" ", 1)[-1].decode(errors="replace") in backends
+            and b"parallel worker for PID" in cmd
+        }
         total = 0
         for pid in ours:
             try:
@@ -106,8 +109,7 @@ def _dir_bytes(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
-def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, dask: bool = False
-               ) -> dict[str, Any]:
+def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, dask: bool = False) -> dict[str, Any]:
     """The pipeline on ``copies`` replicas of ``extract``: one result row of the Scale section (with ``dask``,
     then the Dask stages again on 1 and 2 workers: dask_speedup)."""
     from core import cluster
@@ -135,14 +137,18 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, d
             with ServerMemory(dbname) as mem:
                 seconds, rss = run_child([sys.executable, "-m", "etl", stage, *args], env, logs / f"{stage}.log")
             _, stage_s = last_run(url, stage)  # its own seconds, without the interpreter's start and the imports
-            stages[stage] = {"s": round(seconds, 2), "client_rss_mib": round(rss, 1),
-                             "server_rss_mib": round(mem.peak_mib, 1)}
+            stages[stage] = {
+                "s": round(seconds, 2),
+                "client_rss_mib": round(rss, 1),
+                "server_rss_mib": round(mem.peak_mib, 1),
+            }
             if stage_s is not None:
                 stages[stage]["stage_s"] = round(stage_s, 2)
             log(f"scale x{copies} {stage:<10} {seconds:8.1f} s  client {rss:6.0f} MiB  server {mem.peak_mib:6.0f} MiB")
         with psycopg.connect(url) as conn:
-            row = conn.execute("SELECT (SELECT count(*) FROM osm.building), pg_database_size(current_database())"
-                               ).fetchone()
+            row = conn.execute(
+                "SELECT (SELECT count(*) FROM osm.building), pg_database_size(current_database())"
+            ).fetchone()
             assert row is not None
             buildings, db_bytes = int(row[0]), int(row[1])
         speedup = dask_speedup(url, env, logs, tiles) if dask else None
@@ -152,16 +158,28 @@ def run_copies(extract: Path, copies: int, admin_url: str, keep: bool = False, d
     o2p = _osm2pgsql(osm, admin_url, logs / "osm2pgsql.log")
     total = sum(s["s"] for s in stages.values())
     return {
-        "copies": copies, "osm": str(osm), "osm_bytes": osm.stat().st_size, "buildings": buildings,
-        "replicate_s": rep["seconds"] if rep else 0.0, "stages": stages, "total_s": round(total, 1),
-        "buildings_per_s": round(buildings / total, 1), "db_bytes": db_bytes, "tileset_bytes": _dir_bytes(tiles),
-        "osm2pgsql_s": o2p, "dask": speedup,
+        "copies": copies,
+        "osm": str(osm),
+        "osm_bytes": osm.stat().st_size,
+        "buildings": buildings,
+        "replicate_s": rep["seconds"] if rep else 0.0,
+        "stages": stages,
+        "total_s": round(total, 1),
+        "buildings_per_s": round(buildings / total, 1),
+        "db_bytes": db_bytes,
+        "tileset_bytes": _dir_bytes(tiles),
+        "osm2pgsql_s": o2p,
+        "dask": speedup,
     }
 
 
 #: The stages whose units run as Dask tasks, and the setting that gives their worker count.
-DASK_STAGES = {"lod": "CITYLOD_LOD_WORKERS", "generalize": "CITYLOD_GEN_WORKERS", "textures": "CITYLOD_TEX_WORKERS",
-               "export": "CITYLOD_EXPORT_WORKERS"}
+DASK_STAGES = {
+    "lod": "CITYLOD_LOD_WORKERS",
+    "generalize": "CITYLOD_GEN_WORKERS",
+    "textures": "CITYLOD_TEX_WORKERS",
+    "export": "CITYLOD_EXPORT_WORKERS",
+}
 
 
 def dask_speedup(url: str, env: dict[str, str], logs: Path, tiles: Path) -> dict[str, dict[str, float]]:
@@ -178,8 +196,10 @@ def dask_speedup(url: str, env: dict[str, str], logs: Path, tiles: Path) -> dict
             row[f"w{n}_s"] = round(float(stage_s or 0.0), 2)
         row["speedup"] = round(row["w1_s"] / row["w2_s"], 2) if row["w2_s"] else 0.0
         out[stage] = row
-        log(f"scale dask {stage:<10} 1 worker {row['w1_s']:7.1f} s  2 workers {row['w2_s']:7.1f} s  "
-            f"x{row['speedup']:.2f}")
+        log(
+            f"scale dask {stage:<10} 1 worker {row['w1_s']:7.1f} s  2 workers {row['w2_s']:7.1f} s  "
+            f"x{row['speedup']:.2f}"
+        )
         if stage == "lod":
             run_child([sys.executable, "-m", "etl", "tiles"], env, logs / "tiles-again.log")
     return out
@@ -223,8 +243,7 @@ def exponents(runs: list[dict[str, Any]]) -> list[dict[str, float]]:
     return out
 
 
-def measure(extract: Path, copies: list[int], admin_url: str, keep: bool = False, dask: bool = True
-            ) -> dict[str, Any]:
+def measure(extract: Path, copies: list[int], admin_url: str, keep: bool = False, dask: bool = True) -> dict[str, Any]:
     """Every copy count; the Dask speedup on the smallest (the extract) unless ``dask`` is False."""
     sizes = sorted(set(copies))
     runs = [run_copies(extract, n, admin_url, keep, dask and n == sizes[0]) for n in sizes]
@@ -250,46 +269,97 @@ def section(data: dict[str, Any] | None) -> list[str]:
     if not data or not data.get("runs"):
         return []
     runs = data["runs"]
-    header = ["stage", *[f"×{r['copies']} s ({r['buildings']:,} bldg)" for r in runs],
-              *[f"exponent ×{a['copies']}→×{b['copies']}" for a, b in zip(runs, runs[1:], strict=False)],
-              *[f"client MiB ×{r['copies']}" for r in runs], *[f"server MiB ×{r['copies']}" for r in runs]]
+    header = [
+        "stage",
+        *[f"×{r['copies']} s ({r['buildings']:,} bldg)" for r in runs],
+        *[f"exponent ×{a['copies']}→×{b['copies']}" for a, b in zip(runs, runs[1:], strict=False)],
+        *[f"client MiB ×{r['copies']}" for r in runs],
+        *[f"server MiB ×{r['copies']}" for r in runs],
+    ]
     rows = []
     for st in STAGES:
-        rows.append([st, *[f"{r['stages'][st]['s']:,.1f}" for r in runs],
-                     *[f"{e[st]:.2f}" for e in data["exponents"]],
-                     *[f"{r['stages'][st]['client_rss_mib']:,.0f}" for r in runs],
-                     *[f"{r['stages'][st]['server_rss_mib']:,.0f}" for r in runs]])
-    rows.append(["**total**", *[f"**{r['total_s']:,.1f}**" for r in runs],
-                 *[f"**{e['total']:.2f}**" for e in data["exponents"]],
-                 *[f"{max(s['client_rss_mib'] for s in r['stages'].values()):,.0f}" for r in runs],
-                 *[f"{max(s['server_rss_mib'] for s in r['stages'].values()):,.0f}" for r in runs]])
-    out = ["", f"## Scale: {data['extract']} and its replicas, end to end", "",
-           SCALE_STAGES_NOTE.format(exp=EXPONENT_TARGET, tput=THROUGHPUT_TARGET), "",
-           *markdown_table(header, rows, "l" + "r" * (len(header) - 1)), ""]
+        rows.append(
+            [
+                st,
+                *[f"{r['stages'][st]['s']:,.1f}" for r in runs],
+                *[f"{e[st]:.2f}" for e in data["exponents"]],
+                *[f"{r['stages'][st]['client_rss_mib']:,.0f}" for r in runs],
+                *[f"{r['stages'][st]['server_rss_mib']:,.0f}" for r in runs],
+            ]
+        )
+    rows.append(
+        [
+            "**total**",
+            *[f"**{r['total_s']:,.1f}**" for r in runs],
+            *[f"**{e['total']:.2f}**" for e in data["exponents"]],
+            *[f"{max(s['client_rss_mib'] for s in r['stages'].values()):,.0f}" for r in runs],
+            *[f"{max(s['server_rss_mib'] for s in r['stages'].values()):,.0f}" for r in runs],
+        ]
+    )
+    out = [
+        "",
+        f"## Scale: {data['extract']} and its replicas, end to end",
+        "",
+        SCALE_STAGES_NOTE.format(exp=EXPONENT_TARGET, tput=THROUGHPUT_TARGET),
+        "",
+        *markdown_table(header, rows, "l" + "r" * (len(header) - 1)),
+        "",
+    ]
+
     def o2p(r: dict[str, Any]) -> list[str]:
         t = r.get("osm2pgsql_s")
         return ["–", "–"] if not t else [f"{t:,.2f}", f"{r['stages']['ingest']['s'] / t:.1f}×"]
 
     out += markdown_table(
-        ["copies", "OSM file MB", "buildings", "end to end s", "buildings/s", "database MB", "tileset MB",
-         "osm2pgsql s", "ingest / osm2pgsql"],
-        [[f"×{r['copies']}", f"{r['osm_bytes'] / 1e6:,.1f}", f"{r['buildings']:,}", f"{r['total_s']:,.1f}",
-          f"{r['buildings_per_s']:,.0f}", f"{r['db_bytes'] / 1e6:,.0f}", f"{r['tileset_bytes'] / 1e6:,.1f}",
-          *o2p(r)] for r in runs], "lrrrrrrrr")
+        [
+            "copies",
+            "OSM file MB",
+            "buildings",
+            "end to end s",
+            "buildings/s",
+            "database MB",
+            "tileset MB",
+            "osm2pgsql s",
+            "ingest / osm2pgsql",
+        ],
+        [
+            [
+                f"×{r['copies']}",
+                f"{r['osm_bytes'] / 1e6:,.1f}",
+                f"{r['buildings']:,}",
+                f"{r['total_s']:,.1f}",
+                f"{r['buildings_per_s']:,.0f}",
+                f"{r['db_bytes'] / 1e6:,.0f}",
+                f"{r['tileset_bytes'] / 1e6:,.1f}",
+                *o2p(r),
+            ]
+            for r in runs
+        ],
+        "lrrrrrrrr",
+    )
     dask = next((r for r in runs if r.get("dask")), None)
     if dask:
-        out += ["", f"Dask ({dask['copies']}×, {dask['buildings']:,} buildings): each stage whose units are Dask "
-                "tasks run again on the built database with 1 worker (its units in the stage's own process) and "
-                "on a LocalCluster of 2 workers; the stage's own seconds (meta.pipeline_run). The machine has "
-                f"{os.cpu_count()} cores, which the database shares.", ""]
-        out += markdown_table(["stage", "1 worker s", "2 Dask workers s", "speedup"],
-                              [[st, f"{v['w1_s']:,.1f}", f"{v['w2_s']:,.1f}", f"{v['speedup']:.2f}×"]
-                               for st, v in dask["dask"].items()], "lrrr")
+        out += [
+            "",
+            f"Dask ({dask['copies']}×, {dask['buildings']:,} buildings): each stage whose units are Dask "
+            "tasks run again on the built database with 1 worker (its units in the stage's own process) and "
+            "on a LocalCluster of 2 workers; the stage's own seconds (meta.pipeline_run). The machine has "
+            f"{os.cpu_count()} cores, which the database shares.",
+            "",
+        ]
+        out += markdown_table(
+            ["stage", "1 worker s", "2 Dask workers s", "speedup"],
+            [[st, f"{v['w1_s']:,.1f}", f"{v['w2_s']:,.1f}", f"{v['speedup']:.2f}×"] for st, v in dask["dask"].items()],
+            "lrrr",
+        )
     worst = max((e[st], st) for e in data["exponents"] for st in STAGES) if data["exponents"] else None
     if worst:
-        out += ["", f"* Largest stage exponent: {worst[1]} {worst[0]:.2f} (target ≤ {EXPONENT_TARGET}); end to end "
-                f"{runs[-1]['buildings_per_s']:,.0f} buildings/s at ×{runs[-1]['copies']} (target ≥ "
-                f"{THROUGHPUT_TARGET:,.0f})."]
+        out += [
+            "",
+            f"* Largest stage exponent: {worst[1]} {worst[0]:.2f} (target ≤ {EXPONENT_TARGET}); end to end "
+            f"{runs[-1]['buildings_per_s']:,.0f} buildings/s at ×{runs[-1]['copies']} (target ≥ "
+            f"{THROUGHPUT_TARGET:,.0f}).",
+        ]
     return out
 
 
@@ -298,8 +368,9 @@ def main(argv: list[str] | None = None) -> int:
 
     here = Path(__file__).resolve().parent.parent
     p = argparse.ArgumentParser(prog="python -m benchmarks.scale_bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("--extract", type=Path,
-                   default=here.parent / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf")
+    p.add_argument(
+        "--extract", type=Path, default=here.parent / "shared" / "data" / "osm" / "liechtenstein_2022-07-24.osm.pbf"
+    )
     p.add_argument("--copies", type=int, nargs="+", default=[1, 6])
     p.add_argument("--json", type=Path, help="write the measurements here (bench.py --scale-stages-json reads it)")
     p.add_argument("--keep", action="store_true", help="keep the citylod_scale_xN databases")
@@ -308,8 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.extract.exists():
         p.error(f"missing extract {args.extract}")
     cluster.ensure()
-    data = measure(args.extract.resolve(), args.copies, cluster.database_url("postgres"), args.keep,
-                   not args.no_dask)
+    data = measure(args.extract.resolve(), args.copies, cluster.database_url("postgres"), args.keep, not args.no_dask)
     text = json.dumps(data, indent=1)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

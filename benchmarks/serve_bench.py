@@ -44,8 +44,15 @@ def _percentile(sorted_values: Sequence[float], q: float) -> float:
     return sorted_values[min(len(sorted_values) - 1, max(0, math.ceil(q * len(sorted_values)) - 1))]
 
 
-def bench_server(url_base: str, paths: Sequence[str], clients: int = 64, rounds: int = 5, spread: bool = False,
-                 headers: dict[str, str] | None = None, timeout: float = 120.0) -> dict[str, Any]:
+def bench_server(
+    url_base: str,
+    paths: Sequence[str],
+    clients: int = 64,
+    rounds: int = 5,
+    spread: bool = False,
+    headers: dict[str, str] | None = None,
+    timeout: float = 120.0,
+) -> dict[str, Any]:
     """Load ``url_base`` (``http://host:port/``) with ``clients`` concurrent keep-alive clients GETting ``paths``
     (absolute paths such as ``/tiles/content/3/1/2.glb``). Returns tiles_per_s (responses per second of wall
     clock, all clients together), p50_ms, p99_ms, max_ms, requests, errors (non-200 or failed requests), bytes
@@ -145,8 +152,7 @@ def tile_paths(url_base: str, tileset: str = "/tiles/tileset.json") -> list[str]
 
 
 @contextmanager
-def served_db(database_url: str | None = None, extra_args: Sequence[str] = (),
-              timeout: float = 120.0) -> Iterator[str]:
+def served_db(database_url: str | None = None, extra_args: Sequence[str] = (), timeout: float = 120.0) -> Iterator[str]:
     """A fresh ``python -m etl serve --db --live --port 0`` subprocess (DATABASE_URL = ``database_url`` when given);
     yields its base URL; terminated after."""
     env = dict(os.environ)
@@ -156,8 +162,9 @@ def served_db(database_url: str | None = None, extra_args: Sequence[str] = (),
         yield base
 
 
-def measure_db(database_url: str | None = None, clients: int = 64, rounds: int = 5,
-               extra_args: Sequence[str] = ()) -> dict[str, Any]:
+def measure_db(
+    database_url: str | None = None, clients: int = 64, rounds: int = 5, extra_args: Sequence[str] = ()
+) -> dict[str, Any]:
     """Cold then warm figures of ``serve --db`` on the database at ``database_url`` (else DATABASE_URL / the local
     cluster): a fresh server; cold = every glb fetched once (built from the database), warm = every client
     fetching every path ``rounds`` times from the cache."""
@@ -169,8 +176,11 @@ def measure_db(database_url: str | None = None, clients: int = 64, rounds: int =
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.serve_bench", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.serve_bench",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--url", help="benchmark this running server (http://host:port/) instead of starting serve --db")
     p.add_argument("--database-url", help="DATABASE_URL for the serve --db it starts (default: the environment's)")
     p.add_argument("--lod", type=int, choices=(1, 2, 3), help="serve --db --lod")
@@ -179,8 +189,10 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.url:
         paths = tile_paths(args.url)
-        res: dict[str, Any] = {"tiles": len(paths) - 1,
-                               "warm": bench_server(args.url, paths, clients=args.clients, rounds=args.rounds)}
+        res: dict[str, Any] = {
+            "tiles": len(paths) - 1,
+            "warm": bench_server(args.url, paths, clients=args.clients, rounds=args.rounds),
+        }
     else:
         extra = ["--lod", str(args.lod)] if args.lod else []
         res = measure_db(args.database_url, clients=args.clients, rounds=args.rounds, extra_args=extra)

@@ -67,13 +67,15 @@ def measure(osm: Path, admin_url: str, db: str = SOAK_DB, rate: float = RATE) ->
     dbname = psycopg.conninfo.conninfo_to_dict(url)["dbname"]
     phases: dict[str, dict[str, Any]] = {}
     with spawned(["etl", "serve", "--db", "--tileset", out.name, "--port", "0"], env, timeout=120) as (base, _, _e):
+
         def rebuild() -> dict[str, float]:
             stages: dict[str, float] = {}
             for stage in (*PIPELINE, "export"):
                 log(f"{name}: {stage} under load")
                 extra = ["--osm", str(osm)] if stage == "ingest" else ["--out", str(out)] if stage == "export" else []
-                stages[stage] = round(run_child([sys.executable, "-m", "etl", stage, *extra], env,
-                                                logs / f"rebuild-{stage}.log")[0], 1)
+                stages[stage] = round(
+                    run_child([sys.executable, "-m", "etl", stage, *extra], env, logs / f"rebuild-{stage}.log")[0], 1
+                )
             return stages
 
         def update() -> dict[str, float]:
@@ -82,16 +84,33 @@ def measure(osm: Path, admin_url: str, db: str = SOAK_DB, rate: float = RATE) ->
             change = OUT_ROOT / "soak" / f"{name}-1pct.osc"
             write_change(osm, change)
             log(f"{name}: update under load")
-            return {"update": round(run_child([sys.executable, "-m", "etl", "update", "--osc", str(change), "--out",
-                                               str(out)], env, logs / "update.log")[0], 1)}
+            return {
+                "update": round(
+                    run_child(
+                        [sys.executable, "-m", "etl", "update", "--osc", str(change), "--out", str(out)],
+                        env,
+                        logs / "update.log",
+                    )[0],
+                    1,
+                )
+            }
 
         for phase, action in (("rebuild", rebuild), ("update", update)):
             phases[phase] = _under_load(base, url, dbname, rate, action)
-    return {"extract": name, "rate": rate, **phases,
-            "publish": {"export_s": round(first_s, 2), "export_no_publish_s": round(plain_s, 2),
-                        "export_again_s": round(again_s, 2), "files": first.get("published_files"),
-                        "bytes": first.get("published_bytes"), "again_new_files": again.get("published_new_files"),
-                        "again_new_bytes": again.get("published_new_bytes")}}
+    return {
+        "extract": name,
+        "rate": rate,
+        **phases,
+        "publish": {
+            "export_s": round(first_s, 2),
+            "export_no_publish_s": round(plain_s, 2),
+            "export_again_s": round(again_s, 2),
+            "files": first.get("published_files"),
+            "bytes": first.get("published_bytes"),
+            "again_new_files": again.get("published_new_files"),
+            "again_new_bytes": again.get("published_new_bytes"),
+        },
+    }
 
 
 def _under_load(base: str, url: str, dbname: str, rate: float, action: Any) -> dict[str, Any]:
@@ -105,9 +124,13 @@ def _under_load(base: str, url: str, dbname: str, rate: float, action: Any) -> d
     def watch() -> None:
         with psycopg.connect(url, autocommit=True) as admin:
             while not stop.is_set():
-                waits.extend(admin.execute(
-                    "SELECT wait_event, query FROM pg_stat_activity WHERE usename = %s AND datname = %s "
-                    "AND wait_event_type = 'Lock'", (READER_ROLE, dbname)).fetchall())
+                waits.extend(
+                    admin.execute(
+                        "SELECT wait_event, query FROM pg_stat_activity WHERE usename = %s AND datname = %s "
+                        "AND wait_event_type = 'Lock'",
+                        (READER_ROLE, dbname),
+                    ).fetchall()
+                )
                 samples[0] += 1
                 time.sleep(0.01)
 
@@ -125,21 +148,31 @@ def _under_load(base: str, url: str, dbname: str, rate: float, action: Any) -> d
         stop.set()
         for t in threads:
             t.join(120)
-    return {"seconds": round(time.perf_counter() - t0, 1), "stages_s": stages, "soak": result["soak"].as_dict(),
-            "lock_waits": len(waits), "lock_samples": samples[0], "lock_examples": [list(w) for w in waits[:3]]}
+    return {
+        "seconds": round(time.perf_counter() - t0, 1),
+        "stages_s": stages,
+        "soak": result["soak"].as_dict(),
+        "lock_waits": len(waits),
+        "lock_samples": samples[0],
+        "lock_examples": [list(w) for w in waits[:3]],
+    }
 
 
 def section(s: dict[str, Any] | None) -> list[str]:
     if not s:
         return []
     p = s["publish"]
-    out = ["## Soak: serving while the database is rebuilt and updated", "",
-           f"`python -m etl serve --db` (the tileset the export published into `pub.*`) under the soak client "
-           f"(tests/support/soak.py: {s['rate']:.0f} requests/s, open loop, 16 keep-alive connections, every third a "
-           f"revalidation) while every stage and the export ran again on {s['extract']}, then while `python -m "
-           "etl update` applied a change file touching 1 % of its buildings (benchmarks/update_bench.py writes "
-           "it) and published again. Command: `python -m benchmarks.soak_bench --write BENCHMARKS.md`. Target: "
-           "0 responses 5xx or 503, no server connection waiting on a lock over 100 ms.", ""]
+    out = [
+        "## Soak: serving while the database is rebuilt and updated",
+        "",
+        f"`python -m etl serve --db` (the tileset the export published into `pub.*`) under the soak client "
+        f"(tests/support/soak.py: {s['rate']:.0f} requests/s, open loop, 16 keep-alive connections, every third a "
+        f"revalidation) while every stage and the export ran again on {s['extract']}, then while `python -m "
+        "etl update` applied a change file touching 1 % of its buildings (benchmarks/update_bench.py writes "
+        "it) and published again. Command: `python -m benchmarks.soak_bench --write BENCHMARKS.md`. Target: "
+        "0 responses 5xx or 503, no server connection waiting on a lock over 100 ms.",
+        "",
+    ]
     rows = []
     for phase in ("rebuild", "update"):
         if phase not in s:
@@ -147,27 +180,60 @@ def section(s: dict[str, Any] | None) -> list[str]:
         f = s[phase]
         k = f["soak"]
         statuses = ", ".join(f"{n:,} × {code}" for code, n in k["statuses"].items())
-        rows.append([f"{'full rebuild' if phase == 'rebuild' else 'update'} ({f['seconds']:.0f} s)",
-                     f"{k['requests']:,}", statuses, k["failures"], k["bad_etags"], k["p50_ms"], k["p99_ms"],
-                     k["max_ms"], f"{f['lock_waits']} in {f['lock_samples']:,} samples"])
-    out += markdown_table(["during", "requests", "answers", "5xx + errors", "body ≠ ETag", "p50 ms", "p99 ms",
-                           "max ms", "lock waits seen"], rows, "lrllrrrrl")
-    out += ["", "Latencies are wall clock on the machine above, the client, the server and the stages sharing its "
-            "cores; a lock wait is a server connection seen in pg_stat_activity with wait_event_type Lock, sampled "
-            "every 10 ms.", ""]
+        rows.append(
+            [
+                f"{'full rebuild' if phase == 'rebuild' else 'update'} ({f['seconds']:.0f} s)",
+                f"{k['requests']:,}",
+                statuses,
+                k["failures"],
+                k["bad_etags"],
+                k["p50_ms"],
+                k["p99_ms"],
+                k["max_ms"],
+                f"{f['lock_waits']} in {f['lock_samples']:,} samples",
+            ]
+        )
+    out += markdown_table(
+        [
+            "during",
+            "requests",
+            "answers",
+            "5xx + errors",
+            "body ≠ ETag",
+            "p50 ms",
+            "p99 ms",
+            "max ms",
+            "lock waits seen",
+        ],
+        rows,
+        "lrllrrrrl",
+    )
+    out += [
+        "",
+        "Latencies are wall clock on the machine above, the client, the server and the stages sharing its "
+        "cores; a lock wait is a server connection seen in pg_stat_activity with wait_event_type Lock, sampled "
+        "every 10 ms.",
+        "",
+    ]
     if "rebuild" in s:
-        out += ["Stages under load (s): " + ", ".join(f"{st} {v}" for st, v in s["rebuild"]["stages_s"].items())
-                + ".", ""]
-    out += [f"Publishing: the export with it {p['export_s']} s, without (`--no-publish`) {p['export_no_publish_s']} s "
-            f"({p['files']:,} files, {p['bytes'] / 1e6:.1f} MB stored once by content); the same export again "
-            f"{p['export_again_s']} s, storing {p['again_new_files']} new files ({p['again_new_bytes']:,} bytes): "
-            "an unchanged tile keeps its blob and its ETag.", ""]
+        out += [
+            "Stages under load (s): " + ", ".join(f"{st} {v}" for st, v in s["rebuild"]["stages_s"].items()) + ".",
+            "",
+        ]
+    out += [
+        f"Publishing: the export with it {p['export_s']} s, without (`--no-publish`) {p['export_no_publish_s']} s "
+        f"({p['files']:,} files, {p['bytes'] / 1e6:.1f} MB stored once by content); the same export again "
+        f"{p['export_again_s']} s, storing {p['again_new_files']} new files ({p['again_new_bytes']:,} bytes): "
+        "an unchanged tile keeps its blob and its ETag.",
+        "",
+    ]
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
-    return section_bench(argv, "python -m benchmarks.soak_bench", __doc__ or "", DEFAULT_OSM, SOAK_DB, measure,
-                         section, "## Soak")
+    return section_bench(
+        argv, "python -m benchmarks.soak_bench", __doc__ or "", DEFAULT_OSM, SOAK_DB, measure, section, "## Soak"
+    )
 
 
 if __name__ == "__main__":

@@ -69,8 +69,11 @@ from core.settings import REPO
 from exporter.stream import COMPACT, PLAIN, StreamOptions
 from tests.support.servers import spawned
 
-VARIANTS: dict[str, StreamOptions] = {"compact": COMPACT, "compact-ext": replace(COMPACT, geometry="compact-ext"),
-                                       "plain": PLAIN}
+VARIANTS: dict[str, StreamOptions] = {
+    "compact": COMPACT,
+    "compact-ext": replace(COMPACT, geometry="compact-ext"),
+    "plain": PLAIN,
+}
 #: the streams CesiumJS is run on (compact-ext decodes to the same views as compact: its bytes are what differs)
 CLIENT_VARIANTS = ("compact", "plain")
 STREAM_DB = "citylod_stream"
@@ -117,7 +120,7 @@ def glb_split(data: bytes) -> dict[str, int]:
             raise ValueError(f"glb chunk at {off} runs past the end")
         if ctype == CHUNK_JSON and doc is None:
             json_len = clen
-            doc = json.loads(data[off + 8: off + 8 + clen])
+            doc = json.loads(data[off + 8 : off + 8 + clen])
         off += 8 + clen
     if doc is None:
         raise ValueError("glb without a JSON chunk")
@@ -125,8 +128,12 @@ def glb_split(data: bytes) -> dict[str, int]:
     views = doc.get("bufferViews", [])
 
     def stored(i: int) -> bool:  # the glb's BIN chunk is buffer 0 without a uri (a meshopt fallback has none)
-        return i == 0 and bool(buffers) and "uri" not in buffers[0] and not any(
-            buffers[0].get("extensions", {}).get(ext, {}).get("fallback") for ext in MESHOPT)
+        return (
+            i == 0
+            and bool(buffers)
+            and "uri" not in buffers[0]
+            and not any(buffers[0].get("extensions", {}).get(ext, {}).get("fallback") for ext in MESHOPT)
+        )
 
     def view_bytes(v: int) -> int:
         view = views[v]
@@ -142,8 +149,13 @@ def glb_split(data: bytes) -> dict[str, int]:
         for prop in table.get("properties", {}).values():
             meta_views.update(int(prop[k]) for k in ("values", "arrayOffsets", "stringOffsets") if k in prop)
     texture = sum(view_bytes(v) for v in image_views)
-    return {"bytes": len(data), "json": json_len, "texture": texture,
-            "geometry": len(data) - json_len - texture, "metadata": sum(view_bytes(v) for v in meta_views)}
+    return {
+        "bytes": len(data),
+        "json": json_len,
+        "texture": texture,
+        "geometry": len(data) - json_len - texture,
+        "metadata": sum(view_bytes(v) for v in meta_views),
+    }
 
 
 def root_content_uri(tileset: dict[str, Any]) -> str | None:
@@ -171,8 +183,11 @@ def mean_abs_diff(a: np.ndarray, b: np.ndarray, threshold: int = DIFF_THRESHOLD)
     if a.shape[:2] != b.shape[:2] or a.ndim != 3 or b.ndim != 3 or min(a.shape[2], b.shape[2]) < 3:
         raise ValueError(f"images of different sizes or not RGB: {a.shape} vs {b.shape}")
     d = np.abs(a[..., :3].astype(np.int16) - b[..., :3].astype(np.int16))
-    return {"mad": round(float(d.mean()), 3), "differing": round(float((d.max(axis=2) > threshold).mean()), 5),
-            "pixels": int(d.shape[0] * d.shape[1])}
+    return {
+        "mad": round(float(d.mean()), 3),
+        "differing": round(float((d.max(axis=2) > threshold).mean()), 5),
+        "pixels": int(d.shape[0] * d.shape[1]),
+    }
 
 
 def cesium_camera(cam: Camera, name: str) -> dict[str, Any]:
@@ -182,8 +197,17 @@ def cesium_camera(cam: Camera, name: str) -> dict[str, Any]:
     width = round(cam.viewport_height * cam.aspect)
     tv = math.tan(math.radians(cam.fov) / 2)
     fov = 2 * math.degrees(math.atan(cam.aspect * tv)) if cam.aspect > 1 else cam.fov
-    return {"name": name, "lon": cam.lon, "lat": cam.lat, "height": cam.height, "heading": cam.heading,
-            "pitch": cam.pitch, "fovDeg": fov, "width": width, "height_px": cam.viewport_height}
+    return {
+        "name": name,
+        "lon": cam.lon,
+        "lat": cam.lat,
+        "height": cam.height,
+        "heading": cam.heading,
+        "pitch": cam.pitch,
+        "fovDeg": fov,
+        "width": width,
+        "height_px": cam.viewport_height,
+    }
 
 
 def failed(reason: str) -> dict[str, Any]:
@@ -210,16 +234,19 @@ def judge(res: dict[str, Any], headline: bool) -> dict[str, bool | None]:
     out: dict[str, bool | None] = {}
     all_c, all_p = get(comp, "all", "bytes_per_building"), get(plain, "all", "bytes_per_building")
     ratio = _ratio(all_c, all_p)
-    out["all"] = None if ratio is None else (
-        ratio <= TARGET_ALL_RATIO and (not headline or all_c <= TARGET_ALL_HEADLINE))
+    out["all"] = (
+        None if ratio is None else (ratio <= TARGET_ALL_RATIO and (not headline or all_c <= TARGET_ALL_HEADLINE))
+    )
     lod1 = get(comp, "lod1", "bytes_per_building")
     out["lod1"] = None if lod1 is None else lod1 <= TARGET_LOD1
     root = get(comp, "all", "root_bytes")
     out["root"] = None if root is None else root <= TARGET_ROOT
     ex = _ratio(get(comp, "all", "seconds"), get(plain, "all", "seconds"))
     out["export"] = None if ex is None else ex <= TARGET_EXPORT_RATIO
-    tex = _ratio(get(comp, "client", "views", "street", "texturesByteLength"),
-                 get(plain, "client", "views", "street", "texturesByteLength"))
+    tex = _ratio(
+        get(comp, "client", "views", "street", "texturesByteLength"),
+        get(plain, "client", "views", "street", "texturesByteLength"),
+    )
     out["texture_memory"] = None if tex is None else tex <= TARGET_TEXTURE_MEMORY
     return out
 
@@ -234,8 +261,17 @@ def stream_flags(opts: StreamOptions) -> list[str]:
 def measure_dir(out: Path) -> dict[str, Any]:
     """Bytes of an export directory by kind (glb parts as glb_split, tileset.json, subtrees, other files) and
     the root tile's content bytes."""
-    split: dict[str, int] = {"bytes": 0, "json": 0, "texture": 0, "geometry": 0, "metadata": 0, "tileset_json": 0,
-                             "subtree": 0, "other": 0, "glb_files": 0}
+    split: dict[str, int] = {
+        "bytes": 0,
+        "json": 0,
+        "texture": 0,
+        "geometry": 0,
+        "metadata": 0,
+        "tileset_json": 0,
+        "subtree": 0,
+        "other": 0,
+        "glb_files": 0,
+    }
     for f in sorted(p for p in out.rglob("*") if p.is_file()):
         data = f.read_bytes()
         if f.suffix == ".glb":
@@ -255,14 +291,20 @@ def measure_dir(out: Path) -> dict[str, Any]:
             split["other"] += len(data)
     uri = root_content_uri(json.loads((out / "tileset.json").read_text()))
     root = out / uri if uri else None
-    return {"split": split, "bytes": split["bytes"], "root_uri": uri,
-            "root_bytes": root.stat().st_size if root is not None and root.is_file() else None}
+    return {
+        "split": split,
+        "bytes": split["bytes"],
+        "root_uri": uri,
+        "root_bytes": root.stat().st_size if root is not None and root.is_file() else None,
+    }
 
 
 def _export_row(url: str) -> tuple[dict[str, Any], float | None]:
     with psycopg.connect(url) as conn:
-        row = conn.execute("SELECT status, counts, duration_s FROM meta.pipeline_run WHERE stage = 'export'"
-                           " ORDER BY run_id DESC LIMIT 1").fetchone()
+        row = conn.execute(
+            "SELECT status, counts, duration_s FROM meta.pipeline_run WHERE stage = 'export'"
+            " ORDER BY run_id DESC LIMIT 1"
+        ).fetchone()
     if row is None or row[0] != "ok":
         raise RuntimeError(f"export: no successful meta.pipeline_run row (got {row!r})")
     return dict(row[1] or {}), (float(row[2]) if row[2] is not None else None)
@@ -278,8 +320,15 @@ def export_once(url: str, out: Path, opts: StreamOptions, lod: int | None, logfi
     counts, stage_s = _export_row(url)
     m = measure_dir(out)
     buildings = int(counts.get("buildings", 0))
-    return {**m, "buildings": buildings, "bytes_per_building": m["bytes"] / buildings if buildings else None,
-            "wall_s": seconds, "stage_s": stage_s, "rss_mib": rss, "counts_bytes": counts.get("bytes")}
+    return {
+        **m,
+        "buildings": buildings,
+        "bytes_per_building": m["bytes"] / buildings if buildings else None,
+        "wall_s": seconds,
+        "stage_s": stage_s,
+        "rss_mib": rss,
+        "counts_bytes": counts.get("bytes"),
+    }
 
 
 def _error(e: BaseException) -> str:
@@ -306,8 +355,10 @@ def export_variants(url: str, root: Path, logs: Path, repeat: int) -> dict[str, 
             if m["stage_s"] is not None:
                 stages[v].append(m["stage_s"])
             res[v]["all"] = m
-            log(f"stream {v} all bands #{r}: {m['wall_s']:.1f} s, {m['bytes'] / 1e6:.2f} MB, "
-                f"{m['bytes_per_building']:,.0f} B/building, root {m['root_bytes']:,} B")
+            log(
+                f"stream {v} all bands #{r}: {m['wall_s']:.1f} s, {m['bytes'] / 1e6:.2f} MB, "
+                f"{m['bytes_per_building']:,.0f} B/building, root {m['root_bytes']:,} B"
+            )
     for v in VARIANTS:
         a = res[v].get("all", {})
         if "error" not in a and walls[v]:
@@ -325,8 +376,14 @@ def export_variants(url: str, root: Path, logs: Path, repeat: int) -> dict[str, 
     return res
 
 
-def browse(tiles: Path, cameras: Sequence[dict[str, Any]], shots: Path, logfile: Path,
-           timeout_s: float = 1800.0, driver: Path = DRIVER) -> dict[str, Any]:
+def browse(
+    tiles: Path,
+    cameras: Sequence[dict[str, Any]],
+    shots: Path,
+    logfile: Path,
+    timeout_s: float = 1800.0,
+    driver: Path = DRIVER,
+) -> dict[str, Any]:
     """stream_view.mjs (or ``driver``, which takes the same --url/--out/--cameras and reports views the same
     way: benchmarks/fidelity_view.mjs) on ``tiles`` served by ``python -m exporter serve``: {gpu, views: {name:
     ...}} with a failed view as {"error": ...}; a driver or server that fails entirely gives {"error": reason}."""
@@ -336,9 +393,13 @@ def browse(tiles: Path, cameras: Sequence[dict[str, Any]], shots: Path, logfile:
     logfile.parent.mkdir(parents=True, exist_ok=True)
     try:
         with spawned(["exporter", "serve", "--dir", str(tiles), "--port", "0"]) as (base, _proc, _err):
-            r = subprocess.run([node, str(driver), "--url", base, "--out", str(shots),
-                                "--cameras", json.dumps(list(cameras))],
-                               cwd=REPO, capture_output=True, text=True, timeout=timeout_s)
+            r = subprocess.run(
+                [node, str(driver), "--url", base, "--out", str(shots), "--cameras", json.dumps(list(cameras))],
+                cwd=REPO,
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+            )
     except subprocess.TimeoutExpired:
         return {"error": f"the client took over {timeout_s:.0f} s"}
     except Exception as e:  # noqa: BLE001 - a server that does not start is a client failure too
@@ -355,10 +416,17 @@ def browse(tiles: Path, cameras: Sequence[dict[str, Any]], shots: Path, logfile:
     views = {v["name"]: v for v in out.get("views", [])}
     for v in views.values():
         if "error" not in v and (not v.get("loaded") or v.get("tileFailures")):
-            v["error"] = (f"{v['tileFailures']} tiles failed to load" if v.get("tileFailures")
-                          else f"tiles still loading after {v.get('ms')} ms")
-    res: dict[str, Any] = {"gpu": out.get("gpu"), "views": views, "seconds": out.get("seconds"),
-                           "problems": out.get("problems", [])}
+            v["error"] = (
+                f"{v['tileFailures']} tiles failed to load"
+                if v.get("tileFailures")
+                else f"tiles still loading after {v.get('ms')} ms"
+            )
+    res: dict[str, Any] = {
+        "gpu": out.get("gpu"),
+        "views": views,
+        "seconds": out.get("seconds"),
+        "problems": out.get("problems", []),
+    }
     if not views:
         res["error"] = "; ".join(out.get("problems", [])) or f"driver exit {r.returncode}"
     return res
@@ -385,8 +453,11 @@ def compare_shots(res: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
             a, b = (_view(res[v].get("client") or {}, cam) for v in ("compact", "plain"))
             if "error" in a or "error" in b:
                 raise RuntimeError("a view failed: " + (a.get("error") or b.get("error")))
-            out[cam] = {**mean_abs_diff(read_rgb(Path(a["screenshot"])), read_rgb(Path(b["screenshot"]))),
-                        "compact": a["screenshot"], "plain": b["screenshot"]}
+            out[cam] = {
+                **mean_abs_diff(read_rgb(Path(a["screenshot"])), read_rgb(Path(b["screenshot"]))),
+                "compact": a["screenshot"],
+                "plain": b["screenshot"],
+            }
         except Exception as e:  # noqa: BLE001 - recorded as the comparison's failure
             out[cam] = {"error": _error(e)}
     return out
@@ -394,8 +465,10 @@ def compare_shots(res: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
 
 def cameras_of(url: str) -> list[dict[str, Any]]:
     with psycopg.connect(url) as conn:
-        return [cesium_camera(view_bench.street_camera(conn), "street"),
-                cesium_camera(view_bench.overview_camera(conn), "overview")]
+        return [
+            cesium_camera(view_bench.street_camera(conn), "street"),
+            cesium_camera(view_bench.overview_camera(conn), "overview"),
+        ]
 
 
 def measure(url: str, name: str, repeat: int = 1, client: bool = True, keep: bool = False) -> dict[str, Any]:
@@ -416,9 +489,21 @@ def measure(url: str, name: str, repeat: int = 1, client: bool = True, keep: boo
                 continue
             res[v]["client"] = browse(root / f"{v}-all", cams, root / "screenshots" / v, logs / f"client-{v}.log")
             c = res[v]["client"]
-            log(f"stream {v} client: " + (c.get("error") or ", ".join(
-                f"{k} " + (w.get("error") or f"textures {w['texturesByteLength'] / 1e6:.1f} MB, geometry "
-                           f"{w['geometryByteLength'] / 1e6:.1f} MB") for k, w in c["views"].items())))
+            log(
+                f"stream {v} client: "
+                + (
+                    c.get("error")
+                    or ", ".join(
+                        f"{k} "
+                        + (
+                            w.get("error")
+                            or f"textures {w['texturesByteLength'] / 1e6:.1f} MB, geometry "
+                            f"{w['geometryByteLength'] / 1e6:.1f} MB"
+                        )
+                        for k, w in c["views"].items()
+                    )
+                )
+            )
         res["pixels"] = compare_shots(res)
         for cam, p in res["pixels"].items():
             log(f"stream pixels {cam}: " + (p.get("error") or f"mean abs diff {p['mad']}"))
@@ -487,8 +572,20 @@ def section_lines(results: Sequence[tuple[str, dict[str, Any]]], headline: str =
         return []
     runs = max((r.get(v, {}).get("all", {}).get("runs", 1) for _, r in results for v in VARIANTS), default=1)
     shown = [v for v in VARIANTS if any(v in r for _, r in results)]
-    out = ["", "## Stream", "", NOTE.format(n=runs, ra=TARGET_ALL_RATIO, hb=TARGET_ALL_HEADLINE, l1=TARGET_LOD1,
-                                            root=TARGET_ROOT // 1000, ex=TARGET_EXPORT_RATIO), ""]
+    out = [
+        "",
+        "## Stream",
+        "",
+        NOTE.format(
+            n=runs,
+            ra=TARGET_ALL_RATIO,
+            hb=TARGET_ALL_HEADLINE,
+            l1=TARGET_LOD1,
+            root=TARGET_ROOT // 1000,
+            ex=TARGET_EXPORT_RATIO,
+        ),
+        "",
+    ]
     out += _size_table(results, shown, headline)
     out += _split_table(results, shown)
     out += _client_tables(results, headline)
@@ -510,18 +607,48 @@ def _size_table(results: Sequence[tuple[str, dict[str, Any]]], shown: list[str],
             else:
                 ratio = _ratio(a.get("bytes_per_building"), p_all.get("bytes_per_building"))
                 ex = _ratio(a.get("seconds"), p_s)
-                cells = [f"{a['bytes_per_building']:,.0f}", "–" if ratio is None else f"{ratio:.2f}×",
-                         "–" if a["root_bytes"] is None else f"{a['root_bytes'] / 1e3:,.1f}",
-                         f"{a['seconds']:.1f}", "–" if ex is None else f"{ex:.2f}×", f"{a['buildings']:,}"]
+                cells = [
+                    f"{a['bytes_per_building']:,.0f}",
+                    "–" if ratio is None else f"{ratio:.2f}×",
+                    "–" if a["root_bytes"] is None else f"{a['root_bytes'] / 1e3:,.1f}",
+                    f"{a['seconds']:.1f}",
+                    "–" if ex is None else f"{ex:.2f}×",
+                    f"{a['buildings']:,}",
+                ]
             lod1 = _fail(l1["error"]) if "error" in l1 else f"{l1.get('bytes_per_building', 0):,.0f}"
-            rows.append([name, v, cells[0], cells[1], _mark(ok["all"]) if comp else "–", lod1,
-                         _mark(ok["lod1"]) if comp else "–", cells[2], _mark(ok["root"]) if comp else "–",
-                         cells[3], cells[4], _mark(ok["export"]) if comp else "–", cells[5]])
-    header = ["extract", "stream", "B/building all bands", "vs plain", f"≤ {TARGET_ALL_RATIO}×",
-              "B/building LOD1 only", f"≤ {TARGET_LOD1} B", "root kB", f"≤ {TARGET_ROOT // 1000} kB", "export s",
-              "vs plain", f"≤ {TARGET_EXPORT_RATIO}×", "buildings"]
+            rows.append(
+                [
+                    name,
+                    v,
+                    cells[0],
+                    cells[1],
+                    _mark(ok["all"]) if comp else "–",
+                    lod1,
+                    _mark(ok["lod1"]) if comp else "–",
+                    cells[2],
+                    _mark(ok["root"]) if comp else "–",
+                    cells[3],
+                    cells[4],
+                    _mark(ok["export"]) if comp else "–",
+                    cells[5],
+                ]
+            )
+    header = [
+        "extract",
+        "stream",
+        "B/building all bands",
+        "vs plain",
+        f"≤ {TARGET_ALL_RATIO}×",
+        "B/building LOD1 only",
+        f"≤ {TARGET_LOD1} B",
+        "root kB",
+        f"≤ {TARGET_ROOT // 1000} kB",
+        "export s",
+        "vs plain",
+        f"≤ {TARGET_EXPORT_RATIO}×",
+        "buildings",
+    ]
     return markdown_table(header, rows, "llrrlrlrlrrlr")
-
 
 
 def _split_table(results: Sequence[tuple[str, dict[str, Any]]], shown: list[str]) -> list[str]:
@@ -534,22 +661,57 @@ def _split_table(results: Sequence[tuple[str, dict[str, Any]]], shown: list[str]
                 rows.append([name, v, _fail(a.get("error", "not measured"))] + ["–"] * 7)
                 continue
             s, tot = a["split"], max(a["split"]["bytes"], 1)
-            rows.append([name, v, _mb(s["bytes"]), f"{_mb(s['geometry'])} ({s['geometry'] / tot:.0%})",
-                         _mb(s["metadata"]), f"{_mb(s['texture'])} ({s['texture'] / tot:.0%})", _mb(s["json"]),
-                         f"{s['tileset_json'] / 1e3:,.1f}", f"{s['subtree'] / 1e3:,.1f}",
-                         f"{s['glb_files']:,}"])
-    return ["", "### Geometry and texture bytes", "", SPLIT_NOTE, "",
-            *markdown_table(["extract", "stream", "MB", "geometry MB", "of which property tables MB",
-                             "texture MB", "glb JSON MB", "tileset.json kB", "subtree kB", "glb files"],
-                            rows, "llrrrrrrrr")]
-
+            rows.append(
+                [
+                    name,
+                    v,
+                    _mb(s["bytes"]),
+                    f"{_mb(s['geometry'])} ({s['geometry'] / tot:.0%})",
+                    _mb(s["metadata"]),
+                    f"{_mb(s['texture'])} ({s['texture'] / tot:.0%})",
+                    _mb(s["json"]),
+                    f"{s['tileset_json'] / 1e3:,.1f}",
+                    f"{s['subtree'] / 1e3:,.1f}",
+                    f"{s['glb_files']:,}",
+                ]
+            )
+    return [
+        "",
+        "### Geometry and texture bytes",
+        "",
+        SPLIT_NOTE,
+        "",
+        *markdown_table(
+            [
+                "extract",
+                "stream",
+                "MB",
+                "geometry MB",
+                "of which property tables MB",
+                "texture MB",
+                "glb JSON MB",
+                "tileset.json kB",
+                "subtree kB",
+                "glb files",
+            ],
+            rows,
+            "llrrrrrrrr",
+        ),
+    ]
 
 
 def _client_tables(results: Sequence[tuple[str, dict[str, Any]]], headline: str) -> list[str]:
     """What CesiumJS loaded of each stream, per camera, and the GPU formats it detected."""
     out: list[str] = []
-    gpu = next((r[v]["client"]["gpu"] for _, r in results for v in CLIENT_VARIANTS
-                if isinstance(r[v].get("client"), dict) and r[v]["client"].get("gpu")), None)
+    gpu = next(
+        (
+            r[v]["client"]["gpu"]
+            for _, r in results
+            for v in CLIENT_VARIANTS
+            if isinstance(r[v].get("client"), dict) and r[v]["client"].get("gpu")
+        ),
+        None,
+    )
     rows = []
     for name, r in results:
         ok = judge(r, name == headline)
@@ -565,27 +727,59 @@ def _client_tables(results: Sequence[tuple[str, dict[str, Any]]], headline: str)
                 if "error" in w and "texturesByteLength" not in w:
                     rows.append([name, v, cam, _fail(w["error"]), "–", "–", "–", "–", "–", target])
                     continue
-                rows.append([name, v, cam, _fail(w["error"]) if "error" in w else "loaded",
-                             _mb(w["texturesByteLength"], 1), "–" if tex_ratio is None else f"{tex_ratio:.2f}×",
-                             _mb(w["geometryByteLength"], 1), _mb(w.get("batchTableByteLength"), 1),
-                             f"{w.get('tilesWithContent', 0):,} / {w.get('trianglesSelected', 0):,}", target])
+                rows.append(
+                    [
+                        name,
+                        v,
+                        cam,
+                        _fail(w["error"]) if "error" in w else "loaded",
+                        _mb(w["texturesByteLength"], 1),
+                        "–" if tex_ratio is None else f"{tex_ratio:.2f}×",
+                        _mb(w["geometryByteLength"], 1),
+                        _mb(w.get("batchTableByteLength"), 1),
+                        f"{w.get('tilesWithContent', 0):,} / {w.get('trianglesSelected', 0):,}",
+                        target,
+                    ]
+                )
     if not rows:
         return []
     try:  # cesium is an npm package: its package.json says which
         cesium = json.loads((REPO / "node_modules" / "cesium" / "package.json").read_text())["version"]
     except (OSError, ValueError, KeyError):
         cesium = "?"
-    out += ["", "### In CesiumJS", "", CLIENT_NOTE.format(cesium=cesium, tm=TARGET_TEXTURE_MEMORY), "",
-            *markdown_table(["extract", "stream", "camera", "status", "textures MB", "vs plain", "geometry MB",
-                             "batch/metadata MB", "tiles with content / triangles drawn",
-                             f"≤ {TARGET_TEXTURE_MEMORY}× (street)"], rows, "llllrrrrrl")]
+    out += [
+        "",
+        "### In CesiumJS",
+        "",
+        CLIENT_NOTE.format(cesium=cesium, tm=TARGET_TEXTURE_MEMORY),
+        "",
+        *markdown_table(
+            [
+                "extract",
+                "stream",
+                "camera",
+                "status",
+                "textures MB",
+                "vs plain",
+                "geometry MB",
+                "batch/metadata MB",
+                "tiles with content / triangles drawn",
+                f"≤ {TARGET_TEXTURE_MEMORY}× (street)",
+            ],
+            rows,
+            "llllrrrrrl",
+        ),
+    ]
     if gpu:
         fmts = ", ".join(f"{k.upper()} {'yes' if gpu.get(k) else 'no'}" for k in ("astc", "etc", "s3tc", "bc7"))
-        out += ["", f"GPU texture formats CesiumJS detects (what it transcodes KTX2 to): {fmts}; KTX2/Basis: "
-                    f"{'yes' if gpu.get('supportsBasis') else 'no'}; compressed-texture extensions the WebGL "
-                    "context exposes: "
-                    f"{', '.join(gpu.get('compressedExtensions') or []) or 'none'}; renderer: "
-                    f"{gpu.get('renderer')} (WebGL {'2' if gpu.get('webgl2') else '1'})."]
+        out += [
+            "",
+            f"GPU texture formats CesiumJS detects (what it transcodes KTX2 to): {fmts}; KTX2/Basis: "
+            f"{'yes' if gpu.get('supportsBasis') else 'no'}; compressed-texture extensions the WebGL "
+            "context exposes: "
+            f"{', '.join(gpu.get('compressedExtensions') or []) or 'none'}; renderer: "
+            f"{gpu.get('renderer')} (WebGL {'2' if gpu.get('webgl2') else '1'}).",
+        ]
     return out
 
 
@@ -600,13 +794,27 @@ def _pixel_table(results: Sequence[tuple[str, dict[str, Any]]]) -> list[str]:
                 shots = Path(p["compact"]).parent.parent
                 with contextlib.suppress(ValueError):
                     shots = shots.relative_to(REPO)
-                rows.append([name, cam, f"{p['mad']:.2f}", f"{100 * p['differing']:.2f} %",
-                             f"{shots}/{{compact,plain}}/{cam}.png"])
+                rows.append(
+                    [
+                        name,
+                        cam,
+                        f"{p['mad']:.2f}",
+                        f"{100 * p['differing']:.2f} %",
+                        f"{shots}/{{compact,plain}}/{cam}.png",
+                    ]
+                )
     if not rows:
         return []
-    return ["", "### Compact against plain, pixel by pixel", "", PIXEL_NOTE.format(t=DIFF_THRESHOLD), "",
-                *markdown_table(["extract", "camera", "mean abs diff (0-255)", "pixels differing", "screenshots"],
-                                rows, "llrrl")]
+    return [
+        "",
+        "### Compact against plain, pixel by pixel",
+        "",
+        PIXEL_NOTE.format(t=DIFF_THRESHOLD),
+        "",
+        *markdown_table(
+            ["extract", "camera", "mean abs diff (0-255)", "pixels differing", "screenshots"], rows, "llrrl"
+        ),
+    ]
 
 
 # --- main ---------------------------------------------------------------------------------------------------
@@ -622,8 +830,11 @@ def main(argv: list[str] | None = None) -> int:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--osm", type=Path, help=f"build a fresh {STREAM_DB} database from this extract first")
     src.add_argument("--database-url", help="measure this database (the pipeline has run up to textures)")
-    p.add_argument("--name", help="the extract's name in the report and under build/bench/stream/ "
-                                  "(default: the --osm file's name, else the database's)")
+    p.add_argument(
+        "--name",
+        help="the extract's name in the report and under build/bench/stream/ "
+        "(default: the --osm file's name, else the database's)",
+    )
     p.add_argument("--repeat", type=int, default=1, help="all-bands exports per stream (median; default 1)")
     p.add_argument("--no-client", action="store_true", help="skip CesiumJS (statistics, screenshots)")
     p.add_argument("--keep", action="store_true", help="keep the exports (and the --osm database)")

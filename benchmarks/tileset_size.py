@@ -26,10 +26,14 @@ def measure(url: str, lod: int | None = None) -> dict[str, Any]:
     with connect(url) as conn:
         records = load_records(conn)
         t_read = time.perf_counter() - t0
-        out: dict[str, Any] = {"tiles": len(records), "leaves": sum(r.is_leaf for r in records),
-                               "levels": max(r.level for r in records) + 1,
-                               "buildings": sum(r.n_features for r in records if r.is_leaf), "lod": lod or "all",
-                               "read_seconds": round(t_read, 2)}
+        out: dict[str, Any] = {
+            "tiles": len(records),
+            "leaves": sum(r.is_leaf for r in records),
+            "levels": max(r.level for r in records) + 1,
+            "buildings": sum(r.n_features for r in records if r.is_leaf),
+            "lod": lod or "all",
+            "read_seconds": round(t_read, 2),
+        }
         for tiling in ("explicit", "implicit"):
             t = time.perf_counter()
             files = tileset_files(conn, records, lod, StreamOptions(tiling=tiling))
@@ -37,11 +41,13 @@ def measure(url: str, lod: int | None = None) -> dict[str, Any]:
             out[f"{tiling}_tileset_json_bytes"] = len(files[TILESET_JSON])
     subtrees = {u: b for u, b in files.items() if u != TILESET_JSON}
     implicit = json.loads(files[TILESET_JSON])["root"]["implicitTiling"]
-    out.update(subtree_levels=implicit["subtreeLevels"], subtrees=len(subtrees),
-               subtree_bytes=sum(len(b) for b in subtrees.values()),
-               largest_subtree_bytes=max(len(b) for b in subtrees.values()),
-               subtree_tiles=sum(read_subtree(b).json["tileAvailability"]["availableCount"]
-                                 for b in subtrees.values()))
+    out.update(
+        subtree_levels=implicit["subtreeLevels"],
+        subtrees=len(subtrees),
+        subtree_bytes=sum(len(b) for b in subtrees.values()),
+        largest_subtree_bytes=max(len(b) for b in subtrees.values()),
+        subtree_tiles=sum(read_subtree(b).json["tileAvailability"]["availableCount"] for b in subtrees.values()),
+    )
     return out
 
 

@@ -62,23 +62,52 @@ STAGES = (*PIPELINE, "export")
 #: What an update and a full rebuild must hold alike: every table the stages write, compared row for row
 #: (identity columns, numbered by insertion order and never exported, and timestamps left out; meta.dataset's
 #: source file and sha256 name the file each read)
-TABLES = ["osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member", "meta.dataset",
-          "meta.diagnostic", "lod.building_mesh", "lm.building", "lm.exaggeration", "tiles.tile",
-          "tiles.building_tile", "tiles.grid", "tiles.tile_content", "gen.footprint", "gen.building_mesh", "gen.block",
-          "gen.unit_input", "tex.page", "tex.feature_uv", "tex.failure", "tex.tile_input"]
-IGNORED = {"osm.reject": {"reject_id"}, "meta.diagnostic": {"diagnostic_id"}, "tex.failure": {"failure_id"},
-           "meta.dataset": {"source_file", "source_sha256"}}
+TABLES = [
+    "osm.building",
+    "osm.reject",
+    "osm.building_relation",
+    "osm.building_relation_member",
+    "meta.dataset",
+    "meta.diagnostic",
+    "lod.building_mesh",
+    "lm.building",
+    "lm.exaggeration",
+    "tiles.tile",
+    "tiles.building_tile",
+    "tiles.grid",
+    "tiles.tile_content",
+    "gen.footprint",
+    "gen.building_mesh",
+    "gen.block",
+    "gen.unit_input",
+    "tex.page",
+    "tex.feature_uv",
+    "tex.failure",
+    "tex.tile_input",
+]
+IGNORED = {
+    "osm.reject": {"reject_id"},
+    "meta.diagnostic": {"diagnostic_id"},
+    "tex.failure": {"failure_id"},
+    "meta.dataset": {"source_file", "source_sha256"},
+}
 
 
 def table_rows(conn: psycopg.Connection, table: str) -> list[str]:
     """The rows of ``table`` as text, sorted (TABLES, IGNORED)."""
     schema, name = table.split(".")
-    cols = [c for (c,) in conn.execute(
-        "SELECT column_name FROM information_schema.columns WHERE table_schema = %s AND table_name = %s "
-        "AND data_type NOT LIKE 'timestamp%%' ORDER BY ordinal_position", (schema, name))
-        if c not in IGNORED.get(table, set())]
+    cols = [
+        c
+        for (c,) in conn.execute(
+            "SELECT column_name FROM information_schema.columns WHERE table_schema = %s AND table_name = %s "
+            "AND data_type NOT LIKE 'timestamp%%' ORDER BY ordinal_position",
+            (schema, name),
+        )
+        if c not in IGNORED.get(table, set())
+    ]
     query = sql.SQL("SELECT ROW({})::text FROM {}").format(
-        sql.SQL(", ").join(map(sql.Identifier, cols)), sql.Identifier(schema, name))
+        sql.SQL(", ").join(map(sql.Identifier, cols)), sql.Identifier(schema, name)
+    )
     return sorted(r for (r,) in conn.execute(query))
 
 
@@ -105,9 +134,11 @@ class Reader:
     def __init__(self, url: str) -> None:
         self.url = url
         self.queries: dict[str, sql.Composable] = {
-            t: sql.SQL("SELECT count(*) FROM {}").format(sql.Identifier(*t.split("."))) for t in TABLES}
+            t: sql.SQL("SELECT count(*) FROM {}").format(sql.Identifier(*t.split("."))) for t in TABLES
+        }
         self.queries["api.buildings_for_tile(0, 0, 0)"] = sql.SQL(
-            "SELECT count(*) FROM api.buildings_for_tile(0, 0, 0)")
+            "SELECT count(*) FROM api.buildings_for_tile(0, 0, 0)"
+        )
         self.seen: dict[str, set[int]] = {name: set() for name in self.queries}
         self.running: set[str] = set()
         self.errors: list[str] = []
@@ -123,8 +154,9 @@ class Reader:
             conn.execute(sql.SQL("SET lock_timeout = {}").format(sql.Literal(f"{self.LOCK_TIMEOUT_MS}ms")))
             while not self._done.is_set():
                 try:
-                    self.running.update(s for (s,) in conn.execute(
-                        "SELECT stage FROM meta.pipeline_run WHERE status = 'running'"))
+                    self.running.update(
+                        s for (s,) in conn.execute("SELECT stage FROM meta.pipeline_run WHERE status = 'running'")
+                    )
                     for name, n in self._counts(conn).items():
                         self.seen[name].add(n)
                     self.rounds += 1
@@ -144,16 +176,27 @@ class Reader:
             self.after = self._counts(conn)
 
     def report(self) -> dict[str, Any]:
-        odd = {name: sorted(s - {self.before[name], self.after[name]}) for name, s in self.seen.items()
-               if s - {self.before[name], self.after[name]}}
-        return {"rounds": self.rounds, "lock_timeouts": sum("LockNotAvailable" in e for e in self.errors),
-                "errors": self.errors[:5], "running": sorted(self.running), "odd_counts": odd,
-                "tables": len(TABLES)}
+        odd = {
+            name: sorted(s - {self.before[name], self.after[name]})
+            for name, s in self.seen.items()
+            if s - {self.before[name], self.after[name]}
+        }
+        return {
+            "rounds": self.rounds,
+            "lock_timeouts": sum("LockNotAvailable" in e for e in self.errors),
+            "errors": self.errors[:5],
+            "running": sorted(self.running),
+            "odd_counts": odd,
+            "tables": len(TABLES),
+        }
 
 
 def file_hashes(d: Path) -> dict[str, str]:
-    return {p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(d.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(d.rglob("*"))
+        if p.is_file()
+    }
 
 
 class _Ways(osmium.SimpleHandler):
@@ -197,16 +240,20 @@ def write_change(osm: Path, out: Path, share: float = SHARE) -> dict[str, int]:
     cy = sum(c[1] for *_, c in h.ways) / len(h.ways)
     scale = math.cos(math.radians(cy))
     chosen = sorted(h.ways, key=lambda w: ((w[4][0] - cx) * scale) ** 2 + (w[4][1] - cy) ** 2)
-    chosen = chosen[:max(1, round(share * len(h.ways)))]
+    chosen = chosen[: max(1, round(share * len(h.ways)))]
     moved = {w[3][0] for i, w in enumerate(chosen) if i % 2}
     nodes = _Nodes(moved)
     nodes.apply_file(str(osm))
-    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<osmChange version="0.6" generator="citylod update_bench">',
-             "<modify>"]
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        '<osmChange version="0.6" generator="citylod update_bench">',
+        "<modify>",
+    ]
     for nid in sorted(moved):
         v, lon, lat, tags = nodes.found[nid]
-        lines.append(f'<node id="{nid}" version="{v + 1}" lat="{lat + 0.5 / 111_320:.7f}" lon="{lon:.7f}">'
-                     f"{_tags(tags)}</node>")
+        lines.append(
+            f'<node id="{nid}" version="{v + 1}" lat="{lat + 0.5 / 111_320:.7f}" lon="{lon:.7f}">{_tags(tags)}</node>'
+        )
     n_tags = 0
     for i, (wid, v, tags, refs, _) in enumerate(chosen):
         if i % 2:
@@ -217,8 +264,9 @@ def write_change(osm: Path, out: Path, share: float = SHARE) -> dict[str, int]:
         except (ValueError, IndexError):
             height = 12.0
         tags = {**tags, "height": f"{height:g}"}
-        lines.append(f'<way id="{wid}" version="{v + 1}">' + "".join(f'<nd ref="{r}"/>' for r in refs)
-                     + _tags(tags) + "</way>")
+        lines.append(
+            f'<way id="{wid}" version="{v + 1}">' + "".join(f'<nd ref="{r}"/>' for r in refs) + _tags(tags) + "</way>"
+        )
     lines += ["</modify>", "</osmChange>", ""]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines))
@@ -227,15 +275,20 @@ def write_change(osm: Path, out: Path, share: float = SHARE) -> dict[str, int]:
 
 def stage_seconds(url: str, since: int) -> dict[str, float]:
     with psycopg.connect(url) as conn:
-        return {s: round(float(d), 2) for s, d in conn.execute(
-            "SELECT stage, duration_s FROM meta.pipeline_run WHERE run_id > %s AND status = 'ok' ORDER BY run_id",
-            (since,))}
+        return {
+            s: round(float(d), 2)
+            for s, d in conn.execute(
+                "SELECT stage, duration_s FROM meta.pipeline_run WHERE run_id > %s AND status = 'ok' ORDER BY run_id",
+                (since,),
+            )
+        }
 
 
 def _centre(url: str) -> tuple[float, float]:
     with psycopg.connect(url) as conn:
-        row = conn.execute("SELECT ST_X(c), ST_Y(c) FROM (SELECT ST_Centroid(bbox) AS c FROM meta.dataset) s"
-                           ).fetchone()
+        row = conn.execute(
+            "SELECT ST_X(c), ST_Y(c) FROM (SELECT ST_Centroid(bbox) AS c FROM meta.dataset) s"
+        ).fetchone()
     assert row is not None
     return float(row[0]), float(row[1])
 
@@ -249,17 +302,26 @@ def _state_file(url: str) -> str | None:
 def _reused(url: str, last: int) -> dict[str, Any]:
     """What each stage of the update after run ``last`` computed and what it copied."""
     with psycopg.connect(url) as conn:
-        runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
-                                 "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id", (last,)).fetchall())
+        runs = dict(
+            conn.execute(
+                "SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
+                "WHERE run_id > %s AND status = 'ok' ORDER BY stage, run_id",
+                (last,),
+            ).fetchall()
+        )
     gen = runs.get("generalize", {})
-    return {"ingest": {k: runs.get("ingest", {}).get(k) for k in ("in", "staged", "partial")},
-            "generalize": gen.get("batches") and {**gen["batches"], "hierarchy_tiles": gen.get("hierarchy_tiles")},
-            "textures": {k: runs.get("textures", {}).get(k)
-                         for k in ("tiles", "tiles_kept", "tiles_redrawn", "tiles_fingerprinted", "features",
-                                   "features_textured")},
-            "export": {k: runs.get("export", {}).get(k)
-                       for k in ("glb", "glb_built", "glb_copied", "glb_fingerprinted", "features",
-                                 "features_built")}}
+    return {
+        "ingest": {k: runs.get("ingest", {}).get(k) for k in ("in", "staged", "partial")},
+        "generalize": gen.get("batches") and {**gen["batches"], "hierarchy_tiles": gen.get("hierarchy_tiles")},
+        "textures": {
+            k: runs.get("textures", {}).get(k)
+            for k in ("tiles", "tiles_kept", "tiles_redrawn", "tiles_fingerprinted", "features", "features_textured")
+        },
+        "export": {
+            k: runs.get("export", {}).get(k)
+            for k in ("glb", "glb_built", "glb_copied", "glb_fingerprinted", "features", "features_built")
+        },
+    }
 
 
 def _changed(url: str) -> dict[str, int]:
@@ -288,8 +350,9 @@ def _n_files(d: Path) -> int:
     return sum(1 for p in d.rglob("*") if p.is_file())
 
 
-def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out: Path,
-                    verify: bool = True) -> dict[str, Any]:
+def measure_history(
+    osm: Path, admin_url: str, db: str, full_url: str, full_out: Path, verify: bool = True
+) -> dict[str, Any]:
     """Step 4 of the module doc: ``full_url`` and ``full_out`` are the full rebuild of ``osm`` and its export."""
     name = extract_name(osm)
     day = HISTORY_BEFORE.date().isoformat()
@@ -301,12 +364,22 @@ def measure_history(osm: Path, admin_url: str, db: str, full_url: str, full_out:
     out = OUT_ROOT / "update" / f"{name}-history"
     url, env, full, _ = _full_build(base, admin_url, db + "_history", "update-history", out, logs)
     last, wall, _ = _apply(change, url, env, out, logs)
-    res: dict[str, Any] = {"before": day, "created": made, "changed": _changed(url), "full_s": full,
-                           "full_total_s": round(sum(full.values()), 1), "update_wall_s": round(wall, 1),
-                           "update_s": stage_seconds(url, last), "reused": _reused(url, last)}
+    res: dict[str, Any] = {
+        "before": day,
+        "created": made,
+        "changed": _changed(url),
+        "full_s": full,
+        "full_total_s": round(sum(full.values()), 1),
+        "update_wall_s": round(wall, 1),
+        "update_s": stage_seconds(url, last),
+        "reused": _reused(url, last),
+    }
     if verify:
-        res["verified"] = {"tables_differing": differences(url, full_url),
-                           "tiles_differing": tileset_differences(out, full_out), "tiles": _n_files(out)}
+        res["verified"] = {
+            "tables_differing": differences(url, full_url),
+            "tiles_differing": tileset_differences(out, full_out),
+            "tiles": _n_files(out),
+        }
     drop_db(admin_url, db + "_history")
     return res
 
@@ -323,12 +396,12 @@ def _wal_mark(url: str) -> str:
 def _wal_since(url: str, mark: str) -> int:
     """Bytes of WAL the cluster wrote since ``mark`` (the bench runs alone: they are the command's)."""
     with psycopg.connect(url) as conn:
-        return int(conn.execute("SELECT pg_wal_lsn_diff(pg_current_wal_lsn(), %s::pg_lsn)",
-                                (mark,)).fetchone()[0])  # type: ignore[index]
+        return int(conn.execute("SELECT pg_wal_lsn_diff(pg_current_wal_lsn(), %s::pg_lsn)", (mark,)).fetchone()[0])  # type: ignore[index]
 
 
-def _full_build(osm: Path, admin_url: str, db: str, logs_sub: str, out: Path,
-                logs: Path) -> tuple[str, dict[str, str], dict[str, float], int]:
+def _full_build(
+    osm: Path, admin_url: str, db: str, logs_sub: str, out: Path, logs: Path
+) -> tuple[str, dict[str, str], dict[str, float], int]:
     """``osm`` through every stage into ``db`` and exported to ``out``; (url, env, each stage's s, WAL bytes)."""
     mark = _wal_mark(admin_url)
     url = build_pipeline_db(osm, admin_url, db, logs_sub)
@@ -360,8 +433,9 @@ def _timed_update(change: Path, url: str, env: dict[str, str], out: Path, log: P
     return _run_update(change, env, out, log), stage_seconds(url, last)
 
 
-def _update_one_percent(osm: Path, url: str, env: dict[str, str], out: Path,
-                        logs: Path) -> tuple[dict[str, int], int, float, int]:
+def _update_one_percent(
+    osm: Path, url: str, env: dict[str, str], out: Path, logs: Path
+) -> tuple[dict[str, int], int, float, int]:
     """Steps 2 and 3: the 1 % change written and applied; (what it changed, the last run before, wall s, WAL
     bytes)."""
     name = extract_name(osm)
@@ -385,24 +459,32 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     changed = _changed(url)
     with psycopg.connect(url) as conn:
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
-        pub = conn.execute("SELECT n_files, n_new_files, n_new_bytes FROM pub.generation "
-                           "ORDER BY generation DESC LIMIT 1").fetchone()
+        pub = conn.execute(
+            "SELECT n_files, n_new_files, n_new_bytes FROM pub.generation ORDER BY generation DESC LIMIT 1"
+        ).fetchone()
     state = Path(params_osm) if (params_osm := _state_file(url)) else None
     verified: dict[str, object] | None = None
     if verify and state is not None:
         log(f"{name}: a full rebuild from the update's state file, to compare")
         full_url = build_pipeline_db(state, admin_url, db + "_full", "update-full")
-        run_child([sys.executable, "-m", "etl", "export", "--out", str(out.with_name(name + "-full"))],
-                  {**env, "DATABASE_URL": full_url}, logs / "export-full.log")
-        verified = {"tables_differing": differences(url, full_url),
-                    "tiles_differing": tileset_differences(out, out.with_name(name + "-full")),
-                    "tiles": _n_files(out)}
+        run_child(
+            [sys.executable, "-m", "etl", "export", "--out", str(out.with_name(name + "-full"))],
+            {**env, "DATABASE_URL": full_url},
+            logs / "export-full.log",
+        )
+        verified = {
+            "tables_differing": differences(url, full_url),
+            "tiles_differing": tileset_differences(out, out.with_name(name + "-full")),
+            "tiles": _n_files(out),
+        }
         drop_db(admin_url, db + "_full")
     # then a change that touches no building (a new tagged node): the stages are carried over, the export reruns
     quiet = OUT_ROOT / "update" / f"{name}-no-building.osc"
-    quiet.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6"><create>'
-                     f'<node id="{10**12}" version="1" lat="{_centre(url)[1]:.7f}" lon="{_centre(url)[0]:.7f}">'
-                     '<tag k="amenity" v="bench"/></node></create></osmChange>\n')
+    quiet.write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6"><create>'
+        f'<node id="{10**12}" version="1" lat="{_centre(url)[1]:.7f}" lon="{_centre(url)[0]:.7f}">'
+        '<tag k="amenity" v="bench"/></node></create></osmChange>\n'
+    )
     quiet_wall, quiet_s = _timed_update(quiet, url, env, out, logs / "update-no-building.log")
     # then a change of one building (a height edit, the building nearest the centre): about what every update pays
     # whatever it changes, which a live database following minutely diffs pays again and again
@@ -419,14 +501,28 @@ def measure(osm: Path, admin_url: str, db: str = UPDATE_DB, verify: bool = True)
     write_change(Path(now), again)
     with Reader(url) as reader:
         _run_update(again, env, out, logs / "update-read.log")
-    return {"extract": name, "buildings": int(buildings), "change": made, "changed": changed,
-            "verified": verified, "no_building_wall_s": round(quiet_wall, 1),
-            "no_building_s": quiet_s, "one_building_wall_s": round(one_wall, 1), "one_building_s": one_s,
-            "full_s": full, "full_total_s": round(sum(full.values()), 1), "full_wall_s": round(full_wall, 1),
-            "update_wall_s": round(wall, 1), "update_s": update_s, "reused": reused, "history": history,
-            "full_wal_bytes": full_wal, "update_wal_bytes": wal,
-            "readers": reader.report(),
-            "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None}
+    return {
+        "extract": name,
+        "buildings": int(buildings),
+        "change": made,
+        "changed": changed,
+        "verified": verified,
+        "no_building_wall_s": round(quiet_wall, 1),
+        "no_building_s": quiet_s,
+        "one_building_wall_s": round(one_wall, 1),
+        "one_building_s": one_s,
+        "full_s": full,
+        "full_total_s": round(sum(full.values()), 1),
+        "full_wall_s": round(full_wall, 1),
+        "update_wall_s": round(wall, 1),
+        "update_s": update_s,
+        "reused": reused,
+        "history": history,
+        "full_wal_bytes": full_wal,
+        "update_wal_bytes": wal,
+        "readers": reader.report(),
+        "published": {"files": pub[0], "new_files": pub[1], "new_bytes": pub[2]} if pub else None,
+    }
 
 
 def section(s: dict[str, Any] | None) -> list[str]:
@@ -434,73 +530,107 @@ def section(s: dict[str, Any] | None) -> list[str]:
         return []
     c, u, f = s["change"], s["update_s"], s["full_s"]
     ratio = s["update_wall_s"] / s["full_total_s"]
-    out = ["## Updates: a change file against the full rebuild", "",
-           f"{s['extract']}: a change file for {c['chosen']:,} of its {c['building_ways']:,} building ways (1 %, "
-           f"the ones nearest the centre of the data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes "
-           f"moved by 0.5 m) applied with `python -m etl update --osc … --out …` to the database the full "
-           f"pipeline built. Command: `python -m benchmarks.update_bench --write BENCHMARKS.md`"
-           + (f" (machine: {s['machine']})" if s.get("machine") else "") + ". Target: the "
-           f"update ≤ 5 % of the full rebuild. Measured: {s['update_wall_s']:.1f} s against "
-           f"{s['full_total_s']:.1f} s, {100 * ratio:.1f} %. osm.building_change: "
-           + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items())) + "." + _wal(s), ""]
-    out += markdown_table(["stage", "full rebuild s", "update s"],
-                          [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
+    out = [
+        "## Updates: a change file against the full rebuild",
+        "",
+        f"{s['extract']}: a change file for {c['chosen']:,} of its {c['building_ways']:,} building ways (1 %, "
+        f"the ones nearest the centre of the data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes "
+        f"moved by 0.5 m) applied with `python -m etl update --osc … --out …` to the database the full "
+        f"pipeline built. Command: `python -m benchmarks.update_bench --write BENCHMARKS.md`"
+        + (f" (machine: {s['machine']})" if s.get("machine") else "")
+        + ". Target: the "
+        f"update ≤ 5 % of the full rebuild. Measured: {s['update_wall_s']:.1f} s against "
+        f"{s['full_total_s']:.1f} s, {100 * ratio:.1f} %. osm.building_change: "
+        + ", ".join(f"{n:,} {k}" for k, n in sorted(s["changed"].items()))
+        + "."
+        + _wal(s),
+        "",
+    ]
+    out += markdown_table(
+        ["stage", "full rebuild s", "update s"], [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr"
+    )
     v = s.get("verified")
     if v is not None:
         same = not v["tables_differing"] and not v["tiles_differing"]
-        out += ["", "Equivalence: a full rebuild from the update's OSM state file (the base file with the change "
-                "applied) into another database, then compared: "
-                + ("every table row for row and all " + f"{v['tiles']:,} files of the tileset byte for byte equal."
-                   if same else f"tables that differ (rows): {v['tables_differing']}; files that differ: "
-                   f"{len(v['tiles_differing'])} of {v['tiles']:,} ({', '.join(v['tiles_differing'][:3])}, ...).")]
+        out += [
+            "",
+            "Equivalence: a full rebuild from the update's OSM state file (the base file with the change "
+            "applied) into another database, then compared: "
+            + (
+                "every table row for row and all " + f"{v['tiles']:,} files of the tileset byte for byte equal."
+                if same
+                else f"tables that differ (rows): {v['tables_differing']}; files that differ: "
+                f"{len(v['tiles_differing'])} of {v['tiles']:,} ({', '.join(v['tiles_differing'][:3])}, ...)."
+            ),
+        ]
     if "no_building_wall_s" in s:
         q = s["no_building_s"]
-        out += ["", "A change that touches no building (one new tagged node) after it: "
-                f"{s['no_building_wall_s']:.1f} s (ingest {q.get('ingest', '?')} s, export {q.get('export', '?')} "
-                "s; lod ... textures carried over, not run)."]
+        out += [
+            "",
+            "A change that touches no building (one new tagged node) after it: "
+            f"{s['no_building_wall_s']:.1f} s (ingest {q.get('ingest', '?')} s, export {q.get('export', '?')} "
+            "s; lod ... textures carried over, not run).",
+        ]
     if "one_building_wall_s" in s:
         o = s["one_building_s"]
-        out += ["", "A change of one building (a height edit, the building nearest the centre) after that: "
-                f"{s['one_building_wall_s']:.1f} s, {100 * s['one_building_wall_s'] / s['full_total_s']:.0f} % of "
-                "the full rebuild (" + ", ".join(f"{st} {o[st]} s" for st in STAGES if st in o) + "): about what any "
-                "update pays before the work its change brings (one building's tiles are a few): the stages' passes "
-                "over the whole city and their fixed costs."]
+        out += [
+            "",
+            "A change of one building (a height edit, the building nearest the centre) after that: "
+            f"{s['one_building_wall_s']:.1f} s, {100 * s['one_building_wall_s'] / s['full_total_s']:.0f} % of "
+            "the full rebuild (" + ", ".join(f"{st} {o[st]} s" for st in STAGES if st in o) + "): about what any "
+            "update pays before the work its change brings (one building's tiles are a few): the stages' passes "
+            "over the whole city and their fixed costs.",
+        ]
     if rd := s.get("readers"):
         odd = rd["odd_counts"]
-        out += ["", "An analyst meanwhile (`Reader` in benchmarks/update_bench.py): while another such change was "
-                f"applied (not timed), one connection counted the rows of the {rd['tables']} tables the stages "
-                "write and the root tile's content (api.buildings_for_tile) over and over, each read giving up "
-                f"after {Reader.LOCK_TIMEOUT_MS} ms on a lock: {rd['rounds']:,} rounds, {rd['lock_timeouts']:,} reads "
-                "gave up, "
-                + ("no table seen emptied or half written (every count the one before or the one after the "
-                   "update)" if not odd else f"tables seen with other counts: {odd}")
-                + f"; stages seen running: {', '.join(rd['running'])}."]
+        out += [
+            "",
+            "An analyst meanwhile (`Reader` in benchmarks/update_bench.py): while another such change was "
+            f"applied (not timed), one connection counted the rows of the {rd['tables']} tables the stages "
+            "write and the root tile's content (api.buildings_for_tile) over and over, each read giving up "
+            f"after {Reader.LOCK_TIMEOUT_MS} ms on a lock: {rd['rounds']:,} rounds, {rd['lock_timeouts']:,} reads "
+            "gave up, "
+            + (
+                "no table seen emptied or half written (every count the one before or the one after the update)"
+                if not odd
+                else f"tables seen with other counts: {odd}"
+            )
+            + f"; stages seen running: {', '.join(rd['running'])}.",
+        ]
     pub = s.get("published") or {}
     r = s.get("reused") or {}
     g, t, e = r.get("generalize") or {}, r.get("textures") or {}, r.get("export") or {}
     i = r.get("ingest") or {}
-    read = (f"reads the OSM state again (libosmium's pass over the whole file) but stages only the candidates the "
-            f"change touched ({_n(i.get('staged'))} of {_n(i.get('in'))}: the ways it names or whose nodes it moved, "
-            "and every relation)" if i.get("partial") else "reads the whole OSM state")
+    read = (
+        f"reads the OSM state again (libosmium's pass over the whole file) but stages only the candidates the "
+        f"change touched ({_n(i.get('staged'))} of {_n(i.get('in'))}: the ways it names or whose nodes it moved, "
+        "and every relation)"
+        if i.get("partial")
+        else "reads the whole OSM state"
+    )
 
     def batches(step: str) -> str:
         b = g.get(step) or {}
         return f"{b.get('computed', '?')} of {b.get('computed', 0) + b.get('kept', 0) or '?'}"
 
-    out += ["", "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
-            f"of its one process, applying the change file included. The update: ingest {read} "
-            "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
-            "alone; landmarks and tiles run over the whole city again; generalize computes the footprint and "
-            f"decimation batches and the block tiles whose input changed ({batches('footprints')}, "
-            f"{batches('decimation')} and {batches('blocks')}; the others' rows stay as they are, as do, in the "
-            f"block tiles made again, the {_n(g.get('blocks_kept'))} blocks whose inputs did not change) and the "
-            f"hierarchy of the {g.get('hierarchy_tiles', '?')} tiles the update's runs reached (ARCHITECTURE.md, "
-            f"Updates, step 9); textures fingerprints those ({t.get('tiles_fingerprinted', '?')}) and textures the "
-            f"tiles whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
-            f"{t.get('tiles', '?')}, and draws {t.get('tiles_redrawn', '?')} kept ones again for a chart cache); "
-            f"the export fingerprints {e.get('glb_fingerprinted', '?')} glbs and builds those whose input changed "
-            f"({e.get('glb_built', '?')} of {e.get('glb', '?')}; the others are copied) and publishes "
-            f"{pub.get('new_files', '?')} new files of {pub.get('files', '?')}.", ""]
+    out += [
+        "",
+        "Seconds are each stage's own (meta.pipeline_run.duration_s); the update's total is the wall time "
+        f"of its one process, applying the change file included. The update: ingest {read} "
+        "and replaces only the rows that differ; lod draws those buildings (with their outlines and parts) "
+        "alone; landmarks and tiles run over the whole city again; generalize computes the footprint and "
+        f"decimation batches and the block tiles whose input changed ({batches('footprints')}, "
+        f"{batches('decimation')} and {batches('blocks')}; the others' rows stay as they are, as do, in the "
+        f"block tiles made again, the {_n(g.get('blocks_kept'))} blocks whose inputs did not change) and the "
+        f"hierarchy of the {g.get('hierarchy_tiles', '?')} tiles the update's runs reached (ARCHITECTURE.md, "
+        f"Updates, step 9); textures fingerprints those ({t.get('tiles_fingerprinted', '?')}) and textures the "
+        f"tiles whose input changed ({(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of "
+        f"{t.get('tiles', '?')}, and draws {t.get('tiles_redrawn', '?')} kept ones again for a chart cache); "
+        f"the export fingerprints {e.get('glb_fingerprinted', '?')} glbs and builds those whose input changed "
+        f"({e.get('glb_built', '?')} of {e.get('glb', '?')}; the others are copied) and publishes "
+        f"{pub.get('new_files', '?')} new files of {pub.get('files', '?')}.",
+        "",
+    ]
     out += _floor(s)
     return out + history_section(s.get("history"))
 
@@ -511,30 +641,43 @@ def _floor(s: dict[str, Any]) -> list[str]:
     between the update and the 5 % target: that floor when it is above, else the rest of the update."""
     r = s.get("reused") or {}
     t, e, f = r.get("textures") or {}, r.get("export") or {}, s["full_s"]
-    if not (t.get("features") and t.get("features_textured") is not None and e.get("features")
-            and e.get("features_built") is not None and f.get("textures") and f.get("export")):
+    if not (
+        t.get("features")
+        and t.get("features_textured") is not None
+        and e.get("features")
+        and e.get("features_built") is not None
+        and f.get("textures")
+        and f.get("export")
+    ):
         return []
     share_t, share_e = t["features_textured"] / t["features"], e["features_built"] / e["features"]
     floor = f["textures"] * share_t + f["export"] * share_e
     share = floor / s["full_total_s"]
     if share > 0.05:
-        then = ("the target needs less work than making those tiles again (pages that survive a change of their tile "
-                "would keep about half of those pages: ARCHITECTURE.md, Updates, step 8), not a faster pass over "
-                "the city.")
+        then = (
+            "the target needs less work than making those tiles again (pages that survive a change of their tile "
+            "would keep about half of those pages: ARCHITECTURE.md, Updates, step 8), not a faster pass over "
+            "the city."
+        )
     else:
         u = s["update_s"]
         passes = ", ".join(f"{st} {u[st]:.1f} s" for st in ("ingest", "landmarks", "tiles") if st in u)
-        then = (f"here that is within the target; the other {s['update_wall_s'] - floor:.1f} s of the update hold "
-                f"what stands between it and the target, the stages' passes over the whole city ({passes}, and "
-                f"part of generalize's {u.get('generalize', 0):.1f} s: each reads every building again to find or "
-                "place what changed), which a change-driven design (the changed tiles handed from stage to stage) "
-                "would leave out.")
-    return [f"What a tile-by-tile update cannot skip: the tiles the change reaches (its leaves, their LOD2 and LOD1 "
-            "tiles and every block tile up to the root) hold "
-            f"{t['features_textured']:,} of the {t['features']:,} features textures handles ({100 * share_t:.1f} %; "
-            f"the glbs built {e['features_built']:,} of {e['features']:,}, {100 * share_e:.1f} %). Texturing and "
-            f"exporting those alone, at the full rebuild's seconds per feature, takes {floor:.1f} s, "
-            f"{100 * share:.1f} % of the full rebuild, before any other stage: " + then, ""]
+        then = (
+            f"here that is within the target; the other {s['update_wall_s'] - floor:.1f} s of the update hold "
+            f"what stands between it and the target, the stages' passes over the whole city ({passes}, and "
+            f"part of generalize's {u.get('generalize', 0):.1f} s: each reads every building again to find or "
+            "place what changed), which a change-driven design (the changed tiles handed from stage to stage) "
+            "would leave out."
+        )
+    return [
+        f"What a tile-by-tile update cannot skip: the tiles the change reaches (its leaves, their LOD2 and LOD1 "
+        "tiles and every block tile up to the root) hold "
+        f"{t['features_textured']:,} of the {t['features']:,} features textures handles ({100 * share_t:.1f} %; "
+        f"the glbs built {e['features_built']:,} of {e['features']:,}, {100 * share_e:.1f} %). Texturing and "
+        f"exporting those alone, at the full rebuild's seconds per feature, takes {floor:.1f} s, "
+        f"{100 * share:.1f} % of the full rebuild, before any other stage: " + then,
+        "",
+    ]
 
 
 def _n(v: object) -> str:
@@ -547,29 +690,45 @@ def history_section(h: dict[str, Any] | None) -> list[str]:
         return []
     c, t = h["created"], (h.get("reused") or {}).get("textures") or {}
     e = (h.get("reused") or {}).get("export") or {}
-    out = ["### A real change", "",
-           f"The same extract as it was on {h['before']}, as far as its own versions and timestamps tell "
-           "(`python -m tests.support.history`: every object at version 1 stamped after that day left out), built in "
-           f"full in another database, then updated with the change file of what mappers created since "
-           f"({c['ways']:,} ways, {c['relations']:,} relations, {c['nodes']:,} nodes; osm.building_change: "
-           + ", ".join(f"{n:,} {k}" for k, n in sorted(h["changed"].items())) + "). "
-           f"Measured: {h['update_wall_s']:.1f} s against that full rebuild's {h['full_total_s']:.1f} s, "
-           f"{100 * h['update_wall_s'] / h['full_total_s']:.0f} %; textures made "
-           f"{(t.get('tiles') or 0) - (t.get('tiles_kept') or 0)} of {t.get('tiles', '?')} tiles again (and drew "
-           f"{t.get('tiles_redrawn', '?')} kept ones again for a chart cache), the export built "
-           f"{e.get('glb_built', '?')} of {e.get('glb', '?')} glbs. Unlike the 1 % above, these edits are spread "
-           "over the whole extract, as two and a half months of a country's mapping are: the tiles they touch, "
-           "and their ancestors, are what an update makes again.", ""]
-    out += markdown_table(["stage", "full rebuild s", "update s"],
-                          [[st, h["full_s"].get(st, ""), h["update_s"].get(st, "")] for st in STAGES], "lrr")
+    out = [
+        "### A real change",
+        "",
+        f"The same extract as it was on {h['before']}, as far as its own versions and timestamps tell "
+        "(`python -m tests.support.history`: every object at version 1 stamped after that day left out), built in "
+        f"full in another database, then updated with the change file of what mappers created since "
+        f"({c['ways']:,} ways, {c['relations']:,} relations, {c['nodes']:,} nodes; osm.building_change: "
+        + ", ".join(f"{n:,} {k}" for k, n in sorted(h["changed"].items()))
+        + "). "
+        f"Measured: {h['update_wall_s']:.1f} s against that full rebuild's {h['full_total_s']:.1f} s, "
+        f"{100 * h['update_wall_s'] / h['full_total_s']:.0f} %; textures made "
+        f"{(t.get('tiles') or 0) - (t.get('tiles_kept') or 0)} of {t.get('tiles', '?')} tiles again (and drew "
+        f"{t.get('tiles_redrawn', '?')} kept ones again for a chart cache), the export built "
+        f"{e.get('glb_built', '?')} of {e.get('glb', '?')} glbs. Unlike the 1 % above, these edits are spread "
+        "over the whole extract, as two and a half months of a country's mapping are: the tiles they touch, "
+        "and their ancestors, are what an update makes again.",
+        "",
+    ]
+    out += markdown_table(
+        ["stage", "full rebuild s", "update s"],
+        [[st, h["full_s"].get(st, ""), h["update_s"].get(st, "")] for st in STAGES],
+        "lrr",
+    )
     v = h.get("verified")
     if v is not None:
         same = not v["tables_differing"] and not v["tiles_differing"]
-        out += ["", "Equivalence with the full rebuild of the extract itself (the first one above, before its own "
-                "update): " + (f"every table row for row and all {v['tiles']:,} files equal (tileset.json but for "
-                               "its tilesetVersion, the sha256 of the OSM file read)." if same else
-                               f"tables that differ (rows): {v['tables_differing']}; files that differ: "
-                               f"{v['tiles_differing'][:5]}."), ""]
+        out += [
+            "",
+            "Equivalence with the full rebuild of the extract itself (the first one above, before its own "
+            "update): "
+            + (
+                f"every table row for row and all {v['tiles']:,} files equal (tileset.json but for "
+                "its tilesetVersion, the sha256 of the OSM file read)."
+                if same
+                else f"tables that differ (rows): {v['tables_differing']}; files that differ: "
+                f"{v['tiles_differing'][:5]}."
+            ),
+            "",
+        ]
     return out
 
 
@@ -583,10 +742,19 @@ def measure_larger(osm: Path, admin_url: str, db: str = UPDATE_DB + "_larger") -
     made, last, wall, wal = _update_one_percent(osm, url, env, out, logs)
     with psycopg.connect(url) as conn:
         (buildings,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()  # type: ignore[misc]
-    return {"extract": name, "buildings": int(buildings), "change": made, "changed": _changed(url),
-            "full_s": full, "full_total_s": round(sum(full.values()), 1), "update_wall_s": round(wall, 1),
-            "update_s": stage_seconds(url, last), "reused": _reused(url, last), "full_wal_bytes": full_wal,
-            "update_wal_bytes": wal}
+    return {
+        "extract": name,
+        "buildings": int(buildings),
+        "change": made,
+        "changed": _changed(url),
+        "full_s": full,
+        "full_total_s": round(sum(full.values()), 1),
+        "update_wall_s": round(wall, 1),
+        "update_s": stage_seconds(url, last),
+        "reused": _reused(url, last),
+        "full_wal_bytes": full_wal,
+        "update_wal_bytes": wal,
+    }
 
 
 def _wal(s: dict[str, Any]) -> str:
@@ -594,8 +762,10 @@ def _wal(s: dict[str, Any]) -> str:
     if not (s.get("update_wal_bytes") and s.get("full_wal_bytes")):
         return ""
     u, f = s["update_wal_bytes"], s["full_wal_bytes"]
-    return (f" WAL written (each from a checkpoint, so every page's first change is written whole): the update "
-            f"{u / 1e6:.0f} MB, the full rebuild {f / 1e6:.0f} MB ({100 * u / f:.0f} %).")
+    return (
+        f" WAL written (each from a checkpoint, so every page's first change is written whole): the update "
+        f"{u / 1e6:.0f} MB, the full rebuild {f / 1e6:.0f} MB ({100 * u / f:.0f} %)."
+    )
 
 
 def section_larger(s: dict[str, Any] | None) -> list[str]:
@@ -603,21 +773,27 @@ def section_larger(s: dict[str, Any] | None) -> list[str]:
         return []
     c, u, f, r = s["change"], s["update_s"], s["full_s"], s["reused"]
     t, e = r.get("textures") or {}, r.get("export") or {}
-    out = ["## Updates at scale: the same change on a larger city", "",
-           f"{s['extract']} ({s['buildings']:,} buildings): the change of *Updates* made the same way for this "
-           f"city ({c['chosen']:,} of its {c['building_ways']:,} building ways, 1 %, nearest the centre of the "
-           f"data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes moved by 0.5 m) and applied the "
-           "same way, without the history, the equivalence check and the second update. Command: "
-           "`python -m benchmarks.update_bench --larger --osm build/bench/scale/liechtenstein_2022-07-24-x6.osm.pbf "
-           "--write BENCHMARKS.md`" + (f" (machine: {s['machine']})" if s.get("machine") else "")
-           + " (the file: `python -m benchmarks.replicate "
-           "../shared/data/osm/liechtenstein_2022-07-24.osm.pbf 6 …`, as the scale bench makes it). Measured: "
-           f"{s['update_wall_s']:.1f} s against {s['full_total_s']:.1f} s, "
-           f"{100 * s['update_wall_s'] / s['full_total_s']:.1f} % (target on the benchmark extract: ≤ 5 %); "
-           f"textures made {(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of {t.get('tiles', '?')} "
-           f"tiles again, the export built {e.get('glb_built', '?')} of {e.get('glb', '?')} glbs." + _wal(s), ""]
-    out += markdown_table(["stage", "full rebuild s", "update s"],
-                          [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr")
+    out = [
+        "## Updates at scale: the same change on a larger city",
+        "",
+        f"{s['extract']} ({s['buildings']:,} buildings): the change of *Updates* made the same way for this "
+        f"city ({c['chosen']:,} of its {c['building_ways']:,} building ways, 1 %, nearest the centre of the "
+        f"data: {c['tag_edits']:,} height edits, {c['nodes_moved']:,} nodes moved by 0.5 m) and applied the "
+        "same way, without the history, the equivalence check and the second update. Command: "
+        "`python -m benchmarks.update_bench --larger --osm build/bench/scale/liechtenstein_2022-07-24-x6.osm.pbf "
+        "--write BENCHMARKS.md`"
+        + (f" (machine: {s['machine']})" if s.get("machine") else "")
+        + " (the file: `python -m benchmarks.replicate "
+        "../shared/data/osm/liechtenstein_2022-07-24.osm.pbf 6 …`, as the scale bench makes it). Measured: "
+        f"{s['update_wall_s']:.1f} s against {s['full_total_s']:.1f} s, "
+        f"{100 * s['update_wall_s'] / s['full_total_s']:.1f} % (target on the benchmark extract: ≤ 5 %); "
+        f"textures made {(t.get('tiles') or 0) - (t.get('tiles_kept') or 0) or '?'} of {t.get('tiles', '?')} "
+        f"tiles again, the export built {e.get('glb_built', '?')} of {e.get('glb', '?')} glbs." + _wal(s),
+        "",
+    ]
+    out += markdown_table(
+        ["stage", "full rebuild s", "update s"], [[st, f.get(st, ""), u.get(st, "")] for st in STAGES], "lrr"
+    )
     return out + [""] + _floor(s)
 
 
@@ -625,10 +801,26 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if "--larger" in args:  # steps 1 to 3 on a larger city, into a section of its own
         args.remove("--larger")
-        return section_bench(args, "python -m benchmarks.update_bench --larger", __doc__ or "", DEFAULT_OSM,
-                             UPDATE_DB + "_larger", measure_larger, section_larger, "## Updates at scale")
-    return section_bench(args, "python -m benchmarks.update_bench", __doc__ or "", DEFAULT_OSM, UPDATE_DB,
-                         measure, section, "## Updates:")
+        return section_bench(
+            args,
+            "python -m benchmarks.update_bench --larger",
+            __doc__ or "",
+            DEFAULT_OSM,
+            UPDATE_DB + "_larger",
+            measure_larger,
+            section_larger,
+            "## Updates at scale",
+        )
+    return section_bench(
+        args,
+        "python -m benchmarks.update_bench",
+        __doc__ or "",
+        DEFAULT_OSM,
+        UPDATE_DB,
+        measure,
+        section,
+        "## Updates:",
+    )
 
 
 if __name__ == "__main__":

@@ -63,8 +63,15 @@ def ecef(lon: np.ndarray | float, lat: np.ndarray | float, h: np.ndarray | float
     return geodetic_to_ecef(np.radians(np.asarray(lon, float)), np.radians(np.asarray(lat, float)), h)
 
 
-def look_at(lon: float, lat: float, height: float, target: np.ndarray, fov: float = 60.0,
-            viewport_height: int = 1080, aspect: float = 16.0 / 9.0) -> Camera:
+def look_at(
+    lon: float,
+    lat: float,
+    height: float,
+    target: np.ndarray,
+    fov: float = 60.0,
+    viewport_height: int = 1080,
+    aspect: float = 16.0 / 9.0,
+) -> Camera:
     """The camera at (lon, lat, height) looking at the ECEF point ``target`` (heading and pitch in the
     camera's own east-north-up frame, as CesiumJS and api.lod_for_view read them)."""
     enu = enu_rotation(math.radians(lon), math.radians(lat))
@@ -86,9 +93,19 @@ class PathFrame:
     distance_m: float
 
 
-def camera_path(lon: float, lat: float, radius_m: float, near_m: float, far_m: float, n_frames: int = 120,
-                ground_h: float = 0.0, fov: float = 60.0, viewport_height: int = 1080, aspect: float = 16.0 / 9.0,
-                min_height_m: float = 25.0) -> list[PathFrame]:
+def camera_path(
+    lon: float,
+    lat: float,
+    radius_m: float,
+    near_m: float,
+    far_m: float,
+    n_frames: int = 120,
+    ground_h: float = 0.0,
+    fov: float = 60.0,
+    viewport_height: int = 1080,
+    aspect: float = 16.0 / 9.0,
+    min_height_m: float = 25.0,
+) -> list[PathFrame]:
     """A deterministic flight over a city centred at (lon, lat) degrees, ``radius_m`` its half extent.
 
     The camera looks at a ground point that loops over the city (a 2:1 Lissajous figure of 0.45 × radius_m)
@@ -119,10 +136,24 @@ def camera_path(lon: float, lat: float, radius_m: float, near_m: float, far_m: f
     tgt_geo = ecef_to_geodetic(tgt_xyz)
     frames = []
     for i in range(n_frames):
-        c = look_at(math.degrees(cam_geo[i, 0]), math.degrees(cam_geo[i, 1]), float(cam_geo[i, 2]), tgt_xyz[i],
-                    fov, viewport_height, aspect)
-        frames.append(PathFrame(c, math.degrees(tgt_geo[i, 0]), math.degrees(tgt_geo[i, 1]), float(tgt_geo[i, 2]),
-                                float(np.linalg.norm(tgt_xyz[i] - cam_xyz[i]))))
+        c = look_at(
+            math.degrees(cam_geo[i, 0]),
+            math.degrees(cam_geo[i, 1]),
+            float(cam_geo[i, 2]),
+            tgt_xyz[i],
+            fov,
+            viewport_height,
+            aspect,
+        )
+        frames.append(
+            PathFrame(
+                c,
+                math.degrees(tgt_geo[i, 0]),
+                math.degrees(tgt_geo[i, 1]),
+                float(tgt_geo[i, 2]),
+                float(np.linalg.norm(tgt_xyz[i] - cam_xyz[i])),
+            )
+        )
     return frames
 
 
@@ -162,8 +193,9 @@ def vertical_view_angle(cam: Camera, points: np.ndarray, up: np.ndarray) -> np.n
     return np.degrees(np.arcsin(np.clip(np.nan_to_num(s, nan=1.0), 0.0, 1.0)))
 
 
-def screen_boxes(cam: Camera, base: np.ndarray, top: np.ndarray, radius_m: np.ndarray,
-                 up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def screen_boxes(
+    cam: Camera, base: np.ndarray, top: np.ndarray, radius_m: np.ndarray, up: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Screen boxes of vertical cylinders (footprint circle of ``radius_m`` around ``base``, up to ``top``):
     ((n, 4) x0, y0, x1, y1 in viewport pixels, (n,) depth of the mid point). The axis from base to top spans
     its projections; the circle adds its radius in pixels sideways and that times the sine of the vertical
@@ -177,8 +209,9 @@ def screen_boxes(cam: Camera, base: np.ndarray, top: np.ndarray, radius_m: np.nd
     with np.errstate(invalid="ignore", divide="ignore"):
         r_px = focal_px(cam) * np.asarray(radius_m, float) / np.where(dm >= NEAR_M, dm, np.nan)
     r_v = r_px * np.sin(np.radians(vertical_view_angle(cam, mid, up)))
-    boxes = np.stack([np.fmin(xb, xt) - r_px, np.fmin(yb, yt) - r_v, np.fmax(xb, xt) + r_px,
-                      np.fmax(yb, yt) + r_v], axis=1)
+    boxes = np.stack(
+        [np.fmin(xb, xt) - r_px, np.fmin(yb, yt) - r_v, np.fmax(xb, xt) + r_px, np.fmax(yb, yt) + r_v], axis=1
+    )
     boxes[np.isnan(xb) | np.isnan(xt)] = np.nan
     return boxes, dm
 
@@ -254,15 +287,22 @@ def normalize_by_max(values: np.ndarray, mask: np.ndarray | None = None) -> np.n
     return np.where(v == np.inf, 1.0, out)
 
 
-def interest(distance_n: np.ndarray, angle_n: np.ndarray, roi_n: np.ndarray,
-             weights: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+def interest(
+    distance_n: np.ndarray,
+    angle_n: np.ndarray,
+    roi_n: np.ndarray,
+    weights: tuple[float, float, float] = (1.0, 1.0, 1.0),
+) -> np.ndarray:
     """Weighted mean of (1 - metric) over the three normalized metrics, in [0, 1]."""
     wd, wa, wr = weights
     total = wd + wa + wr
     if total <= 0:
         raise ValueError("weights must sum to more than 0")
-    return (wd * (1 - np.asarray(distance_n, float)) + wa * (1 - np.asarray(angle_n, float))
-            + wr * (1 - np.asarray(roi_n, float))) / total
+    return (
+        wd * (1 - np.asarray(distance_n, float))
+        + wa * (1 - np.asarray(angle_n, float))
+        + wr * (1 - np.asarray(roi_n, float))
+    ) / total
 
 
 def lod_weight(lod: np.ndarray | int) -> np.ndarray:
@@ -291,9 +331,19 @@ class FrameMetrics:
     scale: float  # grid pixels per viewport pixel
 
 
-def frame_metrics(cam: Camera, lon: np.ndarray, lat: np.ndarray, ground_h: np.ndarray, height_m: np.ndarray,
-                  radius_m: np.ndarray, roi_centre: np.ndarray, roi_radius_m: float, grid_width: int = 384,
-                  min_px: float = 4.0, weights: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> FrameMetrics:
+def frame_metrics(
+    cam: Camera,
+    lon: np.ndarray,
+    lat: np.ndarray,
+    ground_h: np.ndarray,
+    height_m: np.ndarray,
+    radius_m: np.ndarray,
+    roi_centre: np.ndarray,
+    roi_radius_m: float,
+    grid_width: int = 384,
+    min_px: float = 4.0,
+    weights: tuple[float, float, float] = (1.0, 1.0, 1.0),
+) -> FrameMetrics:
     """The three metrics and the interest of every feature (footprint centre lon/lat degrees, ground height,
     height above it and footprint radius, m) for one camera; distances are normalized over the visible ones."""
     lon, lat = np.asarray(lon, float), np.asarray(lat, float)
@@ -321,15 +371,31 @@ def frame_metrics(cam: Camera, lon: np.ndarray, lat: np.ndarray, ground_h: np.nd
     distance_n = normalize_by_max(dist, visible) * nan
     angle_n = np.clip(angle / 90.0, 0.0, 1.0) * nan
     roi_n = roi_n * nan
-    return FrameMetrics(visible, x, y, boxes, depth, dist, distance_n, angle, angle_n, roi / scale, roi_n,
-                        interest(distance_n, angle_n, roi_n, weights), mask, dmap, scale)
+    return FrameMetrics(
+        visible,
+        x,
+        y,
+        boxes,
+        depth,
+        dist,
+        distance_n,
+        angle,
+        angle_n,
+        roi / scale,
+        roi_n,
+        interest(distance_n, angle_n, roi_n, weights),
+        mask,
+        dmap,
+        scale,
+    )
 
 
 # --- saliency map ------------------------------------------------------------------------------------------------
 
 
-def splat(boxes: np.ndarray, depth: np.ndarray, values: np.ndarray, width: int, height: int,
-          scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def splat(
+    boxes: np.ndarray, depth: np.ndarray, values: np.ndarray, width: int, height: int, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Paint each box (viewport pixels, scaled by ``scale`` to a width × height grid) with its value, the one
     of least depth winning a pixel: ((H, W) values, NaN where nothing; (H, W) index of the winning box, -1).
     NaN boxes are skipped. Vectorized: every (box, pixel) pair is listed and sorted by pixel then depth."""

@@ -29,14 +29,16 @@ def pixels_per_metre(distance: float | np.ndarray, fov_rad: float, viewport_heig
     return float(out) if np.ndim(out) == 0 else out
 
 
-def screen_space_error(geometric_error: float | np.ndarray, distance: float | np.ndarray, fov_rad: float,
-                       viewport_height: float) -> float | np.ndarray:
+def screen_space_error(
+    geometric_error: float | np.ndarray, distance: float | np.ndarray, fov_rad: float, viewport_height: float
+) -> float | np.ndarray:
     """Pixels a geometric error (m) spans at ``distance`` (m): what a client compares with its maximum."""
     return geometric_error * pixels_per_metre(distance, fov_rad, viewport_height)
 
 
-def distance_for_pixels(length_m: float | np.ndarray, pixels: float, fov_rad: float,
-                        viewport_height: float) -> float | np.ndarray:
+def distance_for_pixels(
+    length_m: float | np.ndarray, pixels: float, fov_rad: float, viewport_height: float
+) -> float | np.ndarray:
     """The distance at which ``length_m`` spans exactly ``pixels``: screen_space_error's inverse (a tile of
     geometric error e is drawn from ``distance_for_pixels(e, max_sse, ...)`` on)."""
     out = length_m * viewport_height / (2 * math.tan(fov_rad / 2) * pixels)
@@ -75,10 +77,15 @@ class Camera:
         d, r, u = self.axes()
         tv = math.radians(self.fov) / 2
         th = math.atan(self.aspect * math.tan(tv))
-        return np.array([
-            math.cos(th) * r + math.sin(th) * d, -math.cos(th) * r + math.sin(th) * d,
-            math.cos(tv) * u + math.sin(tv) * d, -math.cos(tv) * u + math.sin(tv) * d, d,
-        ])
+        return np.array(
+            [
+                math.cos(th) * r + math.sin(th) * d,
+                -math.cos(th) * r + math.sin(th) * d,
+                math.cos(tv) * u + math.sin(tv) * d,
+                -math.cos(tv) * u + math.sin(tv) * d,
+                d,
+            ]
+        )
 
     def focal_px(self) -> float:
         """Focal length in pixels: a length l at depth z spans l × focal / z pixels."""

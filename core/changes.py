@@ -49,15 +49,22 @@ def tile_arrays(tiles: list[Key]) -> dict[str, list[int]]:
 
 
 def record(conn: psycopg.Connection, run_id: int, changes: Changes) -> None:
-    conn.execute("INSERT INTO meta.run_dirty (run_id, building_ids, levels, xs, ys) "
-                 "VALUES (%(run)s, %(ids)s, %(levels)s, %(xs)s, %(ys)s)", {"run": run_id, **changes.arrays()})
+    conn.execute(
+        "INSERT INTO meta.run_dirty (run_id, building_ids, levels, xs, ys) "
+        "VALUES (%(run)s, %(ids)s, %(levels)s, %(xs)s, %(ys)s)",
+        {"run": run_id, **changes.arrays()},
+    )
 
 
 def reach(conn: psycopg.Connection, changes: Changes) -> set[Key]:
     """The tiles ``changes`` reaches: its tiles and its buildings' leaves, with their ancestors
     (tiles.reached)."""
-    return {(int(lv), int(x), int(y)) for lv, x, y in conn.execute(
-        "SELECT level, x, y FROM tiles.reached(%(ids)s, %(levels)s, %(xs)s, %(ys)s)", changes.arrays())}
+    return {
+        (int(lv), int(x), int(y))
+        for lv, x, y in conn.execute(
+            "SELECT level, x, y FROM tiles.reached(%(ids)s, %(levels)s, %(xs)s, %(ys)s)", changes.arrays()
+        )
+    }
 
 
 def since(conn: psycopg.Connection, stage: str, run_id: int | None) -> Changes | None:
@@ -65,8 +72,10 @@ def since(conn: psycopg.Connection, stage: str, run_id: int | None) -> Changes |
     when there is no such run or any of those runs recorded no change set (it may have changed anything)."""
     if run_id is None:
         return None
-    rows = conn.execute("SELECT recorded, building_ids, levels, xs, ys FROM meta.changes_since(%s, %s)",
-                        (run_id, list(PRODUCERS[stage]))).fetchall()
+    rows = conn.execute(
+        "SELECT recorded, building_ids, levels, xs, ys FROM meta.changes_since(%s, %s)",
+        (run_id, list(PRODUCERS[stage])),
+    ).fetchall()
     if not all(recorded for recorded, *_ in rows):
         return None
     return Changes([i for r in rows for i in r[1]], [t for r in rows for t in zip(r[2], r[3], r[4], strict=True)])
@@ -74,8 +83,9 @@ def since(conn: psycopg.Connection, stage: str, run_id: int | None) -> Changes |
 
 def last_ok_run(conn: psycopg.Connection, stage: str) -> int | None:
     """The stage's last successful run."""
-    row = conn.execute("SELECT max(run_id) FROM meta.pipeline_run WHERE stage = %s AND status = 'ok'",
-                       (stage,)).fetchone()
+    row = conn.execute(
+        "SELECT max(run_id) FROM meta.pipeline_run WHERE stage = %s AND status = 'ok'", (stage,)
+    ).fetchone()
     return None if row is None or row[0] is None else int(row[0])
 
 

@@ -127,10 +127,21 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
             shutil.chown(cluster.root, owner, owner)
             shutil.chown(cluster.sock, owner, owner)
         subprocess.run(
-            _as_owner([
-                str(PGBIN / "initdb"), "-D", str(cluster.data), "-A", "trust", "-U", SUPERUSER,
-                "--no-sync", "-E", "UTF8", "--locale=C.UTF-8",
-            ]),
+            _as_owner(
+                [
+                    str(PGBIN / "initdb"),
+                    "-D",
+                    str(cluster.data),
+                    "-A",
+                    "trust",
+                    "-U",
+                    SUPERUSER,
+                    "--no-sync",
+                    "-E",
+                    "UTF8",
+                    "--locale=C.UTF-8",
+                ]
+            ),
             check=True,
             stdout=subprocess.DEVNULL,
         )
@@ -155,9 +166,19 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
                 fh.write(extra)
     if not is_running(cluster):
         r = subprocess.run(
-            _as_owner([
-                str(PGBIN / "pg_ctl"), "-D", str(cluster.data), "-l", str(cluster.log), "-w", "-t", "60", "start",
-            ]),
+            _as_owner(
+                [
+                    str(PGBIN / "pg_ctl"),
+                    "-D",
+                    str(cluster.data),
+                    "-l",
+                    str(cluster.log),
+                    "-w",
+                    "-t",
+                    "60",
+                    "start",
+                ]
+            ),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
@@ -166,7 +187,8 @@ def start(settings: Settings | None = None, quiet: bool = False) -> Cluster:
             tail = cluster.log.read_text(errors="replace").splitlines()[-5:] if cluster.log.exists() else []
             raise ClusterError(
                 f"PostgreSQL did not start (pg_ctl: {r.stderr.strip()}); last lines of {cluster.log}:\n  "
-                + "\n  ".join(tail))
+                + "\n  ".join(tail)
+            )
     _ensure_database(cluster, settings.pg_database)
     if not quiet:
         print(f"PostgreSQL {PG_VERSION} running: {cluster.url(settings.pg_database)}", file=sys.stderr)

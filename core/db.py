@@ -65,8 +65,9 @@ def shares(items: list[T], n: int) -> list[list[T]]:
 
 
 @contextlib.contextmanager
-def thread_map(url: str, fn: Callable[[psycopg.Connection, T], R], items: Iterable[T],
-               workers: int) -> Iterator[Iterator[R]]:
+def thread_map(
+    url: str, fn: Callable[[psycopg.Connection, T], R], items: Iterable[T], workers: int
+) -> Iterator[Iterator[R]]:
     """``fn(conn, item)`` for every item, in order, by ``workers`` threads that each open a connection of their
     own (the SQL runs in separate backends, and numpy releases the GIL); the threads stop and the connections
     close when the block ends, consumed or not. The work starts at once, so the block may do something else

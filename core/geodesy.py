@@ -79,9 +79,14 @@ def region_box(regions: np.ndarray, pad: float = 1.0) -> np.ndarray:
     pts = geodetic_to_ecef(lo, la, hh).reshape(len(r), -1, 3)
     clon, clat = (r[:, 0] + r[:, 2]) / 2, (r[:, 1] + r[:, 3]) / 2
     sl, cl, sp, cp = np.sin(clon), np.cos(clon), np.sin(clat), np.cos(clat)
-    axes = np.stack([np.stack([-sl, cl, np.zeros_like(sl)], -1),
-                     np.stack([-sp * cl, -sp * sl, cp], -1),
-                     np.stack([cp * cl, cp * sl, sp], -1)], axis=1)  # (n, 3 axes, 3)
+    axes = np.stack(
+        [
+            np.stack([-sl, cl, np.zeros_like(sl)], -1),
+            np.stack([-sp * cl, -sp * sl, cp], -1),
+            np.stack([cp * cl, cp * sl, sp], -1),
+        ],
+        axis=1,
+    )  # (n, 3 axes, 3)
     origin = geodetic_to_ecef(clon, clat, np.zeros_like(clon))
     local = np.einsum("nij,npj->npi", axes, pts - origin[:, None, :])  # (n, p, 3) east/north/up
     lo_, hi_ = local.min(axis=1), local.max(axis=1)
@@ -95,7 +100,7 @@ def box_distance(box: np.ndarray, point: np.ndarray) -> float:
     d = np.asarray(point, float) - box[:3]
     total = 0.0
     for i in range(3):
-        axis = box[3 + 3 * i: 6 + 3 * i]
+        axis = box[3 + 3 * i : 6 + 3 * i]
         length = max(float(np.linalg.norm(axis)), 1e-9)
         total += max(abs(float(d @ axis)) / length - length, 0.0) ** 2
     return math.sqrt(total)

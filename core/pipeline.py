@@ -31,18 +31,31 @@ STAGES = (
     Stage("ingest", (), "etl.ingest.stage", "OSM file -> osm.building (+ osm.reject)", "OSM=path"),
     Stage("lod", ("ingest",), "etl.lod.stage", "osm.building -> lod.building_mesh (LOD1, LOD2, LOD3 solids)"),
     # osm.building, lod.building_mesh
-    Stage("landmarks", ("lod",), "etl.landmarks.stage",
-          "lod.building_mesh -> lm.building (saliency, voting hierarchy) and osm.building.protected"),
+    Stage(
+        "landmarks",
+        ("lod",),
+        "etl.landmarks.stage",
+        "lod.building_mesh -> lm.building (saliency, voting hierarchy) and osm.building.protected",
+    ),
     Stage("tiles", ("lod",), "etl.tiles.stage", "lod.building_mesh -> tiles.tile quadtree"),
     # tiles.*, the meshes, osm.building.protected (set by landmarks)
-    Stage("generalize", ("tiles", "landmarks"), "etl.generalize.stage",
-          "tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors"),
+    Stage(
+        "generalize",
+        ("tiles", "landmarks"),
+        "etl.generalize.stage",
+        "tiles + meshes -> gen.* (simplified, decimated, blocks) and tile errors",
+    ),
     # tiles.tile errors, api.buildings_for_tile (gen.*, lm.building)
-    Stage("textures", ("generalize",), "etl.textures.stage",
-          "tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv"),
+    Stage(
+        "textures",
+        ("generalize",),
+        "etl.textures.stage",
+        "tiles -> tex.page atlases (procedural facades and roofs) and tex.feature_uv",
+    ),
     # api.buildings_for_tile, lm.building, tex.*; a one-LOD export (--lod) reads up to generalize
-    Stage("export", ("textures",), "exporter.export", "tiles -> 3D Tiles 1.1 (tileset.json + glb)",
-          "OUT=dir [LOD=1|2|3]"),
+    Stage(
+        "export", ("textures",), "exporter.export", "tiles -> 3D Tiles 1.1 (tileset.json + glb)", "OUT=dir [LOD=1|2|3]"
+    ),
 )
 BY_NAME = {s.name: s for s in STAGES}
 #: stage -> the stages whose tables it reads, in pipeline order
@@ -93,8 +106,11 @@ def make_rules() -> str:
         reads = " ".join(r for r in GRAPH if r in s.reads) if s.reads else "migrate $(OSM)"  # in pipeline order
         deps = f"$(or $(READS_{s.name}),{reads})" if s.reads else reads
         usage = f"{s.usage}: " if s.usage else ""
-        out += [f"{s.name}: {deps} ## {usage}{s.does}",
-                f"\t$(PY) -m etl {s.name} $(ARGS_{s.name}) $(call STALE,{s.name})", ""]
+        out += [
+            f"{s.name}: {deps} ## {usage}{s.does}",
+            f"\t$(PY) -m etl {s.name} $(ARGS_{s.name}) $(call STALE,{s.name})",
+            "",
+        ]
     out.append(f".PHONY: {' '.join(s.name for s in STAGES)}")
     return "\n".join(out) + "\n"
 

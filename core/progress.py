@@ -70,8 +70,13 @@ class Balance:
 
     def counts(self) -> dict[str, object]:
         """The balance as meta.pipeline_run.counts carries it (etl/runs.py refuses an ok run without it)."""
-        return {"in": self.n_in, "out": self.n_out, "rejected": self.rejected, "unit": self.unit,
-                "out_by_kind": dict(self.out)}
+        return {
+            "in": self.n_in,
+            "out": self.n_out,
+            "rejected": self.rejected,
+            "unit": self.unit,
+            "out_by_kind": dict(self.out),
+        }
 
 
 def summary(stage: str, balance: Balance, details: str, seconds: float, buildings: int) -> str:

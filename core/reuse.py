@@ -41,21 +41,32 @@ class Plan(Generic[U]):
     read: list[U]
 
 
-def fingerprints(units: Sequence[U], seed: str, recorded: Mapping[U, str] | None,
-                 parts: Callable[[list[U]], Mapping[U, Sequence[object]]],
-                 reached: Container[U] | None = None) -> tuple[dict[U, str], list[U]]:
+def fingerprints(
+    units: Sequence[U],
+    seed: str,
+    recorded: Mapping[U, str] | None,
+    parts: Callable[[list[U]], Mapping[U, Sequence[object]]],
+    reached: Container[U] | None = None,
+) -> tuple[dict[U, str], list[U]]:
     """(every unit's fingerprint, the units whose input was read). ``parts(units)``: what each of those units
     reads, the values its fingerprint is made of; ``reached``: the units a change reached (None: any may have
     changed), the others keep their ``recorded`` fingerprint unread."""
-    known = {} if recorded is None or reached is None else {
-        u: recorded[u] for u in units if u in recorded and u not in reached}
+    known = (
+        {}
+        if recorded is None or reached is None
+        else {u: recorded[u] for u in units if u in recorded and u not in reached}
+    )
     read = [u for u in units if u not in known]
     got = parts(read) if read else {}
     return {u: known[u] if u in known else fingerprint(seed, *got[u]) for u in units}, read
 
 
-def decide(units: Sequence[U], prints: Mapping[U, str], recorded: Mapping[U, str] | None,
-           whole: Callable[[list[U]], Container[U]] | None = None) -> tuple[list[U], list[U]]:
+def decide(
+    units: Sequence[U],
+    prints: Mapping[U, str],
+    recorded: Mapping[U, str] | None,
+    whole: Callable[[list[U]], Container[U]] | None = None,
+) -> tuple[list[U], list[U]]:
     """(the units to keep, the units to make again), each in the units' order: a unit is kept when its
     fingerprint is the one the last run recorded (``recorded`` None: a full run, nothing is kept) and, of those,
     ``whole(units)`` finds its recorded output all still there (default: all)."""
@@ -67,9 +78,15 @@ def decide(units: Sequence[U], prints: Mapping[U, str], recorded: Mapping[U, str
     return same, [u for u in units if u not in kept]
 
 
-def plan(units: Sequence[U], seed: str, recorded: Mapping[U, str] | None,
-         parts: Callable[[list[U]], Mapping[U, Sequence[object]]], *, reached: Container[U] | None = None,
-         whole: Callable[[list[U]], Container[U]] | None = None) -> Plan[U]:
+def plan(
+    units: Sequence[U],
+    seed: str,
+    recorded: Mapping[U, str] | None,
+    parts: Callable[[list[U]], Mapping[U, Sequence[object]]],
+    *,
+    reached: Container[U] | None = None,
+    whole: Callable[[list[U]], Container[U]] | None = None,
+) -> Plan[U]:
     """Which of ``units`` to keep and which to make again: ``fingerprints``, then ``decide``."""
     prints, read = fingerprints(units, seed, recorded, parts, reached)
     keep, make = decide(units, prints, recorded, whole)

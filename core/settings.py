@@ -46,9 +46,24 @@ class Settings:
     #: Storeys assumed for small building types when untagged.
     default_levels_by_type: dict[str, float] = field(
         default_factory=lambda: {
-            "garage": 1, "garages": 1, "carport": 1, "shed": 1, "hut": 1, "cabin": 1, "kiosk": 1,
-            "toilets": 1, "service": 1, "bunker": 1, "container": 1, "greenhouse": 1, "roof": 1,
-            "house": 2, "detached": 2, "semidetached_house": 2, "bungalow": 1, "terrace": 2,
+            "garage": 1,
+            "garages": 1,
+            "carport": 1,
+            "shed": 1,
+            "hut": 1,
+            "cabin": 1,
+            "kiosk": 1,
+            "toilets": 1,
+            "service": 1,
+            "bunker": 1,
+            "container": 1,
+            "greenhouse": 1,
+            "roof": 1,
+            "house": 2,
+            "detached": 2,
+            "semidetached_house": 2,
+            "bungalow": 1,
+            "terrace": 2,
         }
     )
     #: S3DB outline rule: an outline whose building:parts cover at least this fraction of its area is not

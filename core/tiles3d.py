@@ -45,7 +45,7 @@ class Subtree:
             raise SubtreeError(f"bufferView {index} is not 8-byte aligned")
         if start + n > len(self.binary):
             raise SubtreeError(f"bufferView {index} lies outside the binary chunk")
-        return self.binary[start:start + n]
+        return self.binary[start : start + n]
 
     def bits(self, availability: dict[str, Any], n: int, what: str) -> np.ndarray:
         """An availability as n booleans."""
@@ -77,10 +77,10 @@ def read_subtree(data: bytes) -> Subtree:
     if jlen % 8 or blen % 8:
         raise SubtreeError("JSON and binary chunks must be padded to 8 bytes")
     try:
-        js = json.loads(data[24:24 + jlen])
+        js = json.loads(data[24 : 24 + jlen])
     except ValueError as e:
         raise SubtreeError(f"JSON chunk does not parse: {e}") from None
-    binary = data[24 + jlen:]
+    binary = data[24 + jlen :]
     if js.get("buffers") and js["buffers"][0].get("byteLength", 0) > len(binary):
         raise SubtreeError("buffer 0 is longer than the binary chunk")
     return Subtree(js, binary)
@@ -163,11 +163,9 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
         has = sub.bits(contents[0], n_bits, "contentAvailability") if contents else np.zeros(n_bits, bool)
         if np.any(has & ~avail):
             raise SubtreeError(f"subtree {lv}/{sx}/{sy}: content available on a tile that is not")
-        child = sub.bits(sub.json.get("childSubtreeAvailability", {}), 1 << (2 * levels),
-                         "childSubtreeAvailability")
+        child = sub.bits(sub.json.get("childSubtreeAvailability", {}), 1 << (2 * levels), "childSubtreeAvailability")
         bit = np.flatnonzero(avail)
-        local = np.searchsorted(
-            np.array([((1 << (2 * k)) - 1) // 3 for k in range(1, levels + 1)]), bit, side="right")
+        local = np.searchsorted(np.array([((1 << (2 * k)) - 1) // 3 for k in range(1, levels + 1)]), bit, side="right")
         mx, my = _morton_xy(bit - (((1 << (2 * local)) - 1) // 3))
         meta = _semantic_columns(tileset, sub, len(bit))
         for i, (k, x, y) in enumerate(zip(local.tolist(), mx.tolist(), my.tolist(), strict=True)):
@@ -175,13 +173,20 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
             if key[0] >= available:
                 raise SubtreeError(f"tile {key} is below availableLevels {available}")
             n = 1 << key[0]
-            region = meta["TILE_BOUNDING_REGION"][i].tolist() if "TILE_BOUNDING_REGION" in meta else [
-                rw + (re_ - rw) * key[1] / n, rs + (rn - rs) * key[2] / n,
-                rw + (re_ - rw) * (key[1] + 1) / n, rs + (rn - rs) * (key[2] + 1) / n, rlo, rhi]
-            error = float(meta["TILE_GEOMETRIC_ERROR"][i]) if "TILE_GEOMETRIC_ERROR" in meta \
-                else root_error / n
-            t: dict[str, Any] = {"boundingVolume": {"region": region}, "geometricError": error,
-                                 "implicit": list(key)}
+            region = (
+                meta["TILE_BOUNDING_REGION"][i].tolist()
+                if "TILE_BOUNDING_REGION" in meta
+                else [
+                    rw + (re_ - rw) * key[1] / n,
+                    rs + (rn - rs) * key[2] / n,
+                    rw + (re_ - rw) * (key[1] + 1) / n,
+                    rs + (rn - rs) * (key[2] + 1) / n,
+                    rlo,
+                    rhi,
+                ]
+            )
+            error = float(meta["TILE_GEOMETRIC_ERROR"][i]) if "TILE_GEOMETRIC_ERROR" in meta else root_error / n
+            t: dict[str, Any] = {"boundingVolume": {"region": region}, "geometricError": error, "implicit": list(key)}
             if has[bit[i]] and content_uri:
                 t["content"] = {"uri": _template(content_uri, *key)}
             tiles[key] = t
@@ -192,7 +197,7 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
     load(0, 0, 0)
     if (0, 0, 0) not in tiles:
         raise SubtreeError("the root subtree does not make the root tile available")
-    for (lv, x, y) in sorted(tiles):
+    for lv, x, y in sorted(tiles):
         if lv == 0:
             continue
         parent = tiles.get((lv - 1, x >> 1, y >> 1))

@@ -18,9 +18,7 @@ EWKB_Z = 0x80000000
 EWKB_SRID = 0x20000000
 ISO_Z = 1000
 
-_TRIANGLE = np.dtype(
-    [("order", "u1"), ("type", "<u4"), ("nrings", "<u4"), ("npoints", "<u4"), ("xyz", "<f8", (4, 3))]
-)
+_TRIANGLE = np.dtype([("order", "u1"), ("type", "<u4"), ("nrings", "<u4"), ("npoints", "<u4"), ("xyz", "<f8", (4, 3))])
 assert _TRIANGLE.itemsize == 109
 
 

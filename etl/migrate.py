@@ -74,12 +74,16 @@ def _bootstrap(conn: psycopg.Connection) -> None:
                applied_at timestamptz NOT NULL DEFAULT now())"""
     )
     for target, text in (
-        ("TABLE meta.schema_migrations",
-         "Migrations applied to this database (python -m etl migrate), with the sha256 of each file."),
+        (
+            "TABLE meta.schema_migrations",
+            "Migrations applied to this database (python -m etl migrate), with the sha256 of each file.",
+        ),
         ("COLUMN meta.schema_migrations.version", "Number of the migration file (NNNN_name.sql)."),
         ("COLUMN meta.schema_migrations.name", "Name part of the migration file."),
-        ("COLUMN meta.schema_migrations.checksum",
-         "sha256 of the file when it was applied; a changed file is refused."),
+        (
+            "COLUMN meta.schema_migrations.checksum",
+            "sha256 of the file when it was applied; a changed file is refused.",
+        ),
         ("COLUMN meta.schema_migrations.applied_at", "When it was applied (UTC)."),
     ):
         conn.execute(sql.SQL("COMMENT ON {} IS {}").format(sql.SQL(target), sql.Literal(text)))
@@ -92,9 +96,7 @@ def migrate(conn: psycopg.Connection, directory: Path = MIGRATIONS, quiet: bool 
     with conn.transaction():
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_ADVISORY_LOCK,))
         _bootstrap(conn)
-        done = {
-            v: (n, c) for v, n, c in conn.execute("SELECT version, name, checksum FROM meta.schema_migrations")
-        }
+        done = {v: (n, c) for v, n, c in conn.execute("SELECT version, name, checksum FROM meta.schema_migrations")}
     on_disk = {m.version for m in migrations}
     for version, (name, _) in sorted(done.items()):
         if version not in on_disk:
@@ -170,12 +172,16 @@ def reload_sql(conn: psycopg.Connection, directory: Path = SQL_DIR, quiet: bool 
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_ADVISORY_LOCK,))
         for nsp, rel, kind in conn.execute(_DROP_VIEWS, (schemas,)).fetchall():
             view = sql.SQL("MATERIALIZED VIEW" if kind == "m" else "VIEW")
-            conn.execute(sql.SQL("DROP {} IF EXISTS {}.{} CASCADE").format(
-                view, sql.Identifier(nsp), sql.Identifier(rel)))
+            conn.execute(
+                sql.SQL("DROP {} IF EXISTS {}.{} CASCADE").format(view, sql.Identifier(nsp), sql.Identifier(rel))
+            )
         for nsp, name, args, kind in conn.execute(_DROP_ROUTINES, (schemas,)).fetchall():
             what = {"p": "PROCEDURE", "a": "AGGREGATE"}.get(kind, "FUNCTION")
-            conn.execute(sql.SQL("DROP {} IF EXISTS {}.{}({})").format(
-                sql.SQL(what), sql.Identifier(nsp), sql.Identifier(name), sql.SQL(args)))
+            conn.execute(
+                sql.SQL("DROP {} IF EXISTS {}.{}({})").format(
+                    sql.SQL(what), sql.Identifier(nsp), sql.Identifier(name), sql.SQL(args)
+                )
+            )
         # Bodies reference objects defined in later files; they are checked when first called and by the tests.
         conn.execute("SET LOCAL check_function_bodies = off")
         for obj in objs:
@@ -192,14 +198,14 @@ def reload_sql(conn: psycopg.Connection, directory: Path = SQL_DIR, quiet: bool 
             ).fetchone()
             if not found or not found[0]:
                 raise MigrationError(
-                    f"{_show(obj.path)} must define {obj.schema}.{obj.name} (one object per file, "
-                    "named after the file)"
+                    f"{_show(obj.path)} must define {obj.schema}.{obj.name} (one object per file, named after the file)"
                 )
         if exists(conn, "meta.sql_object"):
             conn.execute("DELETE FROM meta.sql_object")
             with conn.cursor() as cur:
-                cur.executemany("INSERT INTO meta.sql_object (path, sha256) VALUES (%s, %s)",
-                                list(on_disk_sql(objs).items()))
+                cur.executemany(
+                    "INSERT INTO meta.sql_object (path, sha256) VALUES (%s, %s)", list(on_disk_sql(objs).items())
+                )
     if not quiet:
         print(f"  loaded {len(objs)} objects from sql/", file=sys.stderr)
     return len(objs)

@@ -53,8 +53,9 @@ def url_of(settings: Settings) -> str:
 def inputs(call: Call, settings: Settings) -> dict[str, object]:
     """What the run of ``call`` records as its inputs now (etl/staleness.py)."""
     with connect(url_of(settings), autocommit=True) as conn:
-        return staleness.inputs(conn, call.stage, settings, reads=call.reads, file=call.file,
-                                options=call.recorded_options)
+        return staleness.inputs(
+            conn, call.stage, settings, reads=call.reads, file=call.file, options=call.recorded_options
+        )
 
 
 def is_current(call: Call, settings: Settings) -> bool:
@@ -62,16 +63,16 @@ def is_current(call: Call, settings: Settings) -> bool:
         return staleness.verdict(conn, call.stage, inputs(call, settings), call.out)[0]
 
 
-def run(call: Call, settings: Settings, *, if_stale: bool = False, mode: Mode = "full",
-        knows_changes: bool = False) -> Result | None:
+def run(
+    call: Call, settings: Settings, *, if_stale: bool = False, mode: Mode = "full", knows_changes: bool = False
+) -> Result | None:
     """Run ``call``'s stage and record it; None when ``if_stale`` finds it current. ``knows_changes`` (an
     update of a stage that was current before it): the context carries what the runs since its last one
     changed (core/changes.py), so the stage may redo only that."""
     url = url_of(settings)
     stage = call.stage
     with connect(url, autocommit=True) as conn:
-        now = staleness.inputs(conn, stage, settings, reads=call.reads, file=call.file,
-                               options=call.recorded_options)
+        now = staleness.inputs(conn, stage, settings, reads=call.reads, file=call.file, options=call.recorded_options)
         if if_stale:
             current, line = staleness.verdict(conn, stage, now, call.out)
             print(f"{line}; {'skipped' if current else 'running'}", flush=True)
@@ -82,10 +83,21 @@ def run(call: Call, settings: Settings, *, if_stale: bool = False, mode: Mode = 
         changed = changes.since(conn, stage, last_run) if mode == "update" and knows_changes else None
     module = importlib.import_module(BY_NAME[stage].module)  # after the check: a skip imports no numpy
     params = {**settings.as_dict(), **({"update": True} if mode == "update" else {}), **call.params}
-    with pipeline_run(url, stage, params, call.input_file, input_sha256=call.input_sha256, inputs=now) as rec, \
-            connect(url) as conn:
-        ctx = Context(conn, url, settings, rec.run_id, code=json.dumps([now["code"], now["settings"]], sort_keys=True),
-                      mode=mode, changed=changed, last_run=last_run, options=call.options)
+    with (
+        pipeline_run(url, stage, params, call.input_file, input_sha256=call.input_sha256, inputs=now) as rec,
+        connect(url) as conn,
+    ):
+        ctx = Context(
+            conn,
+            url,
+            settings,
+            rec.run_id,
+            code=json.dumps([now["code"], now["settings"]], sort_keys=True),
+            mode=mode,
+            changed=changed,
+            last_run=last_run,
+            options=call.options,
+        )
         result: Result = module.run(ctx)
         # what an update's run changed, for the stages after it (a stage says it only when it knows it whole)
         if mode == "update" and result.changed is not None:
@@ -104,8 +116,10 @@ def carry_over(stage: str, settings: Settings) -> None:
         now = staleness.inputs(conn, stage, settings)
         last = staleness.last_run(conn, stage)
     assert last is not None
-    with pipeline_run(url, stage, {"carried_from": last.run_id}, inputs=now) as carried, \
-            connect(url, autocommit=True) as conn:
+    with (
+        pipeline_run(url, stage, {"carried_from": last.run_id}, inputs=now) as carried,
+        connect(url, autocommit=True) as conn,
+    ):
         carried.counts = {**(last.counts or {}), "carried_from": last.run_id}
         changes.record(conn, carried.run_id, changes.Changes())
     print(f"{stage}: unchanged by the update; run {last.run_id} carried over", file=sys.stderr)

@@ -30,7 +30,9 @@ def git_commit() -> str | None:
         ).stdout.strip()
         dirty = subprocess.run(
             ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True, text=True, check=True,
+            capture_output=True,
+            text=True,
+            check=True,
         ).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
@@ -90,8 +92,12 @@ def _heartbeat(conn: psycopg.Connection, run_id: int, stop: threading.Event) -> 
 
 @contextmanager
 def pipeline_run(
-    url: str, stage: str, params: dict[str, object], input_file: Path | None = None,
-    input_sha256: str | None = None, inputs: dict[str, object] | None = None,
+    url: str,
+    stage: str,
+    params: dict[str, object],
+    input_file: Path | None = None,
+    input_sha256: str | None = None,
+    inputs: dict[str, object] | None = None,
 ) -> Iterator[Run]:
     """Record a stage run. Uses its own autocommit connection so a failed stage still leaves its row.
     ``inputs`` (etl.staleness.inputs) is what a later --if-stale compares."""
@@ -120,8 +126,7 @@ def pipeline_run(
             # while it is held, the run is alive
             conn.execute("SELECT pg_advisory_lock(%s, %s)", (RUN_LOCK, run.run_id))
         stop = threading.Event()
-        beat = threading.Thread(target=_heartbeat, args=(conn, run.run_id, stop), name="run-heartbeat",
-                                daemon=True)
+        beat = threading.Thread(target=_heartbeat, args=(conn, run.run_id, stop), name="run-heartbeat", daemon=True)
         beat.start()
         try:
             try:
@@ -134,14 +139,22 @@ def pipeline_run(
             conn.execute(
                 """UPDATE meta.pipeline_run SET status = 'failed', finished_at = now(), duration_s = %s,
                    counts = %s, error = %s WHERE run_id = %s""",
-                (time.perf_counter() - run.started, Jsonb(run.counts),
-                 "".join(traceback.format_exception_only(type(exc), exc)).strip(), run.run_id),
+                (
+                    time.perf_counter() - run.started,
+                    Jsonb(run.counts),
+                    "".join(traceback.format_exception_only(type(exc), exc)).strip(),
+                    run.run_id,
+                ),
             )
             recorded_failures.append(run.run_id)
             raise
         conn.execute(
             """UPDATE meta.pipeline_run SET status = 'ok', finished_at = now(), duration_s = %s, counts = %s,
                output = %s WHERE run_id = %s""",
-            (time.perf_counter() - run.started, Jsonb(run.counts),
-             Jsonb(run.output) if run.output is not None else None, run.run_id),
+            (
+                time.perf_counter() - run.started,
+                Jsonb(run.counts),
+                Jsonb(run.output) if run.output is not None else None,
+                run.run_id,
+            ),
         )

@@ -43,8 +43,7 @@ MODULES = {s.name: s.module for s in STAGES}
 _PACKAGES = ("core", "etl", "exporter")
 #: Settings that say where the database is, or how the work is spread (the output is the same whatever their
 #: values), not how a stage's output is made.
-_NOT_INPUTS = frozenset({"pg_port", "pg_database", "lod_workers", "lod_batch_size", "gen_workers",
-                         "export_workers"})
+_NOT_INPUTS = frozenset({"pg_port", "pg_database", "lod_workers", "lod_batch_size", "gen_workers", "export_workers"})
 #: Defines every setting: the values a stage uses are compared instead, so editing a comment there reruns nothing.
 _SETTINGS_MODULE = "core.settings"
 _QUALIFIED = re.compile(r"\b([a-z_][a-z0-9_]*)\.([a-z_][a-z0-9_]*)\b")
@@ -68,8 +67,9 @@ def project_modules(root: Path = REPO, packages: tuple[str, ...] = _PACKAGES) ->
     return out
 
 
-_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(\.*)([\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n#;]*)|import[ \t]+([^\n#;]*))",
-                     re.M)
+_IMPORT = re.compile(
+    r"^[ \t]*(?:from[ \t]+(\.*)([\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n#;]*)|import[ \t]+([^\n#;]*))", re.M
+)
 
 
 def module_imports(name: str, path: Path, known: set[str]) -> set[str]:
@@ -139,8 +139,8 @@ def sql_closure(texts: Iterable[str], root: Path = REPO) -> list[Path]:
 
 @dataclass(frozen=True)
 class StageCode:
-    python: dict[str, str]    # repo-relative path -> sha256
-    sql: tuple[str, ...]      # sql/<schema>/<object>.sql the stage calls (hashes come from the database)
+    python: dict[str, str]  # repo-relative path -> sha256
+    sql: tuple[str, ...]  # sql/<schema>/<object>.sql the stage calls (hashes come from the database)
     settings: tuple[str, ...]  # the Settings fields its code names
 
 
@@ -167,29 +167,43 @@ def _json(value: object) -> object:
 
 
 def last_ok_runs(conn: psycopg.Connection, stages: list[str]) -> dict[str, int]:
-    rows = conn.execute("""SELECT stage, max(run_id) FROM meta.pipeline_run
-                           WHERE status = 'ok' AND stage = ANY(%s) GROUP BY stage""", (stages,)).fetchall()
+    rows = conn.execute(
+        """SELECT stage, max(run_id) FROM meta.pipeline_run
+                           WHERE status = 'ok' AND stage = ANY(%s) GROUP BY stage""",
+        (stages,),
+    ).fetchall()
     return {s: int(r) for s, r in rows}
 
 
-def inputs(conn: psycopg.Connection, stage: str, settings: Settings, reads: tuple[str, ...] | None = None,
-           file: dict[str, object] | None = None, options: dict[str, object] | None = None) -> dict[str, object]:
+def inputs(
+    conn: psycopg.Connection,
+    stage: str,
+    settings: Settings,
+    reads: tuple[str, ...] | None = None,
+    file: dict[str, object] | None = None,
+    options: dict[str, object] | None = None,
+) -> dict[str, object]:
     """What a run of ``stage`` would record in meta.pipeline_run.inputs now."""
     if not exists(conn, "meta.sql_object"):
         raise RuntimeError("the database is older than this code: run `python -m etl migrate` (make migrate)")
     ups = ancestors(GRAPH[stage] if reads is None else reads)
     last = last_ok_runs(conn, ups)
     code = stage_code(stage)
-    loaded: dict[str, str] = dict(conn.execute("SELECT path, sha256 FROM meta.sql_object WHERE path = ANY(%s)",
-                               (list(code.sql),)).fetchall())
-    migrations = "".join(f"{v}:{c}\n" for v, c in conn.execute(
-        "SELECT version, checksum FROM meta.schema_migrations ORDER BY version"))
+    loaded: dict[str, str] = dict(
+        conn.execute("SELECT path, sha256 FROM meta.sql_object WHERE path = ANY(%s)", (list(code.sql),)).fetchall()
+    )
+    migrations = "".join(
+        f"{v}:{c}\n" for v, c in conn.execute("SELECT version, checksum FROM meta.schema_migrations ORDER BY version")
+    )
     out: dict[str, object] = {
         "upstream": {s: last.get(s) for s in ups},
         "settings": {f: getattr(settings, f) for f in code.settings},
         # an object sql/ defines but migrate has not loaded yet is None: the stage would not find it
-        "code": {**code.python, **{p: loaded.get(p) for p in code.sql},
-                 "migrations": sha256_bytes(migrations.encode())},
+        "code": {
+            **code.python,
+            **{p: loaded.get(p) for p in code.sql},
+            "migrations": sha256_bytes(migrations.encode()),
+        },
     }
     if file is not None:
         out["file"] = file
@@ -221,11 +235,17 @@ def differences(recorded: dict[str, object], now: dict[str, object]) -> list[str
             out += [f"{s} has no successful run" for s in changed if b[s] is None]
         elif key == "code":
             changed = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
-            out.append("code changed: " + ", ".join(changed[:3]) + (f" and {len(changed) - 3} more"
-                                                                     if len(changed) > 3 else ""))
+            out.append(
+                "code changed: "
+                + ", ".join(changed[:3])
+                + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+            )
         else:
-            out += [f"{key} {k} {_show(a.get(k))} -> {_show(b.get(k))}" for k in sorted(a.keys() | b.keys())
-                    if a.get(k) != b.get(k)]
+            out += [
+                f"{key} {k} {_show(a.get(k))} -> {_show(b.get(k))}"
+                for k in sorted(a.keys() | b.keys())
+                if a.get(k) != b.get(k)
+            ]
     return out
 
 
@@ -244,7 +264,9 @@ def last_run(conn: psycopg.Connection, stage: str, out: str | None = None) -> La
         """SELECT run_id, to_char(finished_at AT TIME ZONE 'UTC', 'YYYY-MM-DD HH24:MI:SS'), inputs, output, counts
            FROM meta.pipeline_run
            WHERE stage = %s AND status = 'ok' AND (%s::text IS NULL OR inputs -> 'options' ->> 'out' = %s)
-           ORDER BY run_id DESC LIMIT 1""", (stage, out, out)).fetchone()
+           ORDER BY run_id DESC LIMIT 1""",
+        (stage, out, out),
+    ).fetchone()
     return LastRun(*row) if row else None
 
 
@@ -266,8 +288,7 @@ def output_problems(out: Path, recorded: dict[str, object] | None) -> list[str]:
     return []
 
 
-def verdict(conn: psycopg.Connection, stage: str, now: dict[str, object],
-            out: Path | None = None) -> tuple[bool, str]:
+def verdict(conn: psycopg.Connection, stage: str, now: dict[str, object], out: Path | None = None) -> tuple[bool, str]:
     """(current?, one line saying so and why) for ``stage`` whose inputs are ``now`` (export: into ``out``)."""
     last = last_run(conn, stage, str(out) if out else None)
     if last is None:
@@ -279,5 +300,7 @@ def verdict(conn: psycopg.Connection, stage: str, now: dict[str, object],
         why = output_problems(out, last.output)
     if why:
         return False, f"{stage}: stale since run {last.run_id}: {'; '.join(why)}"
-    return True, (f"{stage}: current since run {last.run_id} ({last.finished_at} UTC): same upstream runs, "
-                  "settings, code" + (", input file" if "file" in now else "") + (", files" if out else ""))
+    return True, (
+        f"{stage}: current since run {last.run_id} ({last.finished_at} UTC): same upstream runs, "
+        "settings, code" + (", input file" if "file" in now else "") + (", files" if out else "")
+    )

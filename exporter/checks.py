@@ -80,8 +80,14 @@ def _inside(child: dict[str, Any], parent: dict[str, Any], cw: np.ndarray, pw: n
     if "region" in child and "region" in parent:
         c, p = child["region"], parent["region"]
         t = TOLERANCE_RAD
-        return (c[0] >= p[0] - t and c[1] >= p[1] - t and c[2] <= p[2] + t and c[3] <= p[3] + t
-                and c[4] >= p[4] - TOLERANCE_M and c[5] <= p[5] + TOLERANCE_M)
+        return (
+            c[0] >= p[0] - t
+            and c[1] >= p[1] - t
+            and c[2] <= p[2] + t
+            and c[3] <= p[3] + t
+            and c[4] >= p[4] - TOLERANCE_M
+            and c[5] <= p[5] + TOLERANCE_M
+        )
     # Conservative for mixed kinds: the child's ECEF corners must lie in the parent's ECEF box.
     pts = volume_corners(child, cw)
     ppts = volume_corners(parent, pw)
@@ -143,16 +149,13 @@ def _check_implicit(root: dict[str, Any], problems: list[str]) -> dict[str, Any]
             problems.append(f"root: {where} must be a template with {{level}}, {{x}} and {{y}}")
     if "children" in root:
         problems.append("root: an implicit root tile must not have children")
-    if "region" not in (root.get("boundingVolume") or {}) \
-            and "box" not in (root.get("boundingVolume") or {}):
+    if "region" not in (root.get("boundingVolume") or {}) and "box" not in (root.get("boundingVolume") or {}):
         problems.append("root: an implicit root needs a region or box bounding volume")
     return None if len(problems) > before else imp
 
 
 def _check_glb(path: Path, where: str, problems: list[str]) -> None:
     problems.extend(f"{where}: {path.name}: {p}" for p in check_glb(path.read_bytes()))
-
-
 
 
 def check_glb(data: bytes) -> list[str]:
@@ -215,8 +218,11 @@ def check_glb(data: bytes) -> list[str]:
                     offs = np.frombuffer(view_bytes(col["stringOffsets"]), dtype=dtype)
                     if len(offs) < count + 1:
                         problems.append(f"{where}: {len(offs)} string offsets for {count} values")
-                    elif offs[0] != 0 or np.any(np.diff(offs[: count + 1].astype(np.int64)) < 0) \
-                            or offs[count] > views[col["values"]]["byteLength"]:
+                    elif (
+                        offs[0] != 0
+                        or np.any(np.diff(offs[: count + 1].astype(np.int64)) < 0)
+                        or offs[count] > views[col["values"]]["byteLength"]
+                    ):
                         problems.append(f"{where}: string offsets must start at 0, increase and stay in the buffer")
                 elif spec.get("type") == "SCALAR":
                     comp = spec.get("componentType", "")
@@ -311,8 +317,14 @@ def check_tileset(path: Path) -> list[str]:
         root = ts["root"]
     uris: set[str] = set()
 
-    def walk(tile: dict[str, Any], where: str, parent_error: float, parent_bv: dict[str, Any] | None,
-             parent_world: np.ndarray, world: np.ndarray) -> None:
+    def walk(
+        tile: dict[str, Any],
+        where: str,
+        parent_error: float,
+        parent_bv: dict[str, Any] | None,
+        parent_world: np.ndarray,
+        world: np.ndarray,
+    ) -> None:
         if "transform" in tile:
             if not _numbers(tile["transform"], 16):
                 problems.append(f"{where}: transform must be 16 numbers")
@@ -349,8 +361,12 @@ def check_tileset(path: Path) -> list[str]:
             uris.add(uri)
             if target.suffix == ".glb":
                 _check_glb(target, where, problems)
-            if "boundingVolume" in c and _check_bv(c["boundingVolume"], where + ".content", problems) and ok_bv \
-                    and not _inside(c["boundingVolume"], bv, world, world):  # type: ignore[arg-type]
+            if (
+                "boundingVolume" in c
+                and _check_bv(c["boundingVolume"], where + ".content", problems)
+                and ok_bv
+                and not _inside(c["boundingVolume"], bv, world, world)
+            ):  # type: ignore[arg-type]
                 problems.append(f"{where}: content bounding volume not inside the tile's")
         if "children" in tile:
             kids = tile["children"]

@@ -19,16 +19,26 @@ DEFAULT_OUT = REPO / "build" / "tiles" / "demo"
 
 
 def stream_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--geometry", choices=GEOMETRY, default=GEOMETRY[0],
-                   help="compact: quantized, meshopt-compressed (KHR_mesh_quantization, KHR_meshopt_compression); "
-                        "compact-ext: the same through EXT_meshopt_compression, for loaders without the KHR one; "
-                        "plain: float32 (default: %(default)s)")
-    p.add_argument("--textures", choices=TEXTURES, default=TEXTURES[0],
-                   help="ktx2: Basis Universal with mipmaps (KHR_texture_basisu); webp: EXT_texture_webp "
-                        "(default: %(default)s)")
-    p.add_argument("--tiling", choices=TILING, default=TILING[0],
-                   help="implicit: implicitTiling with subtree files; explicit: every tile in tileset.json "
-                        "(default: %(default)s)")
+    p.add_argument(
+        "--geometry",
+        choices=GEOMETRY,
+        default=GEOMETRY[0],
+        help="compact: quantized, meshopt-compressed (KHR_mesh_quantization, KHR_meshopt_compression); "
+        "compact-ext: the same through EXT_meshopt_compression, for loaders without the KHR one; "
+        "plain: float32 (default: %(default)s)",
+    )
+    p.add_argument(
+        "--textures",
+        choices=TEXTURES,
+        default=TEXTURES[0],
+        help="ktx2: Basis Universal with mipmaps (KHR_texture_basisu); webp: EXT_texture_webp (default: %(default)s)",
+    )
+    p.add_argument(
+        "--tiling",
+        choices=TILING,
+        default=TILING[0],
+        help="implicit: implicitTiling with subtree files; explicit: every tile in tileset.json (default: %(default)s)",
+    )
 
 
 def stream_options(args: argparse.Namespace) -> StreamOptions:
@@ -38,27 +48,42 @@ def stream_options(args: argparse.Namespace) -> StreamOptions:
 def serve_arguments(srv: argparse.ArgumentParser) -> None:
     src = srv.add_mutually_exclusive_group()
     src.add_argument("--dir", default=str(DEFAULT_OUT), help="tileset directory")
-    src.add_argument("--db", action="store_true",
-                     help="stream the tileset published into the database by export (the live generation of "
-                          "--tileset; a rebuild or a new export never interrupts it), as the read-only role "
-                          "citylod_reader: CITYLOD_READER_URL, else DATABASE_URL / the local cluster with that user")
-    srv.add_argument("--tileset", default="demo",
-                     help="with --db: the published tileset's name (export's --publish; default: %(default)s, the "
-                          "name of the default output directory)")
-    srv.add_argument("--live", action="store_true",
-                     help="with --db: build tileset.json and each glb on request from the stage tables instead "
-                          "(cached; no export needed, but answered 503 while a stage rebuilds them)")
-    srv.add_argument("--lod", type=int, choices=(1, 2, 3), default=None,
-                     help="with --db --live: one level of detail for every building, as `export --lod` (default: "
-                          "the generalized hierarchy)")
+    src.add_argument(
+        "--db",
+        action="store_true",
+        help="stream the tileset published into the database by export (the live generation of "
+        "--tileset; a rebuild or a new export never interrupts it), as the read-only role "
+        "citylod_reader: CITYLOD_READER_URL, else DATABASE_URL / the local cluster with that user",
+    )
+    srv.add_argument(
+        "--tileset",
+        default="demo",
+        help="with --db: the published tileset's name (export's --publish; default: %(default)s, the "
+        "name of the default output directory)",
+    )
+    srv.add_argument(
+        "--live",
+        action="store_true",
+        help="with --db: build tileset.json and each glb on request from the stage tables instead "
+        "(cached; no export needed, but answered 503 while a stage rebuilds them)",
+    )
+    srv.add_argument(
+        "--lod",
+        type=int,
+        choices=(1, 2, 3),
+        default=None,
+        help="with --db --live: one level of detail for every building, as `export --lod` (default: "
+        "the generalized hierarchy)",
+    )
     stream_arguments(srv)
     srv.add_argument("--cache-mb", type=float, default=256.0, help="with --db: tile cache budget (MiB)")
     srv.add_argument("--host", default="127.0.0.1")
     srv.add_argument("--port", type=int, default=8765, help="0 picks a free port")
 
 
-SERVE_HELP = ("serve the tileset (a directory, or --db straight from the database) and the CesiumJS viewer "
-              "(Ctrl-C stops)")
+SERVE_HELP = (
+    "serve the tileset (a directory, or --db straight from the database) and the CesiumJS viewer (Ctrl-C stops)"
+)
 
 
 def serve(args: argparse.Namespace, settings: Settings) -> int:
@@ -68,18 +93,26 @@ def serve(args: argparse.Namespace, settings: Settings) -> int:
 
         url, cache_bytes = reader_url(cluster.ensure(settings)), int(args.cache_mb * 2**20)
         if args.live:
-            serve_db(url, args.host, args.port, lod=args.lod, stream=stream_options(args),
-                     base_height=settings.base_height_m, cache_bytes=cache_bytes)
+            serve_db(
+                url,
+                args.host,
+                args.port,
+                lod=args.lod,
+                stream=stream_options(args),
+                base_height=settings.base_height_m,
+                cache_bytes=cache_bytes,
+            )
             return 0
         if args.lod is not None:
-            print("serve: --lod needs --live (a published tileset holds the LOD it was exported with)",
-                  file=sys.stderr)
+            print("serve: --lod needs --live (a published tileset holds the LOD it was exported with)", file=sys.stderr)
             return 2
         serve_published(url, args.tileset, args.host, args.port, cache_bytes=cache_bytes)
         return 0
     if args.lod is not None or args.live:
-        print("serve: --lod and --live need --db (a tileset directory holds the LOD it was exported with)",
-              file=sys.stderr)
+        print(
+            "serve: --lod and --live need --db (a tileset directory holds the LOD it was exported with)",
+            file=sys.stderr,
+        )
         return 2
     from exporter.serve.run import serve as serve_dir
 

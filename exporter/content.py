@@ -107,8 +107,16 @@ def tile_arrays(
     colors = np.repeat(colour, 3, axis=0)
     fids = np.repeat(feat.astype(np.uint32), 3)
     if m == 0:
-        return ContentArrays(pos64, normals, colors, fids, np.zeros(0, np.uint32), int((~keep).sum()),
-                             uvs if textured else None, pages if textured else None)
+        return ContentArrays(
+            pos64,
+            normals,
+            colors,
+            fids,
+            np.zeros(0, np.uint32),
+            int((~keep).sum()),
+            uvs if textured else None,
+            pages if textured else None,
+        )
     # Coplanar triangles get normals equal up to rounding noise; round them for the key so they share vertices.
     nkey = np.round(normals, 4).astype(np.float32) + np.float32(0.0)  # + 0.0 folds -0.0 into 0.0
     parts = [pos.view(np.uint32), nkey.view(np.uint32), np.ascontiguousarray(colors).view(np.uint32), fids[:, None]]
@@ -124,7 +132,12 @@ def tile_arrays(
     rank[order] = np.arange(len(order))
     sel = first[order]
     return ContentArrays(
-        positions=pos64[sel], normals=normals[sel], colors=colors[sel], feature_ids=fids[sel],
-        indices=rank[inverse.reshape(-1)].astype(np.uint32), dropped_degenerate=int((~keep).sum()),
-        uvs=uvs[sel] if textured else None, pages=pages[sel] if textured else None,
+        positions=pos64[sel],
+        normals=normals[sel],
+        colors=colors[sel],
+        feature_ids=fids[sel],
+        indices=rank[inverse.reshape(-1)].astype(np.uint32),
+        dropped_degenerate=int((~keep).sum()),
+        uvs=uvs[sel] if textured else None,
+        pages=pages[sel] if textured else None,
     )

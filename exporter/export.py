@@ -78,33 +78,70 @@ PROPERTIES: list[tuple[str, str | None, str, bool, object]] = [
     ("building_material", None, "building:material", False, None),
     ("roof_material", None, "roof:material", False, None),
     ("lod", "UINT8", "level of detail of the mesh: 0 block, 1 simplified block, 2 roofs, 3 facades", True, None),
-    ("gen_level", "INT8", "generalization level (gen.tolerance): 1 and below blocks (10 m at 0, 20 m at -1, ...), "
-     "2 simplified, 3 LOD2, 4 LOD3",
-     True, None),
+    (
+        "gen_level",
+        "INT8",
+        "generalization level (gen.tolerance): 1 and below blocks (10 m at 0, 20 m at -1, ...), "
+        "2 simplified, 3 LOD2, 4 LOD3",
+        True,
+        None,
+    ),
     ("n_members", "UINT32", "buildings merged into this feature (1 unless a block)", True, None),
     ("error_m", "FLOAT32", "bound on the distance to the full-detail model (m)", True, None),
     # the level, not the city-wide rank: one edit shifts the rank of every building below it, and so every tile
-    ("lm_level", "UINT8", "landmark level of the building (lm.building.level): the Delaunay voting rounds it won, "
-     "0 for most; the higher, the farther away it stands out (absent on blocks)", False, 255),
+    (
+        "lm_level",
+        "UINT8",
+        "landmark level of the building (lm.building.level): the Delaunay voting rounds it won, "
+        "0 for most; the higher, the farther away it stands out (absent on blocks)",
+        False,
+        255,
+    ),
     # landmark exaggeration (api.landmark_scale / api.landmark_exaggeration, done by the client per frame)
-    ("lm_role", "UINT8", "landmark exaggeration: 1 a landmark, 2 a building its scaled footprint would cover, "
-     "0 neither", True, None),
+    (
+        "lm_role",
+        "UINT8",
+        "landmark exaggeration: 1 a landmark, 2 a building its scaled footprint would cover, 0 neither",
+        True,
+        None,
+    ),
     ("lm_landmark_osm_id", "INT64", "the landmark (itself for role 1, the one that pushes it for role 2)", False, 0),
-    ("lm_scale_from_m", "FLOAT32", "the landmark's intervals: from camera distance lm_scale_from_m * "
-     "lm_scale_step^i on, scale min(lm_scale_step^(i+1), lm_max_scale); 1 before the first (0 unless role > 0)",
-     True, None),
+    (
+        "lm_scale_from_m",
+        "FLOAT32",
+        "the landmark's intervals: from camera distance lm_scale_from_m * "
+        "lm_scale_step^i on, scale min(lm_scale_step^(i+1), lm_max_scale); 1 before the first (0 unless role > 0)",
+        True,
+        None,
+    ),
     ("lm_scale_step", "FLOAT32", "see lm_scale_from_m (0 unless role > 0)", True, None),
     ("lm_max_scale", "FLOAT32", "see lm_scale_from_m (1 unless role > 0)", True, None),
-    ("lm_centre_x", "FLOAT32", "the landmark's footprint centre at ground level in this glTF's frame (y up)",
-     True, None),
+    (
+        "lm_centre_x",
+        "FLOAT32",
+        "the landmark's footprint centre at ground level in this glTF's frame (y up)",
+        True,
+        None,
+    ),
     ("lm_centre_y", "FLOAT32", "see lm_centre_x", True, None),
     ("lm_centre_z", "FLOAT32", "see lm_centre_x", True, None),
     ("lm_radius_m", "FLOAT32", "radius of the landmark's footprint circle (m)", True, None),
-    ("lm_gap_m", "FLOAT32", "role 2: gap between this building's footprint circle and the landmark's at scale 1 "
-     "(m, negative when they overlap); at scale s it moves max(0, (s - 1) * lm_radius_m - max(gap, 0)) away "
-     "along lm_dir", True, None),
-    ("lm_dir_x", "FLOAT32", "role 2: horizontal unit vector from the landmark's centre to this building's, in "
-     "this glTF's frame", True, None),
+    (
+        "lm_gap_m",
+        "FLOAT32",
+        "role 2: gap between this building's footprint circle and the landmark's at scale 1 "
+        "(m, negative when they overlap); at scale s it moves max(0, (s - 1) * lm_radius_m - max(gap, 0)) away "
+        "along lm_dir",
+        True,
+        None,
+    ),
+    (
+        "lm_dir_x",
+        "FLOAT32",
+        "role 2: horizontal unit vector from the landmark's centre to this building's, in this glTF's frame",
+        True,
+        None,
+    ),
     ("lm_dir_y", "FLOAT32", "see lm_dir_x (0: horizontal)", True, None),
     ("lm_dir_z", "FLOAT32", "see lm_dir_x", True, None),
 ]
@@ -125,8 +162,10 @@ BUILDING_CLASS = ("building", "An OSM building or building:part")
 def building_schema_class(compact: bool = True) -> dict[str, object]:
     """The glbs' building class with its descriptions, for tileset.json's schema: compact glbs carry the class
     without them (a few kB in every glb)."""
-    props = [Property(name, (), ctype, COMPACT_DOCS.get(name, doc) if compact else doc, no_data=no_data,
-                      required=required) for name, ctype, doc, required, no_data in PROPERTIES]
+    props = [
+        Property(name, (), ctype, COMPACT_DOCS.get(name, doc) if compact else doc, no_data=no_data, required=required)
+        for name, ctype, doc, required, no_data in PROPERTIES
+    ]
     return class_schema(props, *BUILDING_CLASS)
 
 
@@ -138,8 +177,9 @@ class TileTextures:
     uvs: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]  # (m,) int16 page, (m, 3, 2) float32 uv
 
 
-def load_textures(conn: psycopg.Connection, level: int, x: int, y: int,
-                  fmt: str = COMPACT.textures) -> TileTextures | None:
+def load_textures(
+    conn: psycopg.Connection, level: int, x: int, y: int, fmt: str = COMPACT.textures
+) -> TileTextures | None:
     """The tile's textures (tex.page in ``fmt``, ktx2 or webp, and tex.feature_uv), None when the textures stage
     has not textured it. A feature with a triangle on a page that has no KTX2 (the encoder refused it: tex.failure
     ktx2_encode_failed) is drawn with vertex colours in a ktx2 export: its UVs are left out."""
@@ -156,7 +196,9 @@ def load_textures(conn: psycopg.Connection, level: int, x: int, y: int,
             if len(missing) and np.isin(page, missing).any():
                 continue
             uvs[(u["feature_kind"], int(u["feature_id"]))] = (
-                page, np.frombuffer(bytes(u["uv"]), "<f4").reshape(u["n_triangles"], 3, 2))
+                page,
+                np.frombuffer(bytes(u["uv"]), "<f4").reshape(u["n_triangles"], 3, 2),
+            )
     # a page without bytes is used by no UV left, so build_tile_glb never embeds it
     return TileTextures([Image(bytes(p["bytes"] or b""), p["mime"]) for p in pages], uvs)
 
@@ -170,17 +212,28 @@ def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[
         keep_v = arr.pages == p
         new = np.cumsum(keep_v) - 1
         tris = arr.indices.reshape(-1, 3)[tri_page == p]
-        return replace(arr, positions=arr.positions[keep_v], normals=arr.normals[keep_v],
-                       colors=arr.colors[keep_v], feature_ids=arr.feature_ids[keep_v],
-                       indices=new[tris].reshape(-1).astype(np.uint32), uvs=arr.uvs[keep_v],  # type: ignore[index]
-                       pages=arr.pages[keep_v])
+        return replace(
+            arr,
+            positions=arr.positions[keep_v],
+            normals=arr.normals[keep_v],
+            colors=arr.colors[keep_v],
+            feature_ids=arr.feature_ids[keep_v],
+            indices=new[tris].reshape(-1).astype(np.uint32),
+            uvs=arr.uvs[keep_v],  # type: ignore[index]
+            pages=arr.pages[keep_v],
+        )
 
     return part(-1), [(p, part(p)) for p in range(n_pages) if np.any(tri_page == p)]
 
 
-def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTextures | None = None,
-                   stream: StreamOptions = COMPACT, rec: TileRecord | None = None,
-                   node_matrix: list[float] | None = None) -> tuple[bytes, int]:
+def build_tile_glb(
+    rows: list[dict],
+    region: tuple[float, ...],
+    textures: TileTextures | None = None,
+    stream: StreamOptions = COMPACT,
+    rec: TileRecord | None = None,
+    node_matrix: list[float] | None = None,
+) -> tuple[bytes, int]:
     """glb bytes and triangle count for the feature rows (dicts with the columns of api.export_features) of one tile;
     with ``textures``, the features that have UVs are drawn with their atlas pages; ``node_matrix`` places the
     tile's frame in the root's (tileset.node_matrix). ``stream.geometry`` compact: quantized
@@ -195,9 +248,15 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
     roof = np.array([hex_rgba(r["roof_colour"], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
     lon, lat = region_centre(region)
     # a row without semantics falls back to colouring by orientation, alone, not the whole tile
-    sem = np.concatenate([np.zeros(0, np.uint8)] + [
-        np.full(len(t), SEM_UNKNOWN, np.uint8) if r["semantics"] is None
-        else np.frombuffer(bytes(r["semantics"]), dtype=np.uint8) for r, t in zip(rows, tris, strict=True)])
+    sem = np.concatenate(
+        [np.zeros(0, np.uint8)]
+        + [
+            np.full(len(t), SEM_UNKNOWN, np.uint8)
+            if r["semantics"] is None
+            else np.frombuffer(bytes(r["semantics"]), dtype=np.uint8)
+            for r, t in zip(rows, tris, strict=True)
+        ]
+    )
     if len(sem) != len(triangles):
         raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
     tri_page = tri_uv = None
@@ -212,9 +271,10 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
             if len(got[0]) != counts[i]:
                 raise RuntimeError(
                     f"the textures are stale: {r['feature_kind']} {r['building_id']} has {counts[i]} triangles, "
-                    f"its UVs {len(got[0])}; run the textures stage again (make textures)")
-            tri_page[off[i]:off[i + 1]] = got[0]
-            tri_uv[off[i]:off[i + 1]] = got[1]
+                    f"its UVs {len(got[0])}; run the textures stage again (make textures)"
+                )
+            tri_page[off[i] : off[i + 1]] = got[0]
+            tri_uv[off[i] : off[i + 1]] = got[1]
         if tri_page.max(initial=-1) >= len(textures.images):
             raise RuntimeError("tex.feature_uv refers to a page the tile does not have")
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem, tri_page=tri_page, tri_uv=tri_uv)
@@ -233,17 +293,42 @@ def build_tile_glb(rows: list[dict], region: tuple[float, ...], textures: TileTe
         if name in ("osm_type", "building_osm_type"):
             values = [OSM_TYPE[v] for v in values]
         props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
-    prim = Primitive(positions=plain.positions, normals=plain.normals, colors=plain.colors,
-                     feature_ids=plain.feature_ids, indices=plain.indices, properties=props, feature_count=len(rows))
+    prim = Primitive(
+        positions=plain.positions,
+        normals=plain.normals,
+        colors=plain.colors,
+        feature_ids=plain.feature_ids,
+        indices=plain.indices,
+        properties=props,
+        feature_count=len(rows),
+    )
     # only the pages some triangle uses, renumbered (a page whose triangles were all degenerate goes)
-    textured = [Primitive(positions=a.positions, normals=a.normals, colors=a.colors, feature_ids=a.feature_ids,
-                          indices=a.indices, uvs=a.uvs, image=k) for k, (_, a) in enumerate(parts)]
+    textured = [
+        Primitive(
+            positions=a.positions,
+            normals=a.normals,
+            colors=a.colors,
+            feature_ids=a.feature_ids,
+            indices=a.indices,
+            uvs=a.uvs,
+            image=k,
+        )
+        for k, (_, a) in enumerate(parts)
+    ]
     images = [textures.images[p] for p, _ in parts] if textures is not None else []
     doc = BUILDING_CLASS
     if compact:
         try:
-            return write_glb(prim, *doc, textured=textured, images=images, node_matrix=node_matrix, compact=True,
-                             quantization=q, meshopt_extension=stream.meshopt_extension), len(arr.indices) // 3
+            return write_glb(
+                prim,
+                *doc,
+                textured=textured,
+                images=images,
+                node_matrix=node_matrix,
+                compact=True,
+                quantization=q,
+                meshopt_extension=stream.meshopt_extension,
+            ), len(arr.indices) // 3
         except CompressionError as e:
             # recorded: the export counts tiles whose glb is not compact (geometry_fallback) and says why
             print(f"  warning: tile {_tile_name(rec)} written plain: {e}", file=sys.stderr)
@@ -277,12 +362,15 @@ def is_compact(glb: bytes) -> bool:
     return "KHR_mesh_quantization" in gltf.get("extensionsRequired", [])  # type: ignore[operator]
 
 
-def _landmark_frame(rows: list[dict], lon: float, lat: float,
-                    origin: np.ndarray | None = None) -> list[dict[str, float]]:
+def _landmark_frame(
+    rows: list[dict], lon: float, lat: float, origin: np.ndarray | None = None
+) -> list[dict[str, float]]:
     """lm_centre_* and lm_dir_* of each row in the mesh's frame: tile_arrays' (ENU at (lon, lat), y up) less the
     quantization ``origin`` (features, 3) in compact geometry (which its node's matrix adds back)."""
-    out = [dict.fromkeys(("lm_centre_x", "lm_centre_y", "lm_centre_z", "lm_dir_x", "lm_dir_y", "lm_dir_z"), 0.0)
-           for _ in rows]
+    out = [
+        dict.fromkeys(("lm_centre_x", "lm_centre_y", "lm_centre_z", "lm_dir_x", "lm_dir_y", "lm_dir_z"), 0.0)
+        for _ in rows
+    ]
     idx = [i for i, r in enumerate(rows) if r.get("lm_centre_wkb") is not None]
     if not idx:
         return out
@@ -300,8 +388,7 @@ def _landmark_frame(rows: list[dict], lon: float, lat: float,
     norm = np.linalg.norm(d, axis=1)
     d = np.where(norm[:, None] > 1e-9, d / np.where(norm > 1e-9, norm, 1.0)[:, None], [1.0, 0.0, 0.0])
     for k, i in enumerate(idx):
-        out[i].update(lm_centre_x=float(centre[k, 0]), lm_centre_y=float(centre[k, 1]),
-                      lm_centre_z=float(centre[k, 2]))
+        out[i].update(lm_centre_x=float(centre[k, 0]), lm_centre_y=float(centre[k, 1]), lm_centre_z=float(centre[k, 2]))
         if rows[i]["lm_role"] == 2:
             out[i].update(lm_dir_x=float(d[k, 0]), lm_dir_y=0.0, lm_dir_z=float(d[k, 2]))
     return out
@@ -311,17 +398,27 @@ def load_records(conn: psycopg.Connection) -> list[TileRecord]:
     """The tile tree (api.tile_tree), parents first."""
     with conn.cursor(row_factory=dict_row) as cur:
         return [
-            TileRecord(level=r["level"], x=r["x"], y=r["y"], is_leaf=r["is_leaf"], region=tuple(r["region"]),
-                       geometric_error=r["geometric_error"], content_uri=r["content_uri"],
-                       n_features=r["n_features"], content_features=r["content_features"])
+            TileRecord(
+                level=r["level"],
+                x=r["x"],
+                y=r["y"],
+                is_leaf=r["is_leaf"],
+                region=tuple(r["region"]),
+                geometric_error=r["geometric_error"],
+                content_uri=r["content_uri"],
+                n_features=r["n_features"],
+                content_features=r["content_features"],
+            )
             for r in cur.execute(
                 "SELECT level, x, y, is_leaf, n_features, region, geometric_error, content_uri, content_features"
-                " FROM api.tile_tree()")
+                " FROM api.tile_tree()"
+            )
         ]
 
 
-def tileset_files(conn: psycopg.Connection, records: list[TileRecord], lod: int | None,
-                  stream: StreamOptions = COMPACT) -> dict[str, bytes]:
+def tileset_files(
+    conn: psycopg.Connection, records: list[TileRecord], lod: int | None, stream: StreamOptions = COMPACT
+) -> dict[str, bytes]:
     """tileset.json and, implicit, its subtree files, by URI, as written to disk and served (same bytes either
     way)."""
     dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
@@ -331,27 +428,40 @@ def tileset_files(conn: psycopg.Connection, records: list[TileRecord], lod: int 
         # the glbs' class with the descriptions they leave out (3D Tiles 1.1 schema; the glbs keep their own
         # EXT_structural_metadata schema, which is what clients read a picked feature's values with)
         schema = ts.get("schema") or {"id": "citylod"}
-        ts["schema"] = {**schema, "classes": {**schema.get("classes", {}),  # type: ignore[typeddict-item]
-                                              BUILDING_CLASS[0]: building_schema_class()}}
+        ts["schema"] = {
+            **schema,
+            "classes": {
+                **schema.get("classes", {}),  # type: ignore[typeddict-item]
+                BUILDING_CLASS[0]: building_schema_class(),
+            },
+        }
     # compact JSON: an implicit tileset.json is a few kB either way, an explicit one is the size of the tree
     return {TILESET_JSON: json.dumps(ts, separators=(",", ":")).encode(), **files}
 
 
-def tileset_bytes(conn: psycopg.Connection, records: list[TileRecord], lod: int | None,
-                  stream: StreamOptions = COMPACT) -> bytes:
+def tileset_bytes(
+    conn: psycopg.Connection, records: list[TileRecord], lod: int | None, stream: StreamOptions = COMPACT
+) -> bytes:
     """tileset.json as written to disk and served (same bytes either way)."""
     return tileset_files(conn, records, lod, stream)[TILESET_JSON]
 
 
-def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod: int | None,
-             stream: StreamOptions = COMPACT, root_region: tuple[float, ...] | None = None) -> tuple[bytes, int, int]:
+def tile_glb(
+    conn: psycopg.Connection,
+    rec: TileRecord,
+    base_height: float,
+    lod: int | None,
+    stream: StreamOptions = COMPACT,
+    root_region: tuple[float, ...] | None = None,
+) -> tuple[bytes, int, int]:
     """(glb bytes, features, triangles) of one tile's content, placed in the frame of the tileset's root
     (``root_region``: the root tile's; without it the glb stays in its own tile's frame, no node matrix);
     textured when the textures stage made pages for it (the generalized hierarchy only: ``lod`` tilesets hold
     other meshes than the stage textured)."""
     with conn.cursor(row_factory=dict_row) as cur:
-        rows = cur.execute(_FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y,
-                                       "lod": lod}).fetchall()
+        rows = cur.execute(
+            _FEATURES, {"base": base_height, "level": rec.level, "x": rec.x, "y": rec.y, "lod": lod}
+        ).fetchall()
     textures = load_textures(conn, rec.level, rec.x, rec.y, stream.textures) if lod is None else None
     matrix = node_matrix(rec.region, root_region) if root_region is not None else None
     glb, tri = build_tile_glb(rows, rec.region, textures, stream, rec, matrix)
@@ -361,8 +471,9 @@ def tile_glb(conn: psycopg.Connection, rec: TileRecord, base_height: float, lod:
 _WORKER: dict[str, object] = {}
 
 
-def _init_worker(url: str, base_height: float, lod: int | None, stream: StreamOptions,
-                 root_region: tuple[float, ...]) -> None:
+def _init_worker(
+    url: str, base_height: float, lod: int | None, stream: StreamOptions, root_region: tuple[float, ...]
+) -> None:
     _WORKER.update(conn=connect(url, autocommit=True), args=(base_height, lod, stream, root_region))
     atexit.register(_WORKER["conn"].close)  # type: ignore[attr-defined]
 
@@ -373,9 +484,17 @@ def _tile_task(rec: TileRecord) -> tuple[bytes, int, int]:
     return tile_glb(_WORKER["conn"], rec, *_WORKER["args"])  # type: ignore[arg-type]
 
 
-def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: float, settings: Settings,
-                  progress: Progress, lod: int | None, stream: StreamOptions,
-                  root_region: tuple[float, ...]) -> tuple[int, int, int, int]:
+def _export_tiles(
+    url: str,
+    tiles: list[TileRecord],
+    out: Path,
+    base_height: float,
+    settings: Settings,
+    progress: Progress,
+    lod: int | None,
+    stream: StreamOptions,
+    root_region: tuple[float, ...],
+) -> tuple[int, int, int, int]:
     """Write every tile's glb. Tiles are independent: by default threads of this process share them; with
     ``export_workers`` of 2 or more, or a Dask cluster named (CITYLOD_DASK_SCHEDULER), each is a Dask task
     (core/workers.py) reading through its worker's own connection, and this process writes the bytes as they
@@ -391,21 +510,30 @@ def _export_tiles(url: str, tiles: list[TileRecord], out: Path, base_height: flo
             # least as fast as 2 Dask workers, whose results travel back through the scheduler: Liechtenstein
             # 10.2 s (make bench, threads) against 15.9 s (make bench, Dask); its 6x 51.8 s against 53.9 s (the
             # same database, one after the other)
-            results: Iterator[tuple[bytes, int, int] | Lost] = stack.enter_context(thread_map(
-                url, lambda conn, rec: tile_glb(conn, rec, *args), tiles, min(4, os.cpu_count() or 1)))
+            results: Iterator[tuple[bytes, int, int] | Lost] = stack.enter_context(
+                thread_map(url, lambda conn, rec: tile_glb(conn, rec, *args), tiles, min(4, os.cpu_count() or 1))
+            )
         else:
             workers = worker_count(settings.export_workers, 2)
             if workers <= 1:
                 conn = stack.enter_context(connect(url))
                 results = (tile_glb(conn, rec, *args) for rec in tiles)
             else:
-                results = imap_isolated(_tile_task, tiles, min(workers, len(tiles)), settings.export_tile_timeout_s,
-                                        _init_worker, (url, *args), window=4 * workers)
+                results = imap_isolated(
+                    _tile_task,
+                    tiles,
+                    min(workers, len(tiles)),
+                    settings.export_tile_timeout_s,
+                    _init_worker,
+                    (url, *args),
+                    window=4 * workers,
+                )
         n_features = n_triangles = n_bytes = n_fallback = 0
         for rec, res in zip(tiles, results, strict=True):
             if isinstance(res, Lost):
-                raise RuntimeError(f"tile {rec.level}/{rec.x}/{rec.y} was not written: {res.detail}; the tileset "
-                                   "in place is kept")
+                raise RuntimeError(
+                    f"tile {rec.level}/{rec.x}/{rec.y} was not written: {res.detail}; the tileset in place is kept"
+                )
             glb, f, t = res
             assert rec.content_uri is not None
             path = out / rec.content_uri
@@ -427,13 +555,16 @@ def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int 
         raise RuntimeError(
             f"the tiles are stale: they hold {in_tiles} features but lod.building_mesh has "
             f"{meshes[0] if meshes else 0} LOD{lod or 3} meshes; run the lod, tiles and generalize stages again "
-            "(make lod tiles generalize)")
+            "(make lod tiles generalize)"
+        )
     if any(r.geometric_error is None or r.content_features is None for r in records):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
     # textures are made from the generalized content: a later lod, tiles or generalize run may have changed it
     if lod is None and conn.execute("SELECT api.textures_stale()").fetchone()[0]:  # type: ignore[index]
-        raise RuntimeError("the textures are stale: the tiles were generalized again after the textures stage "
-                           "ran; run it again (make textures)")
+        raise RuntimeError(
+            "the textures are stale: the tiles were generalized again after the textures stage "
+            "ran; run it again (make textures)"
+        )
 
 
 PARTIAL_MARKER = ".citylod-partial"  # marks an export in progress (or one that crashed): ours to delete
@@ -517,8 +648,17 @@ def run(ctx: Context) -> Result:
     """The export stage (core/stage.py): ``ctx.options`` says what to write. An update's export fingerprints
     only the tiles the runs since the live generation reached (exporter/reuse.py)."""
     o: Options = ctx.options
-    counts = export_tileset(ctx.url, o.out, ctx.settings, lod=o.lod, stream=o.stream, publish_as=o.publish_as,
-                            run_id=ctx.run_id, code=ctx.code, reached=ctx.update)
+    counts = export_tileset(
+        ctx.url,
+        o.out,
+        ctx.settings,
+        lod=o.lod,
+        stream=o.stream,
+        publish_as=o.publish_as,
+        run_id=ctx.run_id,
+        code=ctx.code,
+        reached=ctx.update,
+    )
     return Result(counts, output=tileset_output(o.out))
 
 
@@ -527,9 +667,17 @@ def tileset_output(out: Path) -> dict[str, object]:
     return {"tileset_sha256": hashlib.sha256((out / TILESET_JSON).read_bytes()).hexdigest()}
 
 
-def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = None,
-                   stream: StreamOptions = COMPACT, publish_as: str | None = None,
-                   run_id: int | None = None, code: str = "", reached: bool = False) -> dict[str, object]:
+def export_tileset(
+    url: str,
+    out: Path,
+    settings: Settings,
+    lod: int | None = None,
+    stream: StreamOptions = COMPACT,
+    publish_as: str | None = None,
+    run_id: int | None = None,
+    code: str = "",
+    reached: bool = False,
+) -> dict[str, object]:
     """Write the tileset: the generalized hierarchy (blocks far away, LOD3 at the leaves), or with ``lod``
     every building at that one level of detail (1 block, 2 roofs, 3 facades). Exports into one directory are
     serialized, and each swaps its tileset in whole (swap_in). With ``publish_as`` the same files become the
@@ -545,15 +693,25 @@ def export_tileset(url: str, out: Path, settings: Settings, lod: int | None = No
         return _export_tileset(url, out, settings, lod, stream, publish_as, run_id, code, reached)
 
 
-def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, stream: StreamOptions,
-                    publish_as: str | None, run_id: int | None, code: str, reached: bool) -> dict[str, object]:
+def _export_tileset(
+    url: str,
+    out: Path,
+    settings: Settings,
+    lod: int | None,
+    stream: StreamOptions,
+    publish_as: str | None,
+    run_id: int | None,
+    code: str,
+    reached: bool,
+) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     for p in (out, partial):
         if not replaceable(p):
             raise OutputDirectoryError(
                 f"refusing to overwrite {p}: it is not empty and holds no tileset written by citylod; "
-                "choose a new or empty directory")
+                "choose a new or empty directory"
+            )
     with connect(url) as conn:
         records = load_records(conn)
         check_current(conn, records, lod)
@@ -571,8 +729,16 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     (partial / PARTIAL_MARKER).touch()
     progress = Progress("export", "features", total=expected)
     n_features, n_triangles, n_bytes, n_fallback = _export_tiles(
-        url, [r for r in tiles if r.content_uri not in same], partial, settings.base_height_m, settings, progress,
-        lod, stream, root_region)
+        url,
+        [r for r in tiles if r.content_uri not in same],
+        partial,
+        settings.base_height_m,
+        settings,
+        progress,
+        lod,
+        stream,
+        root_region,
+    )
     features_built = n_features
     if same:
         t, b = copy_unchanged(url, same, out, partial)
@@ -587,14 +753,22 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     (partial / PARTIAL_MARKER).unlink()
     published: dict[str, object] = {}
     if publish_as is not None:
-        pub = publish(url, publish_as, partial, {"lod": lod, **stream.as_dict(), "recipe": seed}, run_id,
-                      settings.publish_keep, glbs.keys)
+        pub = publish(
+            url,
+            publish_as,
+            partial,
+            {"lod": lod, **stream.as_dict(), "recipe": seed},
+            run_id,
+            settings.publish_keep,
+            glbs.keys,
+        )
         published = {"published_as": publish_as, **pub.as_dict()}
     swap_in(partial, out)
     seconds = time.perf_counter() - t0
     buildings = sum(r.n_features for r in records if r.is_leaf)
     summary(
-        "export", balance,
+        "export",
+        balance,
         f"{len(tiles):,} glb tiles{f' ({len(same):,} unchanged: copied)' if same else ''}, "
         f"{len(files) - 1:,} subtrees, {n_triangles:,} triangles, "
         f"{n_bytes / 1e6:.2f} MB ({n_bytes / max(buildings, 1):,.0f} bytes/building) -> {out}",
@@ -603,15 +777,32 @@ def _export_tileset(url: str, out: Path, settings: Settings, lod: int | None, st
     )
     print(f"  tileset: {out / 'tileset.json'}", file=sys.stderr)
     if published:
-        print(f"  published: {publish_as} generation {published['published_generation']} "
-              f"({published['published_new_files']:,} new files, "
-              f"{int(published['published_new_bytes']) / 1e6:.2f} MB new)", file=sys.stderr)  # type: ignore[call-overload]
-    return {**balance.counts(), "lod": lod or "all", **stream.as_dict(), "buildings": buildings, "features": n_features,
-            "tiles": len(records), "glb": len(tiles), "subtrees": len(files) - 1,
-            "tileset_json_bytes": len(files[TILESET_JSON]), "geometry_fallback": n_fallback,
-            "glb_copied": len(same), "glb_built": len(tiles) - len(same), "glb_fingerprinted": glbs.fingerprinted,
-            # what building those glbs handled: an update's share of the export's work
-            "features_built": features_built,
-            "triangles": n_triangles, "bytes": n_bytes,
-            "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
-            "seconds": round(seconds, 3), "directory": str(out), **published}
+        print(
+            f"  published: {publish_as} generation {published['published_generation']} "
+            f"({published['published_new_files']:,} new files, "
+            f"{int(published['published_new_bytes']) / 1e6:.2f} MB new)",
+            file=sys.stderr,
+        )  # type: ignore[call-overload]
+    return {
+        **balance.counts(),
+        "lod": lod or "all",
+        **stream.as_dict(),
+        "buildings": buildings,
+        "features": n_features,
+        "tiles": len(records),
+        "glb": len(tiles),
+        "subtrees": len(files) - 1,
+        "tileset_json_bytes": len(files[TILESET_JSON]),
+        "geometry_fallback": n_fallback,
+        "glb_copied": len(same),
+        "glb_built": len(tiles) - len(same),
+        "glb_fingerprinted": glbs.fingerprinted,
+        # what building those glbs handled: an update's share of the export's work
+        "features_built": features_built,
+        "triangles": n_triangles,
+        "bytes": n_bytes,
+        "bytes_per_building": round(n_bytes / max(buildings, 1), 1),
+        "seconds": round(seconds, 3),
+        "directory": str(out),
+        **published,
+    }

@@ -55,8 +55,16 @@ ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 #: Metadata component types -> numpy dtypes (EXT_structural_metadata SCALAR properties).
 SCALAR_DTYPES = {
-    "INT8": "<i1", "UINT8": "<u1", "INT16": "<i2", "UINT16": "<u2", "INT32": "<i4", "UINT32": "<u4",
-    "INT64": "<i8", "UINT64": "<u8", "FLOAT32": "<f4", "FLOAT64": "<f8",
+    "INT8": "<i1",
+    "UINT8": "<u1",
+    "INT16": "<i2",
+    "UINT16": "<u2",
+    "INT32": "<i4",
+    "UINT32": "<u4",
+    "INT64": "<i8",
+    "UINT64": "<u8",
+    "FLOAT32": "<f4",
+    "FLOAT64": "<f8",
 }
 
 
@@ -155,8 +163,15 @@ class _Builder:
         self.views.append(v)
         return len(self.views) - 1
 
-    def packed(self, data: bytes, stride: int, target: int | None = None, vertex_stride: bool = False,
-               triangles: int = 0, filter_: str = "NONE") -> int:
+    def packed(
+        self,
+        data: bytes,
+        stride: int,
+        target: int | None = None,
+        vertex_stride: bool = False,
+        triangles: int = 0,
+        filter_: str = "NONE",
+    ) -> int:
         """A view stored meshopt-compressed in buffer 0 and decoded into buffer 1 (the fallback buffer, 8-byte
         aligned views: the metadata's requirement): ATTRIBUTES of ``stride``-byte elements, or with
         ``triangles`` (the vertex count) a TRIANGLES index stream of ``stride``-byte indices; ``filter_``
@@ -184,17 +199,33 @@ class _Builder:
             v["byteStride"] = stride
         if target is not None:
             v["target"] = target
-        v["extensions"] = {self.ext: {
-            "buffer": 0, "byteOffset": src["byteOffset"], "byteLength": src["byteLength"], "byteStride": stride,
-            "count": count, "mode": "TRIANGLES" if triangles else "ATTRIBUTES"}}
+        v["extensions"] = {
+            self.ext: {
+                "buffer": 0,
+                "byteOffset": src["byteOffset"],
+                "byteLength": src["byteLength"],
+                "byteStride": stride,
+                "count": count,
+                "mode": "TRIANGLES" if triangles else "ATTRIBUTES",
+            }
+        }
         if filter_ != "NONE":
             v["extensions"][self.ext]["filter"] = filter_  # type: ignore[index]
         self.fallback += count * stride
         self.views[at] = v
         return at
 
-    def vertex(self, array: np.ndarray, component: int, kind: str, semantic: str, normalized: bool = False,
-               minmax: bool = False, filter_: str = "NONE", decoded: np.ndarray | None = None) -> int:
+    def vertex(
+        self,
+        array: np.ndarray,
+        component: int,
+        kind: str,
+        semantic: str,
+        normalized: bool = False,
+        minmax: bool = False,
+        filter_: str = "NONE",
+        decoded: np.ndarray | None = None,
+    ) -> int:
         """A compact vertex attribute: elements padded to a multiple of 4 bytes (meshopt's unit and glTF's
         vertex alignment), pooled with the ``semantic``'s others of that stride and filter (compressed at flush);
         the accessor reads the first ``kind`` components of each. With a filter, ``array`` is the filter's input
@@ -209,11 +240,17 @@ class _Builder:
         self.pool((semantic, stride, filter_), rows.tobytes(), a)
         return self._add(a, arr2 if decoded is None else decoded.reshape(len(arr), -1), normalized, minmax)
 
-    def accessor(self, array: np.ndarray, component: int, kind: str, target: int | None,
-                 normalized: bool = False, minmax: bool = False) -> int:
+    def accessor(
+        self,
+        array: np.ndarray,
+        component: int,
+        kind: str,
+        target: int | None,
+        normalized: bool = False,
+        minmax: bool = False,
+    ) -> int:
         view = self.view(np.ascontiguousarray(array).tobytes(), target)
-        a: dict[str, object] = {"bufferView": view, "componentType": component, "count": int(len(array)),
-                                "type": kind}
+        a: dict[str, object] = {"bufferView": view, "componentType": component, "count": int(len(array)), "type": kind}
         return self._add(a, array, normalized, minmax)
 
     def _add(self, a: dict[str, object], values: np.ndarray, normalized: bool, minmax: bool) -> int:
@@ -291,10 +328,10 @@ def exponential_quantization(positions: Sequence[np.ndarray], error_m: float) ->
     origin = np.round((lo + hi) / 2.0)
     reach = float(np.max(np.maximum(hi - origin, origin - lo)))
     e = int(np.floor(np.log2(2.0 * error_m / np.sqrt(3.0))))
-    while reach / 2.0 ** e > meshopt.MANTISSA_MAX - 0.5:
+    while reach / 2.0**e > meshopt.MANTISSA_MAX - 0.5:
         e += 1
     e = min(max(e, meshopt.EXP_MIN), meshopt.EXP_MAX)
-    return Quantization((float(origin[0]), float(origin[1]), float(origin[2])), 2.0 ** e, e)
+    return Quantization((float(origin[0]), float(origin[1]), float(origin[2])), 2.0**e, e)
 
 
 def plan_quantization(prims: Sequence[Primitive], error_m: float) -> Quantization:
@@ -304,8 +341,15 @@ def plan_quantization(prims: Sequence[Primitive], error_m: float) -> Quantizatio
     return quantization(positions, error_m) or exponential_quantization(positions, error_m)
 
 
-def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_count: int, table_count: int,
-                       q: Quantization | None, uv_units: tuple[int, int] | None = None) -> dict[str, object]:
+def _compact_primitive(
+    b: _Builder,
+    prim: Primitive,
+    material: int,
+    feature_count: int,
+    table_count: int,
+    q: Quantization | None,
+    uv_units: tuple[int, int] | None = None,
+) -> dict[str, object]:
     """The primitive with quantized attributes (KHR_mesh_quantization) in meshopt-compressed views: positions
     SHORT or FLOAT through the EXPONENTIAL filter (``q``; plain FLOAT when None), normals BYTE normalized,
     texcoords UNSIGNED_SHORT in ``uv_units`` per page side (their material scales them back with
@@ -320,30 +364,36 @@ def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_coun
     elif q.exponent is not None:
         packed = meshopt.encode_exp(pos - np.asarray(q.origin), q.exponent)
         decoded = np.frombuffer(meshopt.decode_exp(packed.tobytes(), len(pos), 12), "<f4").reshape(-1, 3)
-        attrs = {"POSITION": b.vertex(packed, FLOAT, "VEC3", "POSITION", minmax=True, filter_="EXPONENTIAL",
-                                      decoded=decoded)}
+        attrs = {
+            "POSITION": b.vertex(packed, FLOAT, "VEC3", "POSITION", minmax=True, filter_="EXPONENTIAL", decoded=decoded)
+        }
     else:
         qpos = np.round((pos - np.asarray(q.origin)) / q.step).astype(np.int16)
         attrs = {"POSITION": b.vertex(qpos, SHORT, "VEC3", "POSITION", minmax=True)}
     nrm = np.asarray(prim.normals, np.float64)[order]
     # octahedral (meshopt's filter, 8 bits as gltfpack's default): 1.2 degrees at worst, 0.4 as plain BYTE
-    attrs["NORMAL"] = b.vertex(meshopt.encode_oct(nrm), BYTE, "VEC3", "NORMAL", normalized=True,
-                               filter_="OCTAHEDRAL")
+    attrs["NORMAL"] = b.vertex(meshopt.encode_oct(nrm), BYTE, "VEC3", "NORMAL", normalized=True, filter_="OCTAHEDRAL")
     if prim.uvs is not None:
         uv = np.asarray(prim.uvs, np.float64)[order]
         if uv.size and (uv.min() < 0.0 or uv.max() > 1.0):
             attrs["TEXCOORD_0"] = b.vertex(uv.astype(np.float32), FLOAT, "VEC2", "TEXCOORD_0")  # outside [0, 1]: as is
         elif uv_units is not None:
-            attrs["TEXCOORD_0"] = b.vertex(np.round(uv * uv_units).astype(np.uint16), UNSIGNED_SHORT, "VEC2",
-                                           "TEXCOORD_0")
+            attrs["TEXCOORD_0"] = b.vertex(
+                np.round(uv * uv_units).astype(np.uint16), UNSIGNED_SHORT, "VEC2", "TEXCOORD_0"
+            )
         else:
-            attrs["TEXCOORD_0"] = b.vertex(np.round(uv * 65535.0).astype(np.uint16), UNSIGNED_SHORT, "VEC2",
-                                           "TEXCOORD_0", normalized=True)
+            attrs["TEXCOORD_0"] = b.vertex(
+                np.round(uv * 65535.0).astype(np.uint16), UNSIGNED_SHORT, "VEC2", "TEXCOORD_0", normalized=True
+            )
     else:
         colors = np.asarray(prim.colors)[order]
-        attrs["COLOR_0"] = b.vertex(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
-                                    UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4", "COLOR_0",
-                                    normalized=True)
+        attrs["COLOR_0"] = b.vertex(
+            colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
+            UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE,
+            "VEC4",
+            "COLOR_0",
+            normalized=True,
+        )
     fids = np.asarray(prim.feature_ids)[order]
     if table_count <= 0x100:
         attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.uint8), UNSIGNED_BYTE, "SCALAR", "_FEATURE_ID_0")
@@ -352,8 +402,11 @@ def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_coun
     else:
         attrs["_FEATURE_ID_0"] = b.vertex(fids.astype(np.float32), FLOAT, "SCALAR", "_FEATURE_ID_0")
     small = len(order) <= 0xFFFF
-    acc: dict[str, object] = {"componentType": UNSIGNED_SHORT if small else UNSIGNED_INT, "count": int(len(idx)),
-                              "type": "SCALAR"}
+    acc: dict[str, object] = {
+        "componentType": UNSIGNED_SHORT if small else UNSIGNED_INT,
+        "count": int(len(idx)),
+        "type": "SCALAR",
+    }
     b.pool(("indices", 2 if small else 4, "NONE"), idx.astype(np.uint16 if small else np.uint32).tobytes(), acc)
     b.accessors.append(acc)
     return {
@@ -361,17 +414,22 @@ def _compact_primitive(b: _Builder, prim: Primitive, material: int, feature_coun
         "indices": len(b.accessors) - 1,
         "material": material,
         "mode": 4,
-        "extensions": {"EXT_mesh_features": {"featureIds": [
-            {"featureCount": int(feature_count), "attribute": 0, "propertyTable": 0}
-        ]}},
+        "extensions": {
+            "EXT_mesh_features": {
+                "featureIds": [{"featureCount": int(feature_count), "attribute": 0, "propertyTable": 0}]
+            }
+        },
     }
 
 
 def _check_lengths(prim: Primitive) -> None:
     n = len(prim.positions)
     textured = prim.uvs is not None
-    if not (len(prim.normals) == len(prim.feature_ids) == n) or (len(prim.colors) != n and not textured) \
-            or (textured and len(prim.uvs) != n):  # type: ignore[arg-type]
+    if (
+        not (len(prim.normals) == len(prim.feature_ids) == n)
+        or (len(prim.colors) != n and not textured)
+        or (textured and len(prim.uvs) != n)
+    ):  # type: ignore[arg-type]
         raise ValueError("vertex attribute arrays must have the same length")
     if len(prim.indices) % 3:
         raise ValueError("indices must describe whole triangles")
@@ -391,30 +449,46 @@ def _primitive(b: _Builder, prim: Primitive, material: int, feature_count: int) 
     else:
         colors = np.asarray(prim.colors)
         # 16-bit linear colours as they come; anything else is 8-bit
-        attrs["COLOR_0"] = b.accessor(colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
-                                      UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE, "VEC4",
-                                      ARRAY_BUFFER, normalized=True)
-    attrs["_FEATURE_ID_0"] = b.accessor(np.asarray(prim.feature_ids, dtype=np.float32), FLOAT, "SCALAR",
-                                        ARRAY_BUFFER)
+        attrs["COLOR_0"] = b.accessor(
+            colors if colors.dtype == np.uint16 else colors.astype(np.uint8),
+            UNSIGNED_SHORT if colors.dtype == np.uint16 else UNSIGNED_BYTE,
+            "VEC4",
+            ARRAY_BUFFER,
+            normalized=True,
+        )
+    attrs["_FEATURE_ID_0"] = b.accessor(np.asarray(prim.feature_ids, dtype=np.float32), FLOAT, "SCALAR", ARRAY_BUFFER)
     # 16-bit indices whenever the vertices fit: half the index bytes for almost every tile
     small = n <= 0xFFFF
-    idx = b.accessor(np.asarray(prim.indices, dtype=np.uint16 if small else np.uint32),
-                     UNSIGNED_SHORT if small else UNSIGNED_INT, "SCALAR", ELEMENT_ARRAY_BUFFER)
+    idx = b.accessor(
+        np.asarray(prim.indices, dtype=np.uint16 if small else np.uint32),
+        UNSIGNED_SHORT if small else UNSIGNED_INT,
+        "SCALAR",
+        ELEMENT_ARRAY_BUFFER,
+    )
     return {
         "attributes": attrs,
         "indices": idx,
         "material": material,
         "mode": 4,
-        "extensions": {"EXT_mesh_features": {"featureIds": [
-            {"featureCount": int(feature_count), "attribute": 0, "propertyTable": 0}
-        ]}},
+        "extensions": {
+            "EXT_mesh_features": {
+                "featureIds": [{"featureCount": int(feature_count), "attribute": 0, "propertyTable": 0}]
+            }
+        },
     }
 
 
-def write_glb(prim: Primitive, class_name: str = "building", class_description: str = "",
-              textured: Sequence[Primitive] = (), images: Sequence[Image] = (),
-              node_matrix: Sequence[float] | None = None, compact: bool = False,
-              quantization: Quantization | None = None, meshopt_extension: str = meshopt.KHR) -> bytes:
+def write_glb(
+    prim: Primitive,
+    class_name: str = "building",
+    class_description: str = "",
+    textured: Sequence[Primitive] = (),
+    images: Sequence[Image] = (),
+    node_matrix: Sequence[float] | None = None,
+    compact: bool = False,
+    quantization: Quantization | None = None,
+    meshopt_extension: str = meshopt.KHR,
+) -> bytes:
     """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
     primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
     vertex-coloured primitive; with them an empty ``prim`` is left out.
@@ -455,10 +529,16 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
 
     materials: list[dict[str, object]] = []
     if not textured or len(prim.indices):
-        materials.append({
-            "name": "building",
-            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0.0, "roughnessFactor": 1.0},
-        })
+        materials.append(
+            {
+                "name": "building",
+                "pbrMetallicRoughness": {
+                    "baseColorFactor": [1, 1, 1, 1],
+                    "metallicFactor": 0.0,
+                    "roughnessFactor": 1.0,
+                },
+            }
+        )
         # one primitive: every feature has vertices in it (featureCount = the table's); with textured ones
         # next to it, featureCount counts the features of its own vertices (EXT_mesh_features)
         count = prim.feature_count if not textured else len(np.unique(np.asarray(prim.feature_ids)))
@@ -472,10 +552,12 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         if units is not None:
             info["extensions"] = {"KHR_texture_transform": {"scale": [1.0 / units[0], 1.0 / units[1]]}}
             transformed = True
-        materials.append({
-            "name": f"atlas page {tp.image}",
-            "pbrMetallicRoughness": {"baseColorTexture": info, "metallicFactor": 0.0, "roughnessFactor": 1.0},
-        })
+        materials.append(
+            {
+                "name": f"atlas page {tp.image}",
+                "pbrMetallicRoughness": {"baseColorTexture": info, "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            }
+        )
         add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))), units)
 
     b.flush()
@@ -494,8 +576,11 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
                 class_props[p.name] = spec  # every value is noData: the column may be omitted from the table
                 continue
             # bufferViews must not be empty; a spare byte past the last offset is never read
-            table_props[p.name] = {"values": table_view(data or b"\0", 1), "stringOffsets": table_view(offsets, 4),
-                                   "stringOffsetType": "UINT32"}
+            table_props[p.name] = {
+                "values": table_view(data or b"\0", 1),
+                "stringOffsets": table_view(offsets, 4),
+                "stringOffsetType": "UINT32",
+            }
         else:
             dtype = np.dtype(SCALAR_DTYPES[p.component_type])
             vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
@@ -515,12 +600,20 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         "nodes": [_node(0, _compose(node_matrix, quantization))],
         "materials": materials,
         "meshes": [{"primitives": primitives}],
-        "extensions": {"EXT_structural_metadata": {
-            "schema": {"id": "citylod", "classes": {class_name: {
-                **class_schema((), class_name, class_description, descriptions=not compact),
-                "properties": class_props}}},
-            "propertyTables": [{"class": class_name, "count": int(prim.feature_count), "properties": table_props}],
-        }},
+        "extensions": {
+            "EXT_structural_metadata": {
+                "schema": {
+                    "id": "citylod",
+                    "classes": {
+                        class_name: {
+                            **class_schema((), class_name, class_description, descriptions=not compact),
+                            "properties": class_props,
+                        }
+                    },
+                },
+                "propertyTables": [{"class": class_name, "count": int(prim.feature_count), "properties": table_props}],
+            }
+        },
         "accessors": b.accessors,
         "bufferViews": b.views,
         "buffers": [{"byteLength": len(b.bin)}],
@@ -530,10 +623,13 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         image_ext = [IMAGE_EXTENSIONS.get(im.mime) for im in images]
         gltf["images"] = [{"bufferView": v, "mimeType": im.mime} for v, im in zip(image_views, images, strict=True)]
         # KTX2 pages carry their full mip chain; WebP pages get theirs from the client (CesiumJS generates them)
-        gltf["samplers"] = [{"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE,
-                             "wrapT": CLAMP_TO_EDGE}]
-        gltf["textures"] = [{"sampler": 0, "extensions": {e: {"source": i}}} if e else {"sampler": 0, "source": i}
-                            for i, e in enumerate(image_ext)]
+        gltf["samplers"] = [
+            {"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE}
+        ]
+        gltf["textures"] = [
+            {"sampler": 0, "extensions": {e: {"source": i}}} if e else {"sampler": 0, "source": i}
+            for i, e in enumerate(image_ext)
+        ]
         used = sorted({e for e in image_ext if e})
         if used:
             gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *used]  # type: ignore[misc]
@@ -543,16 +639,19 @@ def write_glb(prim: Primitive, class_name: str = "building", class_description: 
         if transformed:  # integer texcoords mean nothing without their scale
             ext.append("KHR_texture_transform")
         if b.fallback:  # some view is compressed (a tiny glb may have none worth it)
-            gltf["buffers"] = [{"byteLength": len(b.bin)}, {"byteLength": b.fallback, "extensions": {
-                meshopt_extension: {"fallback": True}}}]
+            gltf["buffers"] = [
+                {"byteLength": len(b.bin)},
+                {"byteLength": b.fallback, "extensions": {meshopt_extension: {"fallback": True}}},
+            ]
             ext.append(meshopt_extension)
         gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *ext]  # type: ignore[misc]
         gltf["extensionsRequired"] = [*gltf.get("extensionsRequired", []), *ext]  # type: ignore[misc]
     return _pack(gltf, bytes(b.bin))
 
 
-def class_schema(properties: Sequence[Property], class_name: str = "building", class_description: str = "",
-                 descriptions: bool = True) -> dict[str, object]:
+def class_schema(
+    properties: Sequence[Property], class_name: str = "building", class_description: str = "", descriptions: bool = True
+) -> dict[str, object]:
     """The EXT_structural_metadata / 3D Tiles 1.1 schema class of ``properties`` (their values unused): type,
     componentType, noData (optional ones), required, and with ``descriptions`` the words."""
     cls: dict[str, object] = {"name": class_name.capitalize()}
@@ -641,11 +740,15 @@ def _pack(gltf: dict[str, object], binary: bytes) -> bytes:
     js += b" " * ((-len(js)) % 4)
     binary += b"\0" * ((-len(binary)) % 4)
     total = 12 + 8 + len(js) + 8 + len(binary)
-    return b"".join([
-        struct.pack("<4sII", b"glTF", 2, total),
-        struct.pack("<I4s", len(js), b"JSON"), js,
-        struct.pack("<I4s", len(binary), b"BIN\0"), binary,
-    ])
+    return b"".join(
+        [
+            struct.pack("<4sII", b"glTF", 2, total),
+            struct.pack("<I4s", len(js), b"JSON"),
+            js,
+            struct.pack("<I4s", len(binary), b"BIN\0"),
+            binary,
+        ]
+    )
 
 
 def read_glb(data: bytes) -> tuple[dict[str, object], bytes]:
@@ -703,8 +806,9 @@ def accessor_array(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     dtype = np.dtype(_NP[acc["componentType"]])
     stride = view.get("byteStride", width * dtype.itemsize)
     count, start = acc["count"], acc.get("byteOffset", 0)
-    rows = np.frombuffer(data, np.uint8, count=(count - 1) * stride + width * dtype.itemsize if count else 0,
-                         offset=start)
+    rows = np.frombuffer(
+        data, np.uint8, count=(count - 1) * stride + width * dtype.itemsize if count else 0, offset=start
+    )
     if count:
         rows = np.lib.stride_tricks.as_strided(rows, (count, width * dtype.itemsize), (stride, 1))
     arr = np.ascontiguousarray(rows).view(dtype).reshape(count, width)
@@ -713,8 +817,9 @@ def accessor_array(gltf: dict, binary: bytes, index: int) -> np.ndarray:
 
 def _node_matrix(gltf: dict, index: int) -> np.ndarray:
     """The matrix (row-major 4x4; identity when absent) of the node whose mesh holds POSITION accessor ``index``."""
-    mesh = next(i for i, m in enumerate(gltf["meshes"]) for p in m["primitives"]
-                if p["attributes"].get("POSITION") == index)
+    mesh = next(
+        i for i, m in enumerate(gltf["meshes"]) for p in m["primitives"] if p["attributes"].get("POSITION") == index
+    )
     node = next(n for n in gltf.get("nodes", []) if n.get("mesh") == mesh)
     return np.asarray(node.get("matrix", np.eye(4).ravel()), np.float64).reshape(4, 4).T
 
@@ -723,9 +828,14 @@ def feature_vertices(gltf: dict, binary: bytes, frame: str = "node") -> tuple[np
     """(positions (n, 3) in metres, feature ids (n,)) of every primitive of every mesh; ``frame`` node
     (node_positions) or mesh (mesh_positions)."""
     read = node_positions if frame == "node" else mesh_positions
-    parts = [(read(gltf, binary, p["attributes"]["POSITION"]),
-              accessor_array(gltf, binary, p["attributes"]["_FEATURE_ID_0"]).astype(np.int64))
-             for m in gltf["meshes"] for p in m["primitives"]]
+    parts = [
+        (
+            read(gltf, binary, p["attributes"]["POSITION"]),
+            accessor_array(gltf, binary, p["attributes"]["_FEATURE_ID_0"]).astype(np.int64),
+        )
+        for m in gltf["meshes"]
+        for p in m["primitives"]
+    ]
     return np.concatenate([q for q, _ in parts]), np.concatenate([f for _, f in parts])
 
 

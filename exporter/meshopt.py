@@ -33,8 +33,9 @@ def encode_attributes(data: bytes | np.ndarray, stride: int, version: int = VERT
     multiple of 4, <= 256)."""
     raw = np.frombuffer(bytes(data), np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
     if stride % 4 or not 0 < stride <= 256 or len(raw) % stride or not len(raw):
-        raise CompressionError(f"an ATTRIBUTES stream needs whole elements of 4..256 bytes (4k), not {len(raw)} "
-                               f"bytes of stride {stride}")
+        raise CompressionError(
+            f"an ATTRIBUTES stream needs whole elements of 4..256 bytes (4k), not {len(raw)} bytes of stride {stride}"
+        )
     if version not in (0, 1):
         raise ValueError(f"vertex codec version {version} does not exist")
     try:
@@ -93,7 +94,7 @@ def encode_exp(values: np.ndarray, exponent: int) -> np.ndarray:
     to nothing), as meshopt_encodeFilterExp with a shared exponent does; decodes exactly to mantissa * 2^exponent."""
     if not EXP_MIN <= exponent <= EXP_MAX:
         raise ValueError(f"the EXPONENTIAL filter allows exponents {EXP_MIN}..{EXP_MAX}, not {exponent}")
-    m = np.round(np.asarray(values, np.float64) / 2.0 ** exponent)
+    m = np.round(np.asarray(values, np.float64) / 2.0**exponent)
     if m.size and np.abs(m).max() > MANTISSA_MAX:
         raise ValueError(f"a value needs more than 24 bits of mantissa at exponent {exponent}")
     return ((m.astype(np.int64) & 0xFFFFFF) | ((exponent & 0xFF) << 24)).astype(np.uint32).view(np.int32)

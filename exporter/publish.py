@@ -33,8 +33,10 @@ def tileset_name(out: Path) -> str:
 
 def check_name(name: str) -> str:
     if not NAME_RE.match(name):
-        raise ValueError(f"cannot publish as {name!r}: a tileset name is 1-100 letters, digits, '.', '_' or '-' "
-                         "(give one with --publish NAME)")
+        raise ValueError(
+            f"cannot publish as {name!r}: a tileset name is 1-100 letters, digits, '.', '_' or '-' "
+            "(give one with --publish NAME)"
+        )
     return name
 
 
@@ -63,8 +65,15 @@ def _sha256(path: Path) -> bytes:
         return hashlib.file_digest(fh, "sha256").digest()
 
 
-def publish(url: str, name: str, directory: Path, options: dict[str, object], run_id: int | None = None,
-            keep: int = 2, inputs: dict[str, str] | None = None) -> Published:
+def publish(
+    url: str,
+    name: str,
+    directory: Path,
+    options: dict[str, object],
+    run_id: int | None = None,
+    keep: int = 2,
+    inputs: dict[str, str] | None = None,
+) -> Published:
     """Publish the files under ``directory`` as the next generation of tileset ``name``; ``inputs``: path ->
     the fingerprint of what a tile's glb was built from (exporter/reuse.py), recorded with the file."""
     check_name(name)
@@ -93,8 +102,10 @@ def publish(url: str, name: str, directory: Path, options: dict[str, object], ru
             "VALUES (%s, %s, %s, %s, %s, %s, %s) RETURNING generation",
             (name, run_id, Jsonb(options), len(listing), total, new_files, new_bytes),
         ).fetchone()  # type: ignore[misc]
-        with conn.cursor() as cur, cur.copy(
-                "COPY pub.file (generation, path, sha256, input_digest) FROM STDIN") as copy:
+        with (
+            conn.cursor() as cur,
+            cur.copy("COPY pub.file (generation, path, sha256, input_digest) FROM STDIN") as copy,
+        ):
             for rel, _, sha in listing:
                 copy.write_row((generation, rel, sha, (inputs or {}).get(rel)))
         dropped, blobs = _drop_old(conn, name, keep)
@@ -104,17 +115,21 @@ def publish(url: str, name: str, directory: Path, options: dict[str, object], ru
 def _drop_old(conn: psycopg.Connection, name: str, keep: int) -> tuple[int, int]:
     """Delete the generations of ``name`` beyond the last ``keep`` and the blobs nothing names any more. Plain
     DELETEs: a server reading an old generation at this moment finishes its read from its snapshot."""
-    old = [g for (g,) in conn.execute(
-        "SELECT generation FROM pub.generation WHERE tileset = %s ORDER BY generation DESC OFFSET %s",
-        (name, keep))]
+    old = [
+        g
+        for (g,) in conn.execute(
+            "SELECT generation FROM pub.generation WHERE tileset = %s ORDER BY generation DESC OFFSET %s", (name, keep)
+        )
+    ]
     if not old:
         return 0, 0
-    shas = [s for (s,) in conn.execute(
-        "DELETE FROM pub.file WHERE generation = ANY(%s) RETURNING sha256", (old,))]
+    shas = [s for (s,) in conn.execute("DELETE FROM pub.file WHERE generation = ANY(%s) RETURNING sha256", (old,))]
     conn.execute("DELETE FROM pub.generation WHERE generation = ANY(%s)", (old,))
     cur = conn.execute(
         "DELETE FROM pub.blob b WHERE b.sha256 = ANY(%s) "
-        "AND NOT EXISTS (SELECT 1 FROM pub.file f WHERE f.sha256 = b.sha256)", (list(set(shas)),))
+        "AND NOT EXISTS (SELECT 1 FROM pub.file f WHERE f.sha256 = b.sha256)",
+        (list(set(shas)),),
+    )
     return len(old), cur.rowcount
 
 

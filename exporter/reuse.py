@@ -30,8 +30,10 @@ from exporter.tileset import TileRecord
 
 #: a share of the tiles in one statement: planned once, where a call per tile was planned per call (Liechtenstein,
 #: 133 tiles: 1.7 s with 2 connections against 2.2 s a call per tile)
-_DIGESTS = ("SELECT t.level, t.x, t.y, d.digest, d.n_features FROM unnest(%s::int[], %s::int[], %s::int[]) "
-            "AS t(level, x, y) CROSS JOIN LATERAL api.export_digest(t.level, t.x, t.y, %s, %s) d")
+_DIGESTS = (
+    "SELECT t.level, t.x, t.y, d.digest, d.n_features FROM unnest(%s::int[], %s::int[], %s::int[]) "
+    "AS t(level, x, y) CROSS JOIN LATERAL api.export_digest(t.level, t.x, t.y, %s, %s) d"
+)
 
 
 def recipe(code: str, lod: int | None, stream: StreamOptions, root_region: tuple[float, ...]) -> str:
@@ -54,16 +56,18 @@ class Glbs:
     fingerprinted: int = 0
 
 
-def _digests(url: str, tiles: list[TileRecord], lod: int | None,
-             stream: StreamOptions) -> dict[tuple[int, int, int], tuple[str, int]]:
+def _digests(
+    url: str, tiles: list[TileRecord], lod: int | None, stream: StreamOptions
+) -> dict[tuple[int, int, int], tuple[str, int]]:
     """api.export_digest of every tile (digest, features), read by threads with a connection each (the SQL runs
     in separate backends), each over a share of the tiles in one statement."""
     textures = stream.textures if lod is None else None
     threads = min(4, os.cpu_count() or 1)
 
     def one(conn: psycopg.Connection, share: list[TileRecord]) -> list[tuple]:
-        return conn.execute(_DIGESTS, ([r.level for r in share], [r.x for r in share], [r.y for r in share], lod,
-                                       textures)).fetchall()
+        return conn.execute(
+            _DIGESTS, ([r.level for r in share], [r.x for r in share], [r.y for r in share], lod, textures)
+        ).fetchall()
 
     largest_first = sorted(tiles, key=lambda r: -(r.content_features or 0))
     with thread_map(url, one, shares(largest_first, threads), threads) as got:
@@ -72,17 +76,24 @@ def _digests(url: str, tiles: list[TileRecord], lod: int | None,
 
 def published_inputs(conn: psycopg.Connection, name: str) -> dict[str, tuple[str, bytes]]:
     """The live generation of tileset ``name``: path -> (input digest, sha256) of every file that has one."""
-    return {p: (d, bytes(s)) for p, d, s in conn.execute(
-        "SELECT f.path, f.input_digest, f.sha256 FROM pub.file f WHERE f.input_digest IS NOT NULL AND f.generation = "
-        "(SELECT max(generation) FROM pub.generation WHERE tileset = %s)", (name,))}
+    return {
+        p: (d, bytes(s))
+        for p, d, s in conn.execute(
+            "SELECT f.path, f.input_digest, f.sha256 FROM pub.file f WHERE f.input_digest IS NOT NULL"
+            " AND f.generation = (SELECT max(generation) FROM pub.generation WHERE tileset = %s)",
+            (name,),
+        )
+    }
 
 
 def _reached(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRecord]) -> set[str] | None:
     """The content URIs of the tiles some run reached since the export that published the live generation of
     ``name`` (core/changes.py); the others' features, pages and record are as they were. None when that is not
     known (no such generation, another recipe, a run since that recorded no change set)."""
-    live = conn.execute("SELECT run_id, options->>'recipe' FROM pub.generation WHERE tileset = %s "
-                        "ORDER BY generation DESC LIMIT 1", (name,)).fetchone()
+    live = conn.execute(
+        "SELECT run_id, options->>'recipe' FROM pub.generation WHERE tileset = %s ORDER BY generation DESC LIMIT 1",
+        (name,),
+    ).fetchone()
     if live is None or live[0] is None or live[1] != seed:
         return None
     changed = since(conn, "export", int(live[0]))
@@ -92,8 +103,9 @@ def _reached(conn: psycopg.Connection, name: str, seed: str, tiles: list[TileRec
     return {r.content_uri for r in tiles if r.content_uri is not None and (r.level, r.x, r.y) in at}
 
 
-def plan_glbs(url: str, name: str, seed: str, tiles: list[TileRecord], lod: int | None, stream: StreamOptions,
-              reached: bool) -> Glbs:
+def plan_glbs(
+    url: str, name: str, seed: str, tiles: list[TileRecord], lod: int | None, stream: StreamOptions, reached: bool
+) -> Glbs:
     """Which glbs of ``tiles`` to copy from the live generation of tileset ``name`` (core/reuse.py): a tile's
     key is made of ``seed``, its record in the tree and api.export_digest. With ``reached`` (an update's
     export) only the tiles some run reached since that generation are fingerprinted; the others keep its key."""
@@ -121,8 +133,11 @@ def glb_triangles(glb: bytes) -> int:
     """Triangles of a glb's meshes (index accessor counts / 3), as the export counts the ones it builds."""
     gltf, _ = read_glb(glb)
     acc = gltf.get("accessors", [])
-    return sum(acc[p["indices"]]["count"] // 3  # type: ignore[index]
-               for m in gltf.get("meshes", []) for p in m["primitives"])  # type: ignore[union-attr, attr-defined]
+    return sum(
+        acc[p["indices"]]["count"] // 3  # type: ignore[index]
+        for m in gltf.get("meshes", [])
+        for p in m["primitives"]
+    )  # type: ignore[union-attr, attr-defined]
 
 
 def copy_unchanged(url: str, reuse: dict[str, bytes], old: Path, new: Path) -> tuple[int, int]:
@@ -147,8 +162,9 @@ def copy_unchanged(url: str, reuse: dict[str, bytes], old: Path, new: Path) -> t
             from_blob.setdefault(sha, []).append(path)
     if from_blob:
         with connect(url) as conn:
-            for sha, body in conn.execute("SELECT sha256, body FROM pub.blob WHERE sha256 = ANY(%s)",
-                                          (list(from_blob),)):
+            for sha, body in conn.execute(
+                "SELECT sha256, body FROM pub.blob WHERE sha256 = ANY(%s)", (list(from_blob),)
+            ):
                 for path in from_blob.pop(bytes(sha)):
                     (new / path).write_bytes(body)
                     triangles, n_bytes = triangles + glb_triangles(body), n_bytes + len(body)

@@ -25,8 +25,11 @@ VERSION = 1
 
 def level_offset(level: int | np.ndarray) -> int | np.ndarray:
     """Bits before ``level`` in a quadtree subtree's availability: (4^level - 1) / 3."""
-    return ((1 << (2 * np.asarray(level, np.int64))) - 1) // 3 if isinstance(level, np.ndarray) \
+    return (
+        ((1 << (2 * np.asarray(level, np.int64))) - 1) // 3
+        if isinstance(level, np.ndarray)
         else ((1 << (2 * level)) - 1) // 3
+    )
 
 
 def morton(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -68,8 +71,9 @@ def subtree_sizes(keys: np.ndarray, subtree_levels: int, row_bytes: int) -> tupl
     return uniq, 500 + tile_bits + child_bits + count * row_bytes
 
 
-def choose_subtree_levels(keys: np.ndarray, row_bytes: int, single_budget: int = 2 << 20,
-                          root_budget: int = 65_536, file_cost: int = 4_096) -> int:
+def choose_subtree_levels(
+    keys: np.ndarray, row_bytes: int, single_budget: int = 2 << 20, root_budget: int = 65_536, file_cost: int = 4_096
+) -> int:
     """subtreeLevels for a tree (keys (n, 3): level, x, y).
 
     One subtree for the whole tree when it fits in ``single_budget`` bytes (the ~1M bench city's is 500 kB):
@@ -101,8 +105,14 @@ def _bitstream(bits: np.ndarray) -> dict[str, int] | bytes:
     return np.packbits(bits, bitorder="little").tobytes()
 
 
-def write_subtree(root: tuple[int, int, int], subtree_levels: int, tiles: np.ndarray, content: np.ndarray,
-                  child_roots: np.ndarray, columns: list[tuple[str, np.ndarray]]) -> bytes:
+def write_subtree(
+    root: tuple[int, int, int],
+    subtree_levels: int,
+    tiles: np.ndarray,
+    content: np.ndarray,
+    child_roots: np.ndarray,
+    columns: list[tuple[str, np.ndarray]],
+) -> bytes:
     """The .subtree file of the subtree at ``root``: ``tiles`` (n, 3) the available tiles in it (global level,
     x, y), ``content`` (n,) bool which of them have content, ``child_roots`` (m, 3) the available child
     subtrees' roots (level root + subtree_levels), ``columns`` the tile metadata (name, (n, ...) array, one row
@@ -127,8 +137,9 @@ def write_subtree(root: tuple[int, int, int], subtree_levels: int, tiles: np.nda
     if len(child_roots):
         if np.any(child_roots[:, 0] != r_lv + subtree_levels):
             raise ValueError(f"subtree {root}: child subtrees must start {subtree_levels} levels below")
-        child_bits[morton(child_roots[:, 1] - (r_x << subtree_levels), child_roots[:, 2] - (r_y << subtree_levels))] \
-            = True
+        child_bits[morton(child_roots[:, 1] - (r_x << subtree_levels), child_roots[:, 2] - (r_y << subtree_levels))] = (
+            True
+        )
 
     binary = bytearray()
     views: list[dict[str, int]] = []

@@ -42,15 +42,31 @@ CONTENT_TEMPLATE = "content/{level}/{x}/{y}.glb"
 SUBTREE_TEMPLATE = "subtrees/{level}/{x}/{y}.subtree"
 #: The subtree tile metadata: each tile's real bounding region and geometric error (FLOAT64: a region in
 #: radians needs it, 1e-7 rad of FLOAT32 is 60 cm on the ground).
-TILE_SCHEMA: dict[str, Any] = {"id": "citylod_tiles", "classes": {"tile": {
-    "description": "a tile of the citylod quadtree: its real bounding region and geometric error",
-    "properties": {
-        "region": {"type": "SCALAR", "componentType": "FLOAT64", "array": True, "count": 6,
-                   "semantic": "TILE_BOUNDING_REGION", "description": "west, south, east, north (rad), "
-                   "minimum and maximum height (m above the WGS84 ellipsoid) of the tile's meshes"},
-        "geometric_error": {"type": "SCALAR", "componentType": "FLOAT64", "semantic": "TILE_GEOMETRIC_ERROR",
-                            "description": "metres (tiles.tile.geometric_error)"},
-    }}}}
+TILE_SCHEMA: dict[str, Any] = {
+    "id": "citylod_tiles",
+    "classes": {
+        "tile": {
+            "description": "a tile of the citylod quadtree: its real bounding region and geometric error",
+            "properties": {
+                "region": {
+                    "type": "SCALAR",
+                    "componentType": "FLOAT64",
+                    "array": True,
+                    "count": 6,
+                    "semantic": "TILE_BOUNDING_REGION",
+                    "description": "west, south, east, north (rad), "
+                    "minimum and maximum height (m above the WGS84 ellipsoid) of the tile's meshes",
+                },
+                "geometric_error": {
+                    "type": "SCALAR",
+                    "componentType": "FLOAT64",
+                    "semantic": "TILE_GEOMETRIC_ERROR",
+                    "description": "metres (tiles.tile.geometric_error)",
+                },
+            },
+        }
+    },
+}
 _ROW_BYTES = 7 * 8  # one tile's metadata
 
 
@@ -148,7 +164,7 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", sing
     """The explicit tileset: every tile in the JSON tree."""
     by_key = _checked(records, single_lod)
     children: dict[tuple[int, int, int], list[tuple[int, int, int]]] = {k: [] for k in by_key}
-    for (lvl, x, y) in sorted(by_key):
+    for lvl, x, y in sorted(by_key):
         if lvl == 0:
             continue
         # the parent is the nearest existing ancestor (levels can only be skipped by a leaf's ancestors being
@@ -161,8 +177,10 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", sing
 
     def tile(key: tuple[int, int, int]) -> Tile:
         r = by_key[key]
-        t: Tile = {"boundingVolume": {"region": [float(v) for v in r.region]},
-                   "geometricError": float(r.geometric_error)}  # type: ignore[arg-type]
+        t: Tile = {
+            "boundingVolume": {"region": [float(v) for v in r.region]},
+            "geometricError": float(r.geometric_error),
+        }  # type: ignore[arg-type]
         if r.is_leaf or not single_lod:
             t["content"] = {"uri": r.content_uri}  # type: ignore[typeddict-item]
         if children[key]:
@@ -176,8 +194,12 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", sing
     return _top(root, root_region, tileset_version)
 
 
-def build_implicit(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False,
-                   subtree_levels: int | None = None) -> tuple[Tileset, dict[str, bytes]]:
+def build_implicit(
+    records: Iterable[TileRecord],
+    tileset_version: str = "",
+    single_lod: bool = False,
+    subtree_levels: int | None = None,
+) -> tuple[Tileset, dict[str, bytes]]:
     """The implicit tileset and its subtree files by URI (subtree.py); ``subtree_levels`` chosen from the tree
     (subtree.choose_subtree_levels) when None."""
     by_key = _checked(records, single_lod)
@@ -186,7 +208,7 @@ def build_implicit(records: Iterable[TileRecord], tileset_version: str = "", sin
             raise ValueError(f"tile {key}: content {r.content_uri} does not follow {CONTENT_TEMPLATE}")
     recs = list(by_key.values())
     keys = np.array(list(by_key), np.int64).reshape(-1, 3)
-    for (lvl, x, y) in by_key:
+    for lvl, x, y in by_key:
         if lvl and (lvl - 1, x >> 1, y >> 1) not in by_key:
             raise ValueError(f"tile {(lvl, x, y)} has no parent: implicit tiling needs every ancestor")
     levels = subtree_levels or choose_subtree_levels(keys, _ROW_BYTES)
@@ -210,28 +232,39 @@ def build_implicit(records: Iterable[TileRecord], tileset_version: str = "", sin
     child_bounds = np.searchsorted(parent_of[by_parent], np.arange(len(uniq) + 1))
     files: dict[str, bytes] = {}
     for i, root_key in enumerate(uniq.tolist()):
-        mine = by_sub[tile_bounds[i]:tile_bounds[i + 1]]
-        below = uniq[by_parent[child_bounds[i]:child_bounds[i + 1]]]
+        mine = by_sub[tile_bounds[i] : tile_bounds[i + 1]]
+        below = uniq[by_parent[child_bounds[i] : child_bounds[i + 1]]]
         lvl, x, y = root_key
         files[SUBTREE_TEMPLATE.format(level=lvl, x=x, y=y)] = write_subtree(
-            (lvl, x, y), levels, keys[mine], content[mine], below,
-            [("region", region[mine]), ("geometric_error", error[mine])])
+            (lvl, x, y),
+            levels,
+            keys[mine],
+            content[mine],
+            below,
+            [("region", region[mine]), ("geometric_error", error[mine])],
+        )
     root_rec = by_key[(0, 0, 0)]
-    root: Tile = {"boundingVolume": {"region": [float(v) for v in root_rec.region]},
-                  "geometricError": float(root_rec.geometric_error),  # type: ignore[arg-type]
-                  "refine": "ADD" if single_lod else "REPLACE",
-                  "transform": column_major(leaf_frame(root_rec.region)),
-                  "content": {"uri": CONTENT_TEMPLATE},
-                  "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": levels,
-                                     "availableLevels": int(keys[:, 0].max()) + 1,
-                                     "subtrees": {"uri": SUBTREE_TEMPLATE}}}
+    root: Tile = {
+        "boundingVolume": {"region": [float(v) for v in root_rec.region]},
+        "geometricError": float(root_rec.geometric_error),  # type: ignore[arg-type]
+        "refine": "ADD" if single_lod else "REPLACE",
+        "transform": column_major(leaf_frame(root_rec.region)),
+        "content": {"uri": CONTENT_TEMPLATE},
+        "implicitTiling": {
+            "subdivisionScheme": "QUADTREE",
+            "subtreeLevels": levels,
+            "availableLevels": int(keys[:, 0].max()) + 1,
+            "subtrees": {"uri": SUBTREE_TEMPLATE},
+        },
+    }
     ts = _top(root, root_rec.region, tileset_version)
     ts["schema"] = TILE_SCHEMA
     return ts, files
 
 
-def build(records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False,
-          tiling: Tiling = "implicit") -> tuple[Tileset, dict[str, bytes]]:
+def build(
+    records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False, tiling: Tiling = "implicit"
+) -> tuple[Tileset, dict[str, bytes]]:
     """(tileset.json's dict, the other files it needs by URI: subtrees, implicit only)."""
     if tiling == "explicit":
         return build_tileset(records, tileset_version, single_lod), {}

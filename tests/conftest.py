@@ -45,8 +45,12 @@ from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
 #: No package registry has them, so only tests marked ``extracts`` may read them, through ``extract(name)``.
 SHARED = SHARED_OSM.resolve()
-EXTRACTS = {"munich": "munich_altstadt.osm.pbf", "london": "london_city.osm.pbf",
-            "liechtenstein": "liechtenstein_2022-07-24.osm.pbf", "malta": "malta_2018-08-27.osm.pbf"}
+EXTRACTS = {
+    "munich": "munich_altstadt.osm.pbf",
+    "london": "london_city.osm.pbf",
+    "liechtenstein": "liechtenstein_2022-07-24.osm.pbf",
+    "malta": "malta_2018-08-27.osm.pbf",
+}
 BUILD = REPO / "build" / "test"
 #: The hand-written fixtures (tests/fixtures/osm_fixtures.py), written out as .osm files for this session.
 FIXTURES = BUILD / "fixtures-osm"
@@ -74,8 +78,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         if tier == "e2e":
             item.add_marker(pytest.mark.e2e)
         if tier == "unit" and DB_FIXTURES & set(getattr(item, "fixturenames", ())):
-            raise pytest.UsageError(f"{item.nodeid} uses the database: tests/unit is the pure tier, move it to "
-                                    "tests/db")
+            raise pytest.UsageError(
+                f"{item.nodeid} uses the database: tests/unit is the pure tier, move it to tests/db"
+            )
 
 
 #: The test being run (setup included: module fixtures are built for their first test), for extract().
@@ -97,12 +102,18 @@ def extract_path(name: str, item: pytest.Item | None, shared: Path = SHARED) -> 
     make test selects the same tests on every machine; and a marked one whose file is missing, saying how to get
     it."""
     if item is not None and item.get_closest_marker("extracts") is None:
-        pytest.fail(f"{item.nodeid} reads the {name} extract but is not marked extracts (make test must need no "
-                    "extract: use Helsinki or a fixture, or mark it @pytest.mark.extracts)", pytrace=False)
+        pytest.fail(
+            f"{item.nodeid} reads the {name} extract but is not marked extracts (make test must need no "
+            "extract: use Helsinki or a fixture, or mark it @pytest.mark.extracts)",
+            pytrace=False,
+        )
     path = shared / EXTRACTS[name]
     if not path.exists():
-        pytest.fail(f"test data missing: {path} (make test-extracts needs the shared extracts: put the shared data "
-                    "beside the clone as ../shared/data/osm, or set CITYLOD_SHARED_DATA=/path/to/data)", pytrace=False)
+        pytest.fail(
+            f"test data missing: {path} (make test-extracts needs the shared extracts: put the shared data "
+            "beside the clone as ../shared/data/osm, or set CITYLOD_SHARED_DATA=/path/to/data)",
+            pytrace=False,
+        )
     return path
 
 
@@ -158,8 +169,9 @@ def new_db(server_url: str, template_db: str) -> Iterator[Callable[[str], str]]:
         name = f"{PREFIX}_{label}"[:63]
         with psycopg.connect(server_url, autocommit=True) as admin:
             _drop(admin, name)
-            admin.execute(sql.SQL("CREATE DATABASE {} TEMPLATE {}").format(
-                sql.Identifier(name), sql.Identifier(template_db)))
+            admin.execute(
+                sql.SQL("CREATE DATABASE {} TEMPLATE {}").format(sql.Identifier(name), sql.Identifier(template_db))
+            )
         made.append(name)
         return _with_db(server_url, name)
 
@@ -176,26 +188,31 @@ def new_db(server_url: str, template_db: str) -> Iterator[Callable[[str], str]]:
 ETL_TIMEOUT = float(os.environ.get("CITYLOD_ETL_TIMEOUT", 900))
 
 
-def run_etl(url: str, *args: str, check: bool = True, env: dict[str, str] | None = None,
-            timeout: float = ETL_TIMEOUT) -> subprocess.CompletedProcess:
+def run_etl(
+    url: str, *args: str, check: bool = True, env: dict[str, str] | None = None, timeout: float = ETL_TIMEOUT
+) -> subprocess.CompletedProcess:
     """Run ``python -m etl <args>`` against ``url`` the way make does."""
     return run_py(["-m", "etl", *args], {"DATABASE_URL": url, **(env or {})}, check=check, timeout=timeout)
 
 
-def run_py(args: list[str], env: dict[str, str] | None = None, check: bool = True,
-           timeout: float = ETL_TIMEOUT) -> subprocess.CompletedProcess:
+def run_py(
+    args: list[str], env: dict[str, str] | None = None, check: bool = True, timeout: float = ETL_TIMEOUT
+) -> subprocess.CompletedProcess:
     """``python <args>`` from the repo, output captured. A run past ``timeout`` fails with the Python stacks
     of its whole process group (a stage and its worker processes) instead of hanging the suite."""
     cmd = [sys.executable, *args]
     full_env = {**os.environ, "PYTHONFAULTHANDLER": "1", **(env or {})}
-    with subprocess.Popen(cmd, cwd=REPO, env=full_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                          start_new_session=True) as proc:
+    with subprocess.Popen(
+        cmd, cwd=REPO, env=full_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    ) as proc:
         try:
             out, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
             out, err = _stacks_and_kill(proc)
-            raise AssertionError(f"python {' '.join(args)} did not finish in {timeout:g} s; the stacks of its "
-                                 f"processes (faulthandler):\n{out}\n{err}") from None
+            raise AssertionError(
+                f"python {' '.join(args)} did not finish in {timeout:g} s; the stacks of its "
+                f"processes (faulthandler):\n{out}\n{err}"
+            ) from None
     if check and proc.returncode != 0:
         raise AssertionError(f"python {' '.join(args)} failed ({proc.returncode}):\n{out}\n{err}")
     return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
@@ -305,8 +322,9 @@ def node_bin() -> str:
 def validate_glb(path: Path) -> dict:
     """The Khronos glTF-Validator (tests/js/validate_glb.mjs) over a glb or every glb under a directory: its
     summary {files, errors, warnings, infos, hints, reports: the first files with errors or warnings}."""
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(path)], capture_output=True,
-                          text=True)
+    proc = subprocess.run(
+        [node_bin(), str(REPO / "tests/js/validate_glb.mjs"), str(path)], capture_output=True, text=True
+    )
     assert proc.stdout.strip(), f"glTF-Validator gave no report (exit {proc.returncode}):\n{proc.stderr}"
     report = json.loads(proc.stdout)
     assert report["files"] > 0, f"no glb under {path}"

@@ -52,8 +52,16 @@ class Decimated:
     status: np.ndarray  # (n,) object: 'decimated', 'too small', 'kept: ...' (why the original was kept)
 
 
-def decimate(triangles: np.ndarray, owner: np.ndarray, n: int, target_reduction: float, *, min_triangles: int = 64,
-             max_error: float = np.inf, spacing: float = 0.25) -> Decimated:
+def decimate(
+    triangles: np.ndarray,
+    owner: np.ndarray,
+    n: int,
+    target_reduction: float,
+    *,
+    min_triangles: int = 64,
+    max_error: float = np.inf,
+    spacing: float = 0.25,
+) -> Decimated:
     """Decimate every owner with at least min_triangles triangles, aiming at target_reduction (0 .. 1, the share
     of those triangles to remove, over the whole batch). Hausdorff errors are measured within ``spacing``
     below the truth. Owners without triangles come back empty, as 'too small'."""
@@ -94,8 +102,9 @@ def decimate(triangles: np.ndarray, owner: np.ndarray, n: int, target_reduction:
         return Decimated(tri, own, done, error, status)
 
     # --- one simplification for the whole batch ---------------------------------------------------------------
-    out_pts, out_faces, collapses = fast_simplification.simplify(points, faces, target_reduction=target_reduction,
-                                                                 return_collapses=True)
+    out_pts, out_faces, collapses = fast_simplification.simplify(
+        points, faces, target_reduction=target_reduction, return_collapses=True
+    )
     # Each collapse (kept, removed) merges its second vertex into its first. Following the merges gives every
     # input vertex its final representative; the faces whose three representatives differ are the output
     # faces, and the output keeps exactly the representatives those faces use, in input order. So output
@@ -151,8 +160,9 @@ def decimate(triangles: np.ndarray, owner: np.ndarray, n: int, target_reduction:
     return Decimated(out_tri[o], out_own[o], done, error, status)
 
 
-def _tidy(pts: np.ndarray, v_owner: np.ndarray, faces: np.ndarray,
-          f_owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _tidy(
+    pts: np.ndarray, v_owner: np.ndarray, faces: np.ndarray, f_owner: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Undo the folds fast_simplification leaves behind (it collapses edges without a link-condition check):
 
       * vertices of one owner moved to the very same point become one (as check.closure would see them), and

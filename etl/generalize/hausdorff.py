@@ -52,8 +52,9 @@ _EPS = 1e-7  # metres of slack in the candidate radii, far above the rounding of
 _SQRT3 = np.sqrt(3.0)
 
 
-def hausdorff(a: np.ndarray, a_owner: np.ndarray, b: np.ndarray, b_owner: np.ndarray, n: int,
-              spacing: float) -> np.ndarray:
+def hausdorff(
+    a: np.ndarray, a_owner: np.ndarray, b: np.ndarray, b_owner: np.ndarray, n: int, spacing: float
+) -> np.ndarray:
     """(n,) symmetric Hausdorff distance in metres between the surfaces of a[a_owner == k] and b[b_owner == k]
     for every k; NaN where either side has no triangles. Within ``spacing`` below the true distance, never
     above it (see the module docstring)."""
@@ -95,8 +96,16 @@ class _Targets:
 
     def __init__(self, tri: np.ndarray) -> None:
         ab, ac = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        self.pack = np.column_stack([tri[:, 0], ab, ac, np.einsum("ij,ij->i", ab, ab),
-                                     np.einsum("ij,ij->i", ab, ac), np.einsum("ij,ij->i", ac, ac)])
+        self.pack = np.column_stack(
+            [
+                tri[:, 0],
+                ab,
+                ac,
+                np.einsum("ij,ij->i", ab, ab),
+                np.einsum("ij,ij->i", ab, ac),
+                np.einsum("ij,ij->i", ac, ac),
+            ]
+        )
 
 
 def _sphere(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,8 +114,16 @@ def _sphere(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, np.sqrt(((tri - c[:, None, :]) ** 2).sum(axis=2).max(axis=1))
 
 
-def _directed(src: np.ndarray, src_owner: np.ndarray, dst: np.ndarray, dst_owner: np.ndarray, n: int,
-              spacing: float, lane: float, floor: np.ndarray | None = None) -> np.ndarray:
+def _directed(
+    src: np.ndarray,
+    src_owner: np.ndarray,
+    dst: np.ndarray,
+    dst_owner: np.ndarray,
+    n: int,
+    spacing: float,
+    lane: float,
+    floor: np.ndarray | None = None,
+) -> np.ndarray:
     """(n,) max(floor, max over the surface of src[k] of the distance to dst[k]), within spacing below the
     truth (floor: a distance already reached, default 0). Owners without src triangles keep the floor."""
     tg = _Targets(dst)
@@ -149,8 +166,9 @@ def _directed(src: np.ndarray, src_owner: np.ndarray, dst: np.ndarray, dst_owner
             dv[pp[head]] = np.minimum(dv[pp[head]], np.minimum.reduceat(d, head))
         np.maximum.at(lower, p_own, dv)
 
-        longest = np.sqrt(np.max([((tri[:, i] - tri[:, j]) ** 2).sum(axis=1) for i, j in ((0, 1), (1, 2), (2, 0))],
-                                 axis=0))
+        longest = np.sqrt(
+            np.max([((tri[:, i] - tri[:, j]) ** 2).sum(axis=1) for i, j in ((0, 1), (1, 2), (2, 0))], axis=0)
+        )
         ub = np.minimum(_convex(pid, pp, pu, d, enough, len(dst)), dv[pid].max(axis=1) + longest / _SQRT3)
         split = ub > lower[own] + spacing
         # a triangle across edges of B: cut it by the sectors around the nearest vertex of B
@@ -210,8 +228,9 @@ class _Fans:
         self.tree = cKDTree(np.column_stack([vert, v_owner * lane]))
         normal = np.cross(dst[:, 1] - dst[:, 0], dst[:, 2] - dst[:, 0])
         corner = pid.reshape(-1)
-        axis = np.column_stack([np.bincount(corner, weights=np.repeat(normal[:, j], 3), minlength=nvert)
-                                for j in range(3)])
+        axis = np.column_stack(
+            [np.bincount(corner, weights=np.repeat(normal[:, j], 3), minlength=nvert) for j in range(3)]
+        )
         with np.errstate(divide="ignore", invalid="ignore"):
             axis /= np.linalg.norm(axis, axis=1)[:, None]
             unit = normal / np.linalg.norm(normal, axis=1)[:, None]
@@ -249,8 +268,11 @@ class _Fans:
         mid = np.cos(mid_ang)[:, None] * e1[r_w] + np.sin(mid_ang)[:, None] * e2[r_w]
         on_next = (r_tri[:, :, None] == r_tri[nxt][:, None, :]).any(axis=2) & (r_tri >= 0)
         span = np.where(on_next[:, 0], r_tri[:, 0], np.where(on_next[:, 1], r_tri[:, 1], -1))
-        cand = np.where((span >= 0)[:, None], np.column_stack([span, np.full((len(span), 3), -1)]),
-                        np.column_stack([r_tri, r_tri[nxt]]))
+        cand = np.where(
+            (span >= 0)[:, None],
+            np.column_stack([span, np.full((len(span), 3), -1)]),
+            np.column_stack([r_tri, r_tri[nxt]]),
+        )
         # beyond the far edge (x, x_next) of the spanning triangle
         rkey = r_w * nvert + r_x
         by_key = np.argsort(rkey)
@@ -291,8 +313,9 @@ class _Fans:
         rel = tri[pt] - at[:, None, :]
         h1, h2 = np.cross(axis, self.ra[ps]), np.cross(self.rb[ps], axis)
         # sectors the triangle surely misses (all corners behind one of the two planes) are not clipped
-        hit = np.flatnonzero((np.einsum("pvj,pj->pv", rel, h1) >= 0).any(axis=1)
-                            & (np.einsum("pvj,pj->pv", rel, h2) >= 0).any(axis=1))
+        hit = np.flatnonzero(
+            (np.einsum("pvj,pj->pv", rel, h1) >= 0).any(axis=1) & (np.einsum("pvj,pj->pv", rel, h2) >= 0).any(axis=1)
+        )
         pt, ps, at, rel, h2 = pt[hit], ps[hit], at[hit], rel[hit], h2[hit]
         rel, nv = _clip(rel, np.full(len(pt), 3), h1[hit])
         rel, nv = _clip(rel, nv, h2)
@@ -309,8 +332,10 @@ class _Fans:
             off = np.einsum("ij,ij->i", h, self.cut_at[s2] - at[two])
             near, n_near = _clip(rel[two], nv[two], h, off)
             out_, n_out = _clip(rel[two], nv[two], -h, -off)
-            split = np.maximum(_farthest(near + at[two][:, None, :], n_near, self.span[s2], tg),
-                               _farthest(out_ + at[two][:, None, :], n_out, self.beyond[s2], tg))
+            split = np.maximum(
+                _farthest(near + at[two][:, None, :], n_near, self.span[s2], tg),
+                _farthest(out_ + at[two][:, None, :], n_out, self.beyond[s2], tg),
+            )
             best[two] = np.minimum(best[two], split)
         best[nv == 0] = 0.0  # the sector misses the triangle
         out = np.zeros(k)
@@ -330,8 +355,9 @@ def _farthest(poly: np.ndarray, nv: np.ndarray, u: np.ndarray, tg: _Targets) -> 
     return out
 
 
-def _clip(poly: np.ndarray, nv: np.ndarray, h: np.ndarray, off: np.ndarray | float = 0.0
-          ) -> tuple[np.ndarray, np.ndarray]:
+def _clip(
+    poly: np.ndarray, nv: np.ndarray, h: np.ndarray, off: np.ndarray | float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Convex polygons (p, V, 3), nv corners each then copies of the first, cut to the side h . x >= off
     (Sutherland-Hodgman, all polygons at once): (p, V + 1, 3) in the same form and the new counts (0: empty).
     The copies make every slot's successor the next slot, wrapping round, at the cost of repeated corners."""
@@ -371,8 +397,7 @@ def _weld(tri: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return pid.reshape(-1, 3), p[first], po[first]
 
 
-def _convex(pid: np.ndarray, pp: np.ndarray, pu: np.ndarray, d: np.ndarray, enough: np.ndarray,
-            m: int) -> np.ndarray:
+def _convex(pid: np.ndarray, pp: np.ndarray, pu: np.ndarray, d: np.ndarray, enough: np.ndarray, m: int) -> np.ndarray:
     """(w,) min over triangles u of max over the vertices of d(v, u), counting only the u within ``enough`` of
     all three vertices (any other cannot settle the triangle); inf where there is none."""
     w = len(pid)
@@ -403,8 +428,15 @@ def _subdivide(tri: np.ndarray) -> np.ndarray:
     """(4m, 3, 3): each triangle split at its edge midpoints, the four children of triangle i at 4i .. 4i + 3."""
     v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
     m01, m12, m20 = (v0 + v1) / 2, (v1 + v2) / 2, (v2 + v0) / 2
-    kids = np.stack([np.stack([v0, m01, m20], 1), np.stack([m01, v1, m12], 1), np.stack([m20, m12, v2], 1),
-                     np.stack([m01, m12, m20], 1)], axis=1)
+    kids = np.stack(
+        [
+            np.stack([v0, m01, m20], 1),
+            np.stack([m01, v1, m12], 1),
+            np.stack([m20, m12, v2], 1),
+            np.stack([m01, m12, m20], 1),
+        ],
+        axis=1,
+    )
     return kids.reshape(-1, 3, 3)
 
 
@@ -534,7 +566,7 @@ def _outline_tree(la: np.ndarray, lb: np.ndarray) -> np.ndarray:
         parts, owner = shapely.get_parts(g, return_index=True)
         xy, part = shapely.get_coordinates(parts, return_index=True)
         own = owner[part]
-        xy = np.round((xy - corner[own]) * 2.0 ** GRID_BITS) / 2.0 ** GRID_BITS
+        xy = np.round((xy - corner[own]) * 2.0**GRID_BITS) / 2.0**GRID_BITS
         xy[:, 0] += shift[own]
         pts.append((xy, own))
         same = part[1:] == part[:-1]

@@ -157,8 +157,9 @@ def _orig_span(st: _Rings, ring: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
     return first, np.maximum(np.ceil(lo + span).astype(np.int64) - first, 0)
 
 
-def _orig_to_path(st: _Rings, ring: np.ndarray, lo: np.ndarray, hi: np.ndarray, p0: np.ndarray,
-                  p1: np.ndarray) -> np.ndarray:
+def _orig_to_path(
+    st: _Rings, ring: np.ndarray, lo: np.ndarray, hi: np.ndarray, p0: np.ndarray, p1: np.ndarray
+) -> np.ndarray:
     """Largest distance from the original vertices strictly between positions lo and hi to the segment p0-p1
     (the distance to one segment is convex, so the edges between those vertices are no farther)."""
     first, count = _orig_span(st, ring, lo, hi)
@@ -207,8 +208,9 @@ def _intersect(p: np.ndarray, d: np.ndarray, q: np.ndarray, e: np.ndarray) -> tu
         return _cross(q - p, e) / den, _cross(q - p, d) / den
 
 
-def _split_error(st: _Rings, ring: np.ndarray, lo: np.ndarray, hi: np.ndarray, p0: np.ndarray, p1: np.ndarray,
-                 p2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _split_error(
+    st: _Rings, ring: np.ndarray, lo: np.ndarray, hi: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """The original outline between positions lo and hi is replaced by the path p0-p1-p2 (p1 made). Each original
     vertex strictly between is assigned to one of the two new edges, a prefix to p0-p1 and the rest to p1-p2,
     so that the largest distance is smallest; the one original edge whose ends go to different new edges is
@@ -232,8 +234,13 @@ def _split_error(st: _Rings, ring: np.ndarray, lo: np.ndarray, hi: np.ndarray, p
     at = np.cumsum(count)[gk] - count[gk] + k  # row of the first original going to p1-p2
     u = st.orig_xy[base[gk] + (first[gk] + k - 1) % n[gk]]
     v = st.orig_xy[base[gk] + (first[gk] + k) % n[gk]]
-    cost = np.maximum.reduce([np.where(k > 0, pre1[at - 1], 0.0), np.where(k < count[gk], suf2[at], 0.0),
-                              _straddle(u, v, p0[gk], p1[gk], p2[gk])])
+    cost = np.maximum.reduce(
+        [
+            np.where(k > 0, pre1[at - 1], 0.0),
+            np.where(k < count[gk], suf2[at], 0.0),
+            _straddle(u, v, p0[gk], p1[gk], p2[gk]),
+        ]
+    )
     order = np.lexsort((cost, gk))
     best = order[np.unique(gk[order], return_index=True)[1]]  # cheapest split per group (every group has one)
     kb = k[best]
@@ -403,8 +410,9 @@ def _remove_unimportant(st: _Rings) -> None:
         err = np.full(len(st0), np.inf)
         rc = r[c]
         a, b, lo, hi = p[pv[c]], p[nx[c]], st.opos[idx[pv[c]]], st.opos[idx[nx[c]]]
-        err[go] = np.maximum.reduce([_seg_dist(p[c], a, b), _orig_to_path(st, rc, lo, hi, a, b),
-                                     _point_to_orig(st, rc, lo, hi, 0.5 * (a + b))])
+        err[go] = np.maximum.reduce(
+            [_seg_dist(p[c], a, b), _orig_to_path(st, rc, lo, hi, a, b), _point_to_orig(st, rc, lo, hi, 0.5 * (a + b))]
+        )
         go &= err <= st.tol[r[st0]] + _EPS
         alive[idx[cand[go]]] = False
         keep = go[seg]
@@ -422,8 +430,9 @@ def _percent(x: float, limit: float) -> str:
     return txt
 
 
-def _verdict(changed: np.ndarray, result: np.ndarray, area_in: np.ndarray, area_out: np.ndarray,
-             max_area_change: float) -> tuple[np.ndarray, np.ndarray]:
+def _verdict(
+    changed: np.ndarray, result: np.ndarray, area_in: np.ndarray, area_out: np.ndarray, max_area_change: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Per footprint: whether the result fails (the original is kept) and why. Vectorised checks; strings are
     only built for the (few) failures."""
     why = np.full(len(result), None, dtype=object)
@@ -438,8 +447,9 @@ def _verdict(changed: np.ndarray, result: np.ndarray, area_in: np.ndarray, area_
     return empty | invalid | area, why
 
 
-def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area_change: float = 0.1,
-                        fixed: np.ndarray | None = None) -> Simplified:
+def simplify_footprints(
+    geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area_change: float = 0.1, fixed: np.ndarray | None = None
+) -> Simplified:
     """Simplify polygonal footprints (shapely array, metric CRS); ``tolerance`` in metres, scalar or per
     footprint, 0 = leave unchanged; ``fixed``: per footprint a geometry (or None) whose nearby vertices are
     pinned. Results are MultiPolygons, exteriors counter-clockwise and holes clockwise, 2D."""
@@ -487,8 +497,13 @@ def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max
     poly_origin = np.zeros((len(polys), 2))
     poly_origin[ring_poly[~is_hole]] = coords[ring_first[~is_hole]]
     rel = coords - poly_origin[ring_poly[coord_ring]]
-    nxt_rel = rel[np.where(np.arange(len(rel)) == (ring_first + ring_cnt - 1)[coord_ring],
-                           ring_first[coord_ring], np.arange(len(rel)) + 1)]
+    nxt_rel = rel[
+        np.where(
+            np.arange(len(rel)) == (ring_first + ring_cnt - 1)[coord_ring],
+            ring_first[coord_ring],
+            np.arange(len(rel)) + 1,
+        )
+    ]
     ring_area = 0.5 * np.abs(np.bincount(coord_ring, weights=_cross(rel, nxt_rel), minlength=n_rings))
     dropped = work[ring_owner] & is_hole & (ring_area < tol[ring_owner] ** 2)
     n_dropped = np.bincount(ring_owner[dropped], minlength=n)
@@ -501,15 +516,22 @@ def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max
     if fixed is not None:
         has_fix = ~shapely.is_missing(fixed) & ~shapely.is_empty(fixed)
         check = np.flatnonzero(vsel & has_fix[ring_owner[coord_ring]])
-        pin[check] = shapely.dwithin(shapely.points(coords[check]), fixed[ring_owner[coord_ring[check]]],
-                                     PIN_DISTANCE)
+        pin[check] = shapely.dwithin(shapely.points(coords[check]), fixed[ring_owner[coord_ring[check]]], PIN_DISTANCE)
     orig_rows = np.flatnonzero(vsel)
     sel_ring = new_id[coord_ring[orig_rows]]
     orig_n = ring_cnt[used]
     orig_off = np.cumsum(orig_n) - orig_n
-    st = _Rings(xy=rel[orig_rows], ring=sel_ring, orig=orig_rows,
-                opos=(np.arange(len(orig_rows)) - orig_off[sel_ring]).astype(np.float64), pin=pin[orig_rows],
-                tol=tol[ring_owner[used]], orig_xy=rel[orig_rows], orig_off=orig_off, orig_n=orig_n)
+    st = _Rings(
+        xy=rel[orig_rows],
+        ring=sel_ring,
+        orig=orig_rows,
+        opos=(np.arange(len(orig_rows)) - orig_off[sel_ring]).astype(np.float64),
+        pin=pin[orig_rows],
+        tol=tol[ring_owner[used]],
+        orig_xy=rel[orig_rows],
+        orig_off=orig_off,
+        orig_n=orig_n,
+    )
 
     todo = np.ones(len(used), dtype=bool)
     for _ in range(MAX_PASSES):
@@ -523,8 +545,9 @@ def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max
     made = np.bincount(st.ring, weights=st.orig < 0, minlength=len(used)) > 0
     ring_changed = (out_cnt != orig_n) | made
     changed = work & ((np.bincount(ring_owner[used], weights=ring_changed, minlength=n) > 0) | (n_dropped > 0))
-    absxy = np.where((st.orig >= 0)[:, None], coords[np.maximum(st.orig, 0)],
-                     st.xy + poly_origin[ring_poly[used]][st.ring])
+    absxy = np.where(
+        (st.orig >= 0)[:, None], coords[np.maximum(st.orig, 0)], st.xy + poly_origin[ring_poly[used]][st.ring]
+    )
     result = original.copy()
     rebuild = changed[ring_owner[used]]  # every kept ring of a changed footprint
     if rebuild.any():
@@ -553,7 +576,15 @@ def simplify_footprints(geoms: np.ndarray, tolerance: float | np.ndarray, *, max
 
     hausdorff = np.zeros(n)
     if ok.any():
-        hausdorff[ok] = shapely.hausdorff_distance(shapely.boundary(original[ok]), shapely.boundary(result[ok]),
-                                                   densify=0.25)
-    return Simplified(geoms=result, n_vertices_in=n_in, n_vertices_out=n_out, area_in=area_in, area_out=area_out,
-                      hausdorff=hausdorff, status=status)
+        hausdorff[ok] = shapely.hausdorff_distance(
+            shapely.boundary(original[ok]), shapely.boundary(result[ok]), densify=0.25
+        )
+    return Simplified(
+        geoms=result,
+        n_vertices_in=n_in,
+        n_vertices_out=n_out,
+        area_in=area_in,
+        area_out=area_out,
+        hausdorff=hausdorff,
+        status=status,
+    )

@@ -92,13 +92,50 @@ OPENING_DEPTH = FacadeParams().depth  # LOD3 = LOD2 + openings this far out of t
 # gen.decimation_input, gen.block_clusters, gen.coarse_block_clusters, gen.coarse_bands, tiles.set_boxes,
 # tiles.band_summary), read by column name. The set-returning ones are inlined SQL functions, so the cursors
 # below stream them exactly as they streamed the queries inline.
-_MESH_COLUMNS = ("building_id", "gen_level", "geom", "semantics", "n_triangles", "n_triangles_in", "min_height",
-                 "height", "error_m", "total_error_m", "status")
+_MESH_COLUMNS = (
+    "building_id",
+    "gen_level",
+    "geom",
+    "semantics",
+    "n_triangles",
+    "n_triangles_in",
+    "min_height",
+    "height",
+    "error_m",
+    "total_error_m",
+    "status",
+)
 _MESH_TYPES = ("int8", "int2", "bytea", "bytea", "int4", "int4", "float4", "float4", "float4", "float4", "text")
-_FOOTPRINT_COLUMNS = ("building_id", "geom", "tolerance_m", "n_vertices_in", "n_vertices_out", "area_in_m2",
-                      "area_out_m2", "error_m", "status")
-_BLOCK_COLUMNS = ("block_id", "level", "x", "y", "gen_level", "members", "n_members", "footprint", "geom", "semantics",
-                  "n_triangles", "height", "error_m", "total_error_m", "omitted", "collapse_m", "input_digest")
+_FOOTPRINT_COLUMNS = (
+    "building_id",
+    "geom",
+    "tolerance_m",
+    "n_vertices_in",
+    "n_vertices_out",
+    "area_in_m2",
+    "area_out_m2",
+    "error_m",
+    "status",
+)
+_BLOCK_COLUMNS = (
+    "block_id",
+    "level",
+    "x",
+    "y",
+    "gen_level",
+    "members",
+    "n_members",
+    "footprint",
+    "geom",
+    "semantics",
+    "n_triangles",
+    "height",
+    "error_m",
+    "total_error_m",
+    "omitted",
+    "collapse_m",
+    "input_digest",
+)
 
 
 def _ewkb(geoms: np.ndarray, srid: int) -> list[bytes]:
@@ -108,8 +145,7 @@ def _ewkb(geoms: np.ndarray, srid: int) -> list[bytes]:
 def _triangles(wkbs: list[bytes], owners: list[int]) -> tuple[np.ndarray, np.ndarray]:
     tris = [decode_triangles(w) for w in wkbs]
     counts = [len(t) for t in tris]
-    return (np.concatenate(tris) if tris else np.zeros((0, 3, 3)),
-            np.repeat(np.asarray(owners, np.int64), counts))
+    return (np.concatenate(tris) if tris else np.zeros((0, 3, 3)), np.repeat(np.asarray(owners, np.int64), counts))
 
 
 def _solids(footprints: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> tuple[object, np.ndarray]:
@@ -132,8 +168,9 @@ class _Out:
     stats: dict[str, float] = field(default_factory=dict)
 
 
-def footprint_batch(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float,
-                    max_area_change: float, srid: int) -> _Out:
+def footprint_batch(
+    rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float, max_area_change: float, srid: int
+) -> _Out:
     """Level 2 of a batch of buildings (gen.footprint_input rows, their LOD2 meshes from
     gen.group_lod2_meshes): simplified outlines, flat solids, and each one's Hausdorff distance to the LOD2
     meshes it replaces. Pure: no database, so it runs in a Dask worker as well as here."""
@@ -142,8 +179,7 @@ def footprint_batch(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]],
     top = np.array([r["top"] for r in rows], float)
     bottom = np.array([r["bottom"] for r in rows], float)
     openings = np.array([bool(r["openings"]) for r in rows])
-    fixed = np.array([shapely.from_wkb(r["pinned"]) if r["pinned"] is not None else None for r in rows],
-                     dtype=object)
+    fixed = np.array([shapely.from_wkb(r["pinned"]) if r["pinned"] is not None else None for r in rows], dtype=object)
     s = simplify_footprints(geoms, tol, max_area_change=max_area_change, fixed=fixed)
     ex, rect = _solids(s.geoms, bottom, top)
     n = len(rows)
@@ -158,18 +194,45 @@ def footprint_batch(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]],
     sem = ex.semantics.tobytes()
     offs = ex.offsets.tolist()
     out = _Out()
-    out.footprints = list(zip(ids.tolist(), [w.hex() for w in _ewkb(s.geoms, srid)], [tol] * n,
-                              s.n_vertices_in.tolist(), s.n_vertices_out.tolist(), s.area_in.tolist(),
-                              s.area_out.tolist(), s.hausdorff.tolist(), s.status.tolist(), strict=True))
-    out.meshes = [(int(ids[j]), 2, wkbs[j], sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
-                   int(rows[j]["n_triangles_in"] or 0), float(bottom[j]), float(top[j]), float(err[j]),
-                   float(total[j]), str(status[j])) for j in range(n)]
-    out.stats = {"buildings": n, "vertices_in": int(s.n_vertices_in.sum()),
-                 "vertices_out": int(s.n_vertices_out.sum()),
-                 "kept_original": int(sum(str(x).startswith("kept_original") for x in s.status)),
-                 "max_error_m": float(err.max(initial=0.0)),
-                 "triangles_in": int(sum(r["n_triangles_in"] or 0 for r in rows)),
-                 "triangles_out": int(ex.counts.sum())}
+    out.footprints = list(
+        zip(
+            ids.tolist(),
+            [w.hex() for w in _ewkb(s.geoms, srid)],
+            [tol] * n,
+            s.n_vertices_in.tolist(),
+            s.n_vertices_out.tolist(),
+            s.area_in.tolist(),
+            s.area_out.tolist(),
+            s.hausdorff.tolist(),
+            s.status.tolist(),
+            strict=True,
+        )
+    )
+    out.meshes = [
+        (
+            int(ids[j]),
+            2,
+            wkbs[j],
+            sem[offs[j] : offs[j + 1]],
+            int(ex.counts[j]),
+            int(rows[j]["n_triangles_in"] or 0),
+            float(bottom[j]),
+            float(top[j]),
+            float(err[j]),
+            float(total[j]),
+            str(status[j]),
+        )
+        for j in range(n)
+    ]
+    out.stats = {
+        "buildings": n,
+        "vertices_in": int(s.n_vertices_in.sum()),
+        "vertices_out": int(s.n_vertices_out.sum()),
+        "kept_original": int(sum(str(x).startswith("kept_original") for x in s.status)),
+        "max_error_m": float(err.max(initial=0.0)),
+        "triangles_in": int(sum(r["n_triangles_in"] or 0 for r in rows)),
+        "triangles_out": int(ex.counts.sum()),
+    }
     return out
 
 
@@ -187,8 +250,9 @@ def _add(stats: dict[str, float], more: dict[str, float]) -> None:
         stats[k] = max(stats[k], v) if k == "max_error_m" else stats[k] + v
 
 
-def kept_as_mapped(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float, srid: int,
-                   status: str) -> _Out:
+def kept_as_mapped(
+    rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], tol: float, srid: int, status: str
+) -> _Out:
     """Level 2 of a footprint batch that its worker hung or died on: each building as mapped, its outline
     unchanged and its LOD2 meshes together as its level-2 mesh (error 0: it is what the band replaces; roof
     where a triangle faces up), ``status`` saying why. Nothing but decoding and encoding, so every building of
@@ -208,18 +272,34 @@ def kept_as_mapped(rows: list[dict[str, Any]], meshes: list[tuple[int, bytes]], 
     out = _Out()
     for j, r in enumerate(rows):
         opening = OPENING_DEPTH if r["openings"] else 0.0
-        out.footprints.append((ids[j], fps[j].hex(), tol, n_vertices[j], n_vertices[j], area[j], area[j], 0.0,
-                               status))
-        out.meshes.append((ids[j], 2, wkbs[j], sem[offsets[j]:offsets[j + 1]], int(counts[j]),
-                           int(r["n_triangles_in"] or 0), float(r["bottom"]), float(r["top"]), 0.0, opening, status))
-    out.stats = {"buildings": len(rows), "vertices_in": sum(n_vertices), "vertices_out": sum(n_vertices),
-                 "kept_original": len(rows), "triangles_in": int(sum(r["n_triangles_in"] or 0 for r in rows)),
-                 "triangles_out": int(counts.sum())}
+        out.footprints.append((ids[j], fps[j].hex(), tol, n_vertices[j], n_vertices[j], area[j], area[j], 0.0, status))
+        out.meshes.append(
+            (
+                ids[j],
+                2,
+                wkbs[j],
+                sem[offsets[j] : offsets[j + 1]],
+                int(counts[j]),
+                int(r["n_triangles_in"] or 0),
+                float(r["bottom"]),
+                float(r["top"]),
+                0.0,
+                opening,
+                status,
+            )
+        )
+    out.stats = {
+        "buildings": len(rows),
+        "vertices_in": sum(n_vertices),
+        "vertices_out": sum(n_vertices),
+        "kept_original": len(rows),
+        "triangles_in": int(sum(r["n_triangles_in"] or 0 for r in rows)),
+        "triangles_out": int(counts.sum()),
+    }
     return out
 
 
-def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, min_triangles: int,
-                     srid: int) -> _Out:
+def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, min_triangles: int, srid: int) -> _Out:
     """Level 3 of a batch of features (gen.decimation_input rows): every LOD2 mesh of at least min_triangles
     decimated in one call, kept where closed and within ``tol``; a row per feature. Pure, as footprint_batch."""
     stats = {"features": len(rows), "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0}
@@ -237,7 +317,7 @@ def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, m
                 done[k] = (None, None, 0, 0.0, str(d.status[j]))  # type: ignore[assignment]
                 continue
             # a decimated surface has no per-triangle semantics of its own
-            sem = _facing(d.triangles[offsets[j]:offsets[j + 1]])
+            sem = _facing(d.triangles[offsets[j] : offsets[j + 1]])
             done[k] = (wkbs[j], sem, int(counts[j]), float(d.error[j]), "decimated")
             stats["decimated"] += 1
             stats["max_error_m"] = max(stats["max_error_m"], float(d.error[j]))
@@ -246,8 +326,21 @@ def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, m
         geom, sem, n_out, err, status = done.get(k, (None, None, 0, 0.0, "too small to decimate"))
         n_in = int(r["n_triangles"])
         n_out = n_out if geom is not None else n_in
-        out.meshes.append((int(r["building_id"]), 3, geom, sem, n_out, n_in, float(r["min_height"]),
-                           float(r["height"]), err, err + float(step[k]), status))
+        out.meshes.append(
+            (
+                int(r["building_id"]),
+                3,
+                geom,
+                sem,
+                n_out,
+                n_in,
+                float(r["min_height"]),
+                float(r["height"]),
+                err,
+                err + float(step[k]),
+                status,
+            )
+        )
         stats["triangles_in"] += n_in
         stats["triangles_out"] += n_out
     return out
@@ -316,8 +409,15 @@ def _whole(cur: psycopg.Cursor, units: _Units, ids: dict[Unit, list[int]]) -> se
         "FROM unnest(%(l)s::int2[], %(x)s::int4[], %(y)s::int4[], %(i)s::int8[]) AS t(l, x, y, id) "
         "LEFT JOIN gen.footprint f ON %(fp)s AND f.building_id = t.id "
         "LEFT JOIN gen.building_mesh m ON m.building_id = t.id AND m.gen_level = %(g)s GROUP BY 1, 2, 3",
-        {"l": [u[0] for u, _ in flat], "x": [u[1] for u, _ in flat], "y": [u[2] for u, _ in flat],
-         "i": [i for _, i in flat], "fp": footprints, "g": units.level}).fetchall()
+        {
+            "l": [u[0] for u, _ in flat],
+            "x": [u[1] for u, _ in flat],
+            "y": [u[2] for u, _ in flat],
+            "i": [i for _, i in flat],
+            "fp": footprints,
+            "g": units.level,
+        },
+    ).fetchall()
     whole = set()
     for lv, x, y, fp, mesh in got:
         u = (int(lv), int(x), int(y))
@@ -326,8 +426,9 @@ def _whole(cur: psycopg.Cursor, units: _Units, ids: dict[Unit, list[int]]) -> se
     return whole
 
 
-def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, digests: list[tuple]
-          ) -> tuple[dict[Unit, str], dict[Unit, list[int]]]:
+def _plan(
+    cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, digests: list[tuple]
+) -> tuple[dict[Unit, str], dict[Unit, list[int]]]:
     """(the fingerprint of every unit to compute, every unit's ids) from the step's gen.*_unit_digests rows
     (unit, ids, digest), through core/reuse.py. A unit whose fingerprint and row count are the last run's and
     whose rows are all there is noted in ``units.kept`` instead: its rows stay as they are. In an update every
@@ -341,16 +442,22 @@ def _plan(cur: psycopg.Cursor, units: _Units, kept: Kept | None, seed: str, dige
                 for i in b:
                     copy.write_row((i,))
         recorded = {u: old[0] for u in ids if (old := kept.get((units.step, u))) is not None and old[1] == len(ids[u])}
-    p = plan(list(ids), seed, recorded, lambda us: {u: (digest[u],) for u in us},
-             whole=lambda same: _whole(cur, units, {u: ids[u] for u in same}))
+    p = plan(
+        list(ids),
+        seed,
+        recorded,
+        lambda us: {u: (digest[u],) for u in us},
+        whole=lambda same: _whole(cur, units, {u: ids[u] for u in same}),
+    )
     if kept is not None:
         units.kept += [(u, kept[(units.step, u)]) for u in p.keep]
         units.computed += [i for u in p.make for i in ids[u]]
     return {u: p.prints[u] for u in p.make}, ids
 
 
-def _todo_rows(src: psycopg.Cursor, todo: dict[Unit, str], ids: dict[Unit, list[int]], key: str,
-               size: int) -> Iterator[tuple[Unit, str, list[dict[str, Any]]]]:
+def _todo_rows(
+    src: psycopg.Cursor, todo: dict[Unit, str], ids: dict[Unit, list[int]], key: str, size: int
+) -> Iterator[tuple[Unit, str, list[dict[str, Any]]]]:
     """(unit, its fingerprint, its rows) of the units to compute, from a cursor over their input; checked against
     the ids their digests were made from."""
     for unit, rows in _unit_rows(src, size):
@@ -372,10 +479,15 @@ def _drop_unseen(cur: psycopg.Cursor, units: _Units) -> None:
     step."""
     cur.execute("ANALYZE _gen_seen")
     if units.step == "footprints":
-        cur.execute("DELETE FROM gen.footprint f WHERE NOT EXISTS (SELECT 1 FROM _gen_seen s "
-                    "WHERE s.building_id = f.building_id)")
-    cur.execute("DELETE FROM gen.building_mesh m WHERE m.gen_level = %s AND NOT EXISTS (SELECT 1 FROM _gen_seen s "
-                "WHERE s.building_id = m.building_id)", (units.level,))
+        cur.execute(
+            "DELETE FROM gen.footprint f WHERE NOT EXISTS (SELECT 1 FROM _gen_seen s "
+            "WHERE s.building_id = f.building_id)"
+        )
+    cur.execute(
+        "DELETE FROM gen.building_mesh m WHERE m.gen_level = %s AND NOT EXISTS (SELECT 1 FROM _gen_seen s "
+        "WHERE s.building_id = m.building_id)",
+        (units.level,),
+    )
     cur.execute("TRUNCATE _gen_seen")
 
 
@@ -392,33 +504,65 @@ def _count_kept(units: _Units, stats: dict[str, float]) -> None:
         units.records.append((units.step, *unit, print_, n, Jsonb(figures)))
 
 
-def _footprints(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
-                tol: float, progress: Progress, seed: str, kept: Kept | None) -> tuple[dict[str, float], _Units]:
-    stats = {"buildings": 0, "vertices_in": 0, "vertices_out": 0, "kept_original": 0, "max_error_m": 0.0,
-             "triangles_in": 0, "triangles_out": 0, "lost": 0}
+def _footprints(
+    conn: psycopg.Connection,
+    reader: psycopg.Connection,
+    settings: Settings,
+    srid: int,
+    tol: float,
+    progress: Progress,
+    seed: str,
+    kept: Kept | None,
+) -> tuple[dict[str, float], _Units]:
+    stats = {
+        "buildings": 0,
+        "vertices_in": 0,
+        "vertices_out": 0,
+        "kept_original": 0,
+        "max_error_m": 0.0,
+        "triangles_in": 0,
+        "triangles_out": 0,
+        "lost": 0,
+    }
     units = _Units("footprints")
     with reader.cursor(name="gen_groups", row_factory=dict_row) as src, conn.cursor() as cur:
-        todo, ids = _plan(cur, units, kept, seed, cur.execute(
-            "SELECT unit_level, unit_x, unit_y, group_ids, digest FROM gen.footprint_unit_digests(%s, %s)",
-            (PIN_DISTANCE, settings.gen_batch_features)).fetchall())
+        todo, ids = _plan(
+            cur,
+            units,
+            kept,
+            seed,
+            cur.execute(
+                "SELECT unit_level, unit_x, unit_y, group_ids, digest FROM gen.footprint_unit_digests(%s, %s)",
+                (PIN_DISTANCE, settings.gen_batch_features),
+            ).fetchall(),
+        )
         progress.update(sum(len(ids[u]) for u, _ in units.kept))
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.footprint_input(%s, %s, %s::int8[])",
-                    (PIN_DISTANCE, settings.gen_batch_features, _todo_ids(todo, ids, kept)))
+        src.execute(
+            "SELECT * FROM gen.footprint_input(%s, %s, %s::int8[])",
+            (PIN_DISTANCE, settings.gen_batch_features, _todo_ids(todo, ids, kept)),
+        )
 
-        def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]], list[tuple[int, bytes]]],
-                                      tuple[str, tuple]]]:
+        def items() -> Iterator[
+            tuple[tuple[Unit, str, list[dict[str, Any]], list[tuple[int, bytes]]], tuple[str, tuple]]
+        ]:
             for unit, print_, rows in _todo_rows(src, todo, ids, "group_id", settings.gen_batch_features):
                 # measured against what the band replaces: the LOD2 meshes of the building and its parts
-                meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)",
-                                     (ids[unit],)).fetchall()
-                yield (unit, print_, rows, meshes), ("footprints", (rows, meshes, tol, settings.gen_max_area_change,
-                                                                    srid))
+                meshes = cur.execute("SELECT group_id, mesh FROM gen.group_lod2_meshes(%s)", (ids[unit],)).fetchall()
+                yield (
+                    (unit, print_, rows, meshes),
+                    ("footprints", (rows, meshes, tol, settings.gen_max_area_change, srid)),
+                )
 
         for (unit, print_, rows, meshes), out in _mapped(items(), settings):
             if isinstance(out, Lost):
-                out = kept_as_mapped(rows, meshes, tol, srid, f"kept_original: generalize {out.reason} "
-                                                              f"(its batch of {len(rows)} buildings: {out.detail})")
+                out = kept_as_mapped(
+                    rows,
+                    meshes,
+                    tol,
+                    srid,
+                    f"kept_original: generalize {out.reason} (its batch of {len(rows)} buildings: {out.detail})",
+                )
                 stats["lost"] += len(rows)
                 print_ = None  # type: ignore[assignment]  # never kept: computed again next time
             _copy(cur, out, replace=kept is not None)
@@ -437,8 +581,10 @@ def _copy(cur: psycopg.Cursor, out: _Out, replace: bool = False) -> None:
         if out.footprints:
             cur.execute("DELETE FROM gen.footprint WHERE building_id = ANY(%s)", ([r[0] for r in out.footprints],))
         if out.meshes:
-            cur.execute("DELETE FROM gen.building_mesh WHERE building_id = ANY(%s) AND gen_level = %s",
-                        ([r[0] for r in out.meshes], out.meshes[0][1]))
+            cur.execute(
+                "DELETE FROM gen.building_mesh WHERE building_id = ANY(%s) AND gen_level = %s",
+                ([r[0] for r in out.meshes], out.meshes[0][1]),
+            )
     if out.footprints:
         with cur.copy(f"COPY gen.footprint ({', '.join(_FOOTPRINT_COLUMNS)}) FROM STDIN") as copy:
             for row in out.footprints:
@@ -455,21 +601,31 @@ def _decimation_digests(conn: psycopg.Connection, settings: Settings) -> list[tu
     thread_map of one): they read only what the stages before generalize committed (LOD2 and LOD3 meshes, the
     tiles' buildings), so PostgreSQL computes them while the footprint batches are computed (on the benchmark
     extract 0.19 s alone, 0.36 s in an update's statement log: every update reads every unit's digest)."""
-    return conn.execute("SELECT unit_level, unit_x, unit_y, building_ids, digest "
-                        "FROM gen.decimation_unit_digests(%s, %s)",
-                        (settings.gen_decimate_min_triangles, settings.gen_batch_features)).fetchall()
+    return conn.execute(
+        "SELECT unit_level, unit_x, unit_y, building_ids, digest FROM gen.decimation_unit_digests(%s, %s)",
+        (settings.gen_decimate_min_triangles, settings.gen_batch_features),
+    ).fetchall()
 
 
-def _decimation(conn: psycopg.Connection, reader: psycopg.Connection, settings: Settings, srid: int,
-                tol: float, seed: str, kept: Kept | None,
-                digests: list[tuple]) -> tuple[dict[str, float], _Units]:
+def _decimation(
+    conn: psycopg.Connection,
+    reader: psycopg.Connection,
+    settings: Settings,
+    srid: int,
+    tol: float,
+    seed: str,
+    kept: Kept | None,
+    digests: list[tuple],
+) -> tuple[dict[str, float], _Units]:
     stats = {"features": 0, "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0, "lost": 0}
     units = _Units("decimation")
     with reader.cursor(name="gen_features", row_factory=dict_row) as src, conn.cursor() as cur:
         todo, ids = _plan(cur, units, kept, seed, digests)
         src.itersize = settings.gen_batch_features
-        src.execute("SELECT * FROM gen.decimation_input(%s, %s, %s::int8[])",
-                    (settings.gen_decimate_min_triangles, settings.gen_batch_features, _todo_ids(todo, ids, kept)))
+        src.execute(
+            "SELECT * FROM gen.decimation_input(%s, %s, %s::int8[])",
+            (settings.gen_decimate_min_triangles, settings.gen_batch_features, _todo_ids(todo, ids, kept)),
+        )
         args = (tol, settings.gen_decimate_reduction, settings.gen_decimate_min_triangles, srid)
 
         def items() -> Iterator[tuple[tuple[Unit, str, list[dict[str, Any]]], tuple[str, tuple]]]:
@@ -550,10 +706,14 @@ def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> 
     recorded = {t: old for t in tiles if (old := reuse.kept.get(("blocks", t))) is not None}
 
     def whole(same: list[Unit]) -> set[Unit]:
-        counts = {(int(lv), int(x), int(y)): int(n) for lv, x, y, n in cur.execute(
-            "SELECT level, x, y, count(*) FROM gen.block WHERE (level, x, y) IN "
-            "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[])) GROUP BY 1, 2, 3",
-            ([t[0] for t in same], [t[1] for t in same], [t[2] for t in same]))}
+        counts = {
+            (int(lv), int(x), int(y)): int(n)
+            for lv, x, y, n in cur.execute(
+                "SELECT level, x, y, count(*) FROM gen.block WHERE (level, x, y) IN "
+                "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[])) GROUP BY 1, 2, 3",
+                ([t[0] for t in same], [t[1] for t in same], [t[2] for t in same]),
+            )
+        }
         return {t for t in same if counts.get(t, 0) == recorded[t][1]}
 
     keep, make = decide(tiles, reuse.digests, {t: old[0] for t, old in recorded.items()}, whole)
@@ -569,8 +729,9 @@ def _keep_blocks(reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float])
         reuse.units.records.append(("blocks", *t, print_, n, Jsonb(figures)))
 
 
-def _make_blocks(cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Settings,
-                 srid: int) -> tuple[list[float], list[bool], int]:
+def _make_blocks(
+    cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Settings, srid: int
+) -> tuple[list[float], list[bool], int]:
     """Simplify, extrude and measure the clusters ``rows`` (of gen.block_clusters or gen.coarse_block_clusters),
     write them to gen.block, and return their errors (as stored: real), omissions and member count. Each
     block's figures depend on its own row alone (outline_hausdorff measures a batch's pairs apart), so a block
@@ -606,10 +767,27 @@ def _make_blocks(cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Sett
     ids = block_ids(rows)
     with cur.copy(f"COPY gen.block ({', '.join(_BLOCK_COLUMNS)}) FROM STDIN") as copy:
         for j, r in enumerate(rows):
-            copy.write_row((ids[j], r["level"], r["x"], r["y"], r["gen_level"], members[j], len(members[j]),
-                            fps[j].hex(), wkbs[j].hex(), sem[offs[j]:offs[j + 1]], int(ex.counts[j]),
-                            float(top[j]), float(err[j]), float(total[j]), bool(omitted[j]),
-                            float(collapse[j]), r["input_digest"]))
+            copy.write_row(
+                (
+                    ids[j],
+                    r["level"],
+                    r["x"],
+                    r["y"],
+                    r["gen_level"],
+                    members[j],
+                    len(members[j]),
+                    fps[j].hex(),
+                    wkbs[j].hex(),
+                    sem[offs[j] : offs[j + 1]],
+                    int(ex.counts[j]),
+                    float(top[j]),
+                    float(err[j]),
+                    float(total[j]),
+                    bool(omitted[j]),
+                    float(collapse[j]),
+                    r["input_digest"],
+                )
+            )
     # the errors as stored (real), so that kept blocks count alike
     errs = [float(e) for e in err.astype(np.float32)]
     omits = [bool(o) for o in omitted]
@@ -617,8 +795,14 @@ def _make_blocks(cur: psycopg.Cursor, rows: list[dict[str, Any]], settings: Sett
     return errs, omits, n_members
 
 
-def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: Progress, reuse: _BlockReuse,
-            coarse: tuple[int, int] | None = None) -> dict[str, float]:
+def _blocks(
+    conn: psycopg.Connection,
+    settings: Settings,
+    srid: int,
+    progress: Progress,
+    reuse: _BlockReuse,
+    coarse: tuple[int, int] | None = None,
+) -> dict[str, float]:
     """Blocks of the 10 m and 5 m bands (from the buildings), or of the tiles of coarser band and level
     ``coarse`` = (gen_level < 0, level) (from the children's content, which must be in gen.block already).
     Every tile is recorded in ``reuse`` with its fingerprint; in an update the blocks of the tiles whose
@@ -630,53 +814,81 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
     conn.execute("SET LOCAL cursor_tuple_fraction = 1.0")
     with conn.cursor(name="gen_blocks", row_factory=dict_row) as src, conn.cursor() as cur:
         src.itersize = BATCH
-        here = [(int(lv), int(x), int(y)) for lv, x, y in cur.execute(
-            "SELECT level, x, y FROM tiles.tile WHERE CASE WHEN %(g)s::int IS NULL THEN gen_level IN (0, 1) "
-            "ELSE gen_level = %(g)s AND level = %(lv)s END ORDER BY level, x, y",
-            {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None})]
+        here = [
+            (int(lv), int(x), int(y))
+            for lv, x, y in cur.execute(
+                "SELECT level, x, y FROM tiles.tile WHERE CASE WHEN %(g)s::int IS NULL THEN gen_level IN (0, 1) "
+                "ELSE gen_level = %(g)s AND level = %(lv)s END ORDER BY level, x, y",
+                {"g": coarse[0] if coarse else None, "lv": coarse[1] if coarse else None},
+            )
+        ]
         make, keep = _block_tiles(cur, reuse, here)
         _keep_blocks(reuse, keep, stats)
         reuse.made += make
         lvs, xs, ys = ([t[i] for t in make] for i in range(3))
         # the blocks of the tiles made again: a cluster made of the same inputs keeps its block, not made again
-        skip = None if reuse.kept is None or not make else [d for (d,) in cur.execute(
-            "SELECT input_digest FROM gen.block WHERE input_digest IS NOT NULL "
-            "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))", (lvs, xs, ys))]
+        skip = (
+            None
+            if reuse.kept is None or not make
+            else [
+                d
+                for (d,) in cur.execute(
+                    "SELECT input_digest FROM gen.block WHERE input_digest IS NOT NULL "
+                    "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+                    (lvs, xs, ys),
+                )
+            ]
+        )
         if coarse is None:
-            src.execute("SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[], %s, %s::text[])",
-                        (lvs, xs, ys, reuse.seed, skip))
+            src.execute(
+                "SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[], %s, %s::text[])",
+                (lvs, xs, ys, reuse.seed, skip),
+            )
         else:
-            src.execute("SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[], %s, %s::text[])",
-                        (*coarse, xs, ys, reuse.seed, skip))
+            src.execute(
+                "SELECT * FROM gen.coarse_block_clusters(%s, %s, %s::int4[], %s::int4[], %s, %s::text[])",
+                (*coarse, xs, ys, reuse.seed, skip),
+            )
         made: set[Unit] = set()
         # a tile's blocks are one batch (a block depends on its own cluster alone: _make_blocks); the clusters
         # in skip come back unmade, and their blocks stay
         for tile, tile_rows in itertools.groupby(
-                itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
-                key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"]))):
+            itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
+            key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"])),
+        ):
             everything = list(tile_rows)
             rows = [r for r in everything if r["merged"] is not None]
             same = [r["input_digest"] for r in everything if r["merged"] is None]  # in skip: kept
             if reuse.kept is not None:
                 # the tile's other blocks go, and any stale one (of a tile not reached yet) whose id a new block
                 # takes: its smallest member moved here
-                cur.execute("DELETE FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
-                            "AND (input_digest IS NULL OR NOT input_digest = ANY(%s))", (*tile, same))
+                cur.execute(
+                    "DELETE FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
+                    "AND (input_digest IS NULL OR NOT input_digest = ANY(%s))",
+                    (*tile, same),
+                )
                 cur.execute("DELETE FROM gen.block WHERE block_id = ANY(%s)", (block_ids(rows),))
             errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
             reuse.written += len(rows)
             if same:
                 # as made: omitted for its band alone, its own error (not the omission on tile error's)
-                got = cur.execute("SELECT omitted, error_m, n_members FROM gen.block_as_made WHERE (level, x, y) = "
-                                  "(%s, %s, %s) AND input_digest = ANY(%s)", (*tile, same)).fetchall()
+                got = cur.execute(
+                    "SELECT omitted, error_m, n_members FROM gen.block_as_made WHERE (level, x, y) = "
+                    "(%s, %s, %s) AND input_digest = ANY(%s)",
+                    (*tile, same),
+                ).fetchall()
                 if len(got) != len(same):
                     raise RuntimeError(f"tile {tile}: {len(same)} kept blocks, {len(got)} found")
                 omits += [bool(o) for o, _, _ in got]
                 errs += [float(np.float32(e)) for _, e, _ in got]  # a real read as text: its float32 again
                 n_members += sum(int(k) for _, _, k in got)
                 reuse.blocks_kept += len(got)
-            figures = {"blocks": len(omits), "omitted": sum(omits), "members": n_members,
-                       "max_error_m": max(errs, default=0.0)}
+            figures = {
+                "blocks": len(omits),
+                "omitted": sum(omits),
+                "members": n_members,
+                "max_error_m": max(errs, default=0.0),
+            }
             _add(stats, figures)
             reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), len(omits), Jsonb(figures)))
             made.add(tile)
@@ -687,21 +899,29 @@ def _blocks(conn: psycopg.Connection, settings: Settings, srid: int, progress: P
         gone = [t for t in make if t not in made]
         reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty)) for t in gone]
         if gone and reuse.kept is not None:
-            cur.execute("DELETE FROM gen.block WHERE (level, x, y) IN "
-                        "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
-                        ([t[0] for t in gone], [t[1] for t in gone], [t[2] for t in gone]))
+            cur.execute(
+                "DELETE FROM gen.block WHERE (level, x, y) IN "
+                "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+                ([t[0] for t in gone], [t[1] for t in gone], [t[2] for t in gone]),
+            )
     return stats
 
 
-def coarse_blocks(conn: psycopg.Connection, settings: Settings, srid: int, reuse: _BlockReuse | None = None,
-                  max_level: int | None = None) -> dict[str, float]:
+def coarse_blocks(
+    conn: psycopg.Connection,
+    settings: Settings,
+    srid: int,
+    reuse: _BlockReuse | None = None,
+    max_level: int | None = None,
+) -> dict[str, float]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
     band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
     "coarse_omitted": {g: n}})."""
     reuse = reuse or _BlockReuse({}, None, seed="")  # outside a run (benchmarks/view_bench.py): nothing recorded
-    pairs = [(int(g), int(lv)) for g, lv in conn.execute(
-        "SELECT gen_level, level FROM gen.coarse_bands(%s)", (max_level,))]
+    pairs = [
+        (int(g), int(lv)) for g, lv in conn.execute("SELECT gen_level, level FROM gen.coarse_bands(%s)", (max_level,))
+    ]
     out: dict[int, int] = {}
     omitted: dict[int, int] = {}
     for g, lv in pairs:
@@ -719,8 +939,10 @@ def store_boxes(cur: psycopg.Cursor) -> None:
     with cur.connection.cursor(row_factory=dict_row) as c:
         tiles = c.execute("SELECT level, x, y, region FROM tiles.tile ORDER BY level, x, y").fetchall()
     boxes = region_box(np.array([t["region"] for t in tiles], float))
-    cur.execute("CALL tiles.set_boxes(%s, %s, %s, %s)", ([t["level"] for t in tiles], [t["x"] for t in tiles],
-                                                         [t["y"] for t in tiles], boxes.ravel().tolist()))
+    cur.execute(
+        "CALL tiles.set_boxes(%s, %s, %s, %s)",
+        ([t["level"] for t in tiles], [t["x"] for t in tiles], [t["y"] for t in tiles], boxes.ravel().tolist()),
+    )
 
 
 def _seed(settings: Settings, code: str, srid: int, tol: dict[int, float]) -> str:
@@ -730,8 +952,12 @@ def _seed(settings: Settings, code: str, srid: int, tol: dict[int, float]) -> st
 
 
 def _kept(conn: psycopg.Connection) -> Kept:
-    return {(step, (int(lv), int(x), int(y))): (f, int(n), stats) for step, lv, x, y, f, n, stats in conn.execute(
-        "SELECT step, level, x, y, fingerprint, n_rows, stats FROM gen.unit_input WHERE fingerprint IS NOT NULL")}
+    return {
+        (step, (int(lv), int(x), int(y))): (f, int(n), stats)
+        for step, lv, x, y, f, n, stats in conn.execute(
+            "SELECT step, level, x, y, fingerprint, n_rows, stats FROM gen.unit_input WHERE fingerprint IS NOT NULL"
+        )
+    }
 
 
 def run(ctx: Context) -> Result:
@@ -766,14 +992,17 @@ def run(ctx: Context) -> Result:
             # run left them: what reads a block until the hierarchy decides them again reads it as made
             # (gen.block_as_made), and tiles.omit_within_error writes the blocks whose omission
             # changed (an update wrote every such block twice, back as made and omitted again)
-            cur.execute("DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
-                        "AND (t.gen_level IS NULL OR t.gen_level > 1)")
+            cur.execute(
+                "DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
+                "AND (t.gen_level IS NULL OR t.gen_level > 1)"
+            )
         cur.execute("DELETE FROM gen.unit_input")
         step = time.perf_counter()
         # the decimation's digests computed meanwhile
         with thread_map(url, _decimation_digests, [settings], 1) as dec_digests:
-            fp, fp_units = _footprints(conn, reader, settings, srid, tol[2],
-                                       Progress("generalize", "buildings", total=n_groups), seed, kept)
+            fp, fp_units = _footprints(
+                conn, reader, settings, srid, tol[2], Progress("generalize", "buildings", total=n_groups), seed, kept
+            )
             seconds["footprints"] = time.perf_counter() - step
             step = time.perf_counter()
             dec, dec_units = _decimation(conn, reader, settings, srid, tol[3], seed, kept, next(dec_digests))
@@ -799,10 +1028,13 @@ def run(ctx: Context) -> Result:
             cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
         else:
             scope = sorted(since | reach(conn, own))
-            cur.execute("CALL tiles.finish_hierarchy(%(base)s, %(levels)s, %(xs)s, %(ys)s)",
-                        {"base": settings.base_height_m, **tile_arrays(scope)})
+            cur.execute(
+                "CALL tiles.finish_hierarchy(%(base)s, %(levels)s, %(xs)s, %(ys)s)",
+                {"base": settings.base_height_m, **tile_arrays(scope)},
+            )
         blk["omitted_within_tile_error"] = cur.execute(
-            "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error").fetchone()[0]  # type: ignore[index]
+            "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error"
+        ).fetchone()[0]  # type: ignore[index]
         store_boxes(cur)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()
@@ -811,29 +1043,50 @@ def run(ctx: Context) -> Result:
             """SELECT count(*) FILTER (WHERE f.status LIKE 'simplified%%'),
                       count(*) FILTER (WHERE f.status NOT LIKE 'simplified%%')
                FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id AND m.gen_level = 2
-            """).fetchone()  # type: ignore[misc]
+            """
+        ).fetchone()  # type: ignore[misc]
         balance = Balance("buildings", int(n_groups), {"simplified": simplified, "left as mapped": as_mapped})
         # gen.footprint and gen.building_mesh were analyzed once written, before the blocks
         analyze(cur, "gen.block", reuse.written if keep else None)
     wall = time.perf_counter() - t0
     result: dict[str, object] = {
-        **balance.counts(), "buildings": n_groups, "tolerance_m": tol,
-        "footprints": fp, "decimation": dec, "blocks": blk,
-        "batches": {u.step: {"computed": len(u.records) - len(u.kept), "kept": len(u.kept)}
-                    for u in (fp_units, dec_units, reuse.units)}
+        **balance.counts(),
+        "buildings": n_groups,
+        "tolerance_m": tol,
+        "footprints": fp,
+        "decimation": dec,
+        "blocks": blk,
+        "batches": {
+            u.step: {"computed": len(u.records) - len(u.kept), "kept": len(u.kept)}
+            for u in (fp_units, dec_units, reuse.units)
+        }
         | {"blocks_kept": reuse.blocks_kept},  # in the tiles made again, one cluster at a time
-        "bands": [{**b, "features": int(b["features"]), "triangles": int(b["triangles"]),
-                   "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3)} for b in bands],
-        "seconds": round(wall, 3), "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
+        "bands": [
+            {
+                **b,
+                "features": int(b["features"]),
+                "triangles": int(b["triangles"]),
+                "max_geometric_error_m": round(float(b["max_geometric_error_m"]), 3),
+            }
+            for b in bands
+        ],
+        "seconds": round(wall, 3),
+        "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         "hierarchy_tiles": None if since is None else len(scope),  # measured again (None: every tile)
     }
     summary(
-        "generalize", balance,
+        "generalize",
+        balance,
         f"footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, {dec['decimated']:,} LOD2 meshes "
         f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings"
-        + (f"; footprint batches kept {len(fp_units.kept):,} of {len(fp_units.records):,}, decimation "
-           f"{len(dec_units.kept):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.kept):,} of "
-           f"{len(reuse.units.records):,} (and {reuse.blocks_kept:,} blocks of the others)" if keep else ""),
-        wall, n_groups,
+        + (
+            f"; footprint batches kept {len(fp_units.kept):,} of {len(fp_units.records):,}, decimation "
+            f"{len(dec_units.kept):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.kept):,} of "
+            f"{len(reuse.units.records):,} (and {reuse.blocks_kept:,} blocks of the others)"
+            if keep
+            else ""
+        ),
+        wall,
+        n_groups,
     )
     return Result(result, None if since is None else own)

@@ -81,8 +81,9 @@ def _objects(path: Path) -> Iterator[tuple[str, str, int]]:
                 if event == "start":
                     depth += 1
                     if depth == 1 and el.tag != "osmChange":
-                        raise ChangeFileError(f"{path}: not an OSM change file (its root element is <{el.tag}>, "
-                                              "not <osmChange>)")
+                        raise ChangeFileError(
+                            f"{path}: not an OSM change file (its root element is <{el.tag}>, not <osmChange>)"
+                        )
                     if depth == 2:
                         action = el.tag if el.tag in ACTIONS else None
                     elif depth == 3 and action is not None and el.tag in TYPES:
@@ -122,8 +123,9 @@ def file_input(chain: Chain, shas: list[str]) -> dict[str, object]:
 
 def read_chain(conn: psycopg.Connection) -> Chain:
     """The base file and the changes applied so far. Refuses a database that was never ingested."""
-    rows = conn.execute("SELECT seq, path, sha256, state_sha256, base_file, base_sha256 FROM meta.osm_change "
-                        "ORDER BY seq").fetchall()
+    rows = conn.execute(
+        "SELECT seq, path, sha256, state_sha256, base_file, base_sha256 FROM meta.osm_change ORDER BY seq"
+    ).fetchall()
     if rows:
         return Chain(Path(rows[0][4]), rows[0][5], [Change(s, Path(p), h, st) for s, p, h, st, _, _ in rows])
     row = conn.execute("SELECT source_file, source_sha256 FROM meta.dataset").fetchone()
@@ -172,8 +174,10 @@ def drop_previous_state(chain: Chain, current: Path) -> bool:
 
 def _check(path: Path, sha: str, what: str) -> None:
     if not path.is_file():
-        raise FileNotFoundError(f"{what} {path} is missing: it is needed to rebuild the OSM state (keep the base "
-                                "file and every applied change file, or ingest a new base file)")
+        raise FileNotFoundError(
+            f"{what} {path} is missing: it is needed to rebuild the OSM state (keep the base "
+            "file and every applied change file, or ingest a new base file)"
+        )
     if sha256_file(path) != sha:
         raise RuntimeError(f"{what} {path} is not the file that was applied (its sha256 changed)")
 

@@ -76,8 +76,13 @@ def _new_changes(files: list[Path], chain: osc.Chain) -> list[New]:
 
 def _only_nodes_created(new: list[New]) -> bool:
     """No way or relation of the state can refer to nodes just created: no building changes."""
-    return all(n == 0 for c in new for action, by_type in c.counts.items() for kind, n in by_type.items()
-               if (action, kind) != ("create", "node"))
+    return all(
+        n == 0
+        for c in new
+        for action, by_type in c.counts.items()
+        for kind, n in by_type.items()
+        if (action, kind) != ("create", "node")
+    )
 
 
 def _import_all(stages: tuple[str, ...]) -> None:
@@ -112,15 +117,30 @@ def _ingest(chain: osc.Chain, new: list[New], state: Path, settings: Settings) -
 
     def record(cur: psycopg.Cursor, run_id: int) -> None:
         for n in new:
-            cur.execute("INSERT INTO meta.osm_change (seq, path, sha256, base_file, base_sha256, state_sha256, "
-                        "run_id, counts) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
-                        (n.seq, str(n.path), n.sha256, str(chain.base_file), chain.base_sha256, n.state_sha256,
-                         run_id, Jsonb(n.counts)))
+            cur.execute(
+                "INSERT INTO meta.osm_change (seq, path, sha256, base_file, base_sha256, state_sha256, "
+                "run_id, counts) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
+                (
+                    n.seq,
+                    str(n.path),
+                    n.sha256,
+                    str(chain.base_file),
+                    chain.base_sha256,
+                    n.state_sha256,
+                    run_id,
+                    Jsonb(n.counts),
+                ),
+            )
 
     file_sha = sha256_file(state)  # the dataset's sha256, as a full ingest of this file records it
-    call = runner.Call(FIRST, options=Input(state, file_sha, touched, record), file=osc.file_input(chain, shas),
-                       params={"osm": str(state), "update": [n.seq for n in new]}, input_file=state,
-                       input_sha256=file_sha)
+    call = runner.Call(
+        FIRST,
+        options=Input(state, file_sha, touched, record),
+        file=osc.file_input(chain, shas),
+        params={"osm": str(state), "update": [n.seq for n in new]},
+        input_file=state,
+        input_sha256=file_sha,
+    )
     result = runner.run(call, settings, mode="update")
     assert result is not None
     return result.counts
@@ -180,6 +200,7 @@ def _carry(below: list[str], current: set[str], settings: Settings) -> None:
 def _steps(current: set[str], settings: Settings) -> None:
     """The stages in the steps of the stage graph, each in update mode; the stages of a step side by side (none
     reads another's tables: on the two cores of a small machine, a whole-city pass each)."""
+
     def one(stage: str) -> None:
         runner.run(runner.Call(stage), settings, if_stale=True, mode="update", knows_changes=stage in current)
 
@@ -192,8 +213,11 @@ def export_call(o: ExportOptions) -> runner.Call:
     """The export of ``o`` as the command line and the update run it: what its run records and compares."""
     stream = o.stream.as_dict()
     return runner.Call(
-        "export", options=o, out=o.out,
+        "export",
+        options=o,
+        out=o.out,
         recorded_options={"out": str(o.out), "lod": o.lod, **stream, "publish": o.publish_as},
         # a one-LOD tileset has no textures (exporter/export.py): it reads up to generalize
         reads=("generalize",) if o.lod else None,
-        params={"out": str(o.out), "lod": o.lod, **stream, "publish": o.publish_as})
+        params={"out": str(o.out), "lod": o.lod, **stream, "publish": o.publish_as},
+    )

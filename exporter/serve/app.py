@@ -43,9 +43,13 @@ log = logging.getLogger("citylod.serve")
 #: connection pool, so that a thread decompressing or compressing a tile does not keep the database idle.
 TILE_THREADS = 32
 _ALLOW_ORIGIN = (b"access-control-allow-origin", b"*")
-_PREFLIGHT = [_ALLOW_ORIGIN, (b"access-control-allow-methods", b"GET, HEAD, OPTIONS"),
-              (b"access-control-allow-headers", b"*"), (b"access-control-max-age", b"86400"),
-              (b"content-length", b"0")]
+_PREFLIGHT = [
+    _ALLOW_ORIGIN,
+    (b"access-control-allow-methods", b"GET, HEAD, OPTIONS"),
+    (b"access-control-allow-headers", b"*"),
+    (b"access-control-max-age", b"86400"),
+    (b"content-length", b"0"),
+]
 
 
 class Cors:
@@ -69,8 +73,13 @@ class Cors:
                 message["headers"] = [*message.get("headers", ()), _ALLOW_ORIGIN]
                 if message["status"] >= 400:
                     client = scope.get("client") or ("-",)
-                    log.warning('%s "%s %s" %d', client[0], scope["method"],
-                                scope.get("raw_path", b"").decode("latin-1"), message["status"])
+                    log.warning(
+                        '%s "%s %s" %d',
+                        client[0],
+                        scope["method"],
+                        scope.get("raw_path", b"").decode("latin-1"),
+                        message["status"],
+                    )
             await send(message)
 
         await self.app(scope, receive, send_with_cors)
@@ -103,7 +112,7 @@ def db_tiles_route(source: DbTileSource | PublishedSource) -> Route:
 
     async def tiles(request: Request) -> Response:
         try:
-            address = tile_address(request_path(request)[len("/tiles/"):])
+            address = tile_address(request_path(request)[len("/tiles/") :])
         except BadPath:
             return text(400, "bad tile address")
         if address is None:
@@ -117,8 +126,10 @@ def db_tiles_route(source: DbTileSource | PublishedSource) -> Route:
                 return _unavailable(f"no current tileset in the database: {e}")
             except Busy as e:
                 log.warning("a stage holds the tables: %s", e)
-                return _unavailable("a stage is rebuilding the tables, retry later (serve --db without --live "
-                                    "streams the published tileset meanwhile)")
+                return _unavailable(
+                    "a stage is rebuilding the tables, retry later (serve --db without --live "
+                    "streams the published tileset meanwhile)"
+                )
             except DbUnavailable as e:
                 log.warning("database unavailable: %s", e)  # the detail stays in the server's log
                 return _unavailable("database unavailable, retry later")

@@ -83,5 +83,11 @@ class ByteLru:
 
     def stats(self) -> dict[str, int]:
         with self._lock:
-            return {"entries": len(self._items), "bytes": self._bytes, "budget": self.budget, "hits": self.hits,
-                    "misses": self.misses, "evictions": self.evictions}
+            return {
+                "entries": len(self._items),
+                "bytes": self._bytes,
+                "budget": self.budget,
+                "hits": self.hits,
+                "misses": self.misses,
+                "evictions": self.evictions,
+            }

@@ -84,7 +84,7 @@ def file_route(prefix: str, root: Path, cache_control: str = NO_CACHE) -> Route:
 
     async def endpoint(request: Request) -> Response:
         try:
-            rel = request_path(request)[len(prefix):]
+            rel = request_path(request)[len(prefix) :]
         except BadPath:
             return text(400, "bad path")
         return file_response(root, rel, cache_control)
@@ -98,5 +98,9 @@ def viewer_routes() -> list[Route]:
     async def index(request: Request) -> Response:
         return file_response(VIEWER_DIR, "index.html", NO_CACHE)
 
-    return [Route("/", index, methods=["GET"]), Route("/index.html", index, methods=["GET"]),
-            file_route("/viewer/", VIEWER_DIR), file_route("/cesium/", CESIUM_DIR, CESIUM_CACHE)]
+    return [
+        Route("/", index, methods=["GET"]),
+        Route("/index.html", index, methods=["GET"]),
+        file_route("/viewer/", VIEWER_DIR),
+        file_route("/cesium/", CESIUM_DIR, CESIUM_CACHE),
+    ]

@@ -43,8 +43,15 @@ class Listing:
 class PublishedSource:
     """The files of the live generation of tileset ``name``, from the database at ``url`` (the reader role's)."""
 
-    def __init__(self, url: str, name: str, cache_bytes: int = 256 << 20, pool_size: int | None = None,
-                 revalidate_s: float = 1.0, acquire_timeout: float = 30.0) -> None:
+    def __init__(
+        self,
+        url: str,
+        name: str,
+        cache_bytes: int = 256 << 20,
+        pool_size: int | None = None,
+        revalidate_s: float = 1.0,
+        acquire_timeout: float = 30.0,
+    ) -> None:
         self.name, self.revalidate_s = name, revalidate_s
         self.reader = Reader(url, pool_size or 4, acquire_timeout)
         self.cache = ByteLru(cache_bytes)
@@ -57,9 +64,11 @@ class PublishedSource:
         def read(conn: psycopg.Connection) -> Listing:
             (generation,) = conn.execute(_LIVE, (self.name,)).fetchone()  # type: ignore[misc]
             if generation is None:
-                raise NotReady(f"no tileset named {self.name!r} is published in the database: export it first "
-                               f"(make export OUT=build/tiles/{self.name}, or python -m etl export --publish "
-                               f"{self.name})")
+                raise NotReady(
+                    f"no tileset named {self.name!r} is published in the database: export it first "
+                    f"(make export OUT=build/tiles/{self.name}, or python -m etl export --publish "
+                    f"{self.name})"
+                )
             if old is not None and generation == old.generation:
                 return replace(old, checked=time.monotonic())
             files = {path: bytes(sha) for path, sha in conn.execute(_LISTING, (generation,))}

@@ -31,8 +31,13 @@ READER_URL_ENV = "CITYLOD_READER_URL"
 #: no JIT (its compile time dominates short statements), UTC.
 #: lock_timeout: a read that would wait behind a stage's lock (a TRUNCATE, a quadtree rebuild: held until the
 #: stage commits, minutes) gives up after 100 ms and is answered 503 at once instead of hanging.
-READER_SESSION = {"default_transaction_read_only": "on", "statement_timeout": "30s", "lock_timeout": "100ms",
-                  "jit": "off", "TimeZone": "UTC"}
+READER_SESSION = {
+    "default_transaction_read_only": "on",
+    "statement_timeout": "30s",
+    "lock_timeout": "100ms",
+    "jit": "off",
+    "TimeZone": "UTC",
+}
 #: While the database is unreachable, at most one connection attempt per this many seconds; the requests in
 #: between are answered at once with the last attempt's error.
 PROBE_INTERVAL_S = 1.0
@@ -92,8 +97,16 @@ class Reader:
         # min_size 1: an idle server keeps one connection, which is also how it notices an outage at once.
         # Opened by the first successful attempt, so that a server that cannot start does not retry in the back.
         self.pool: ConnectionPool[psycopg.Connection] = ConnectionPool(
-            self.conninfo, min_size=1, max_size=size, kwargs={"autocommit": True}, configure=_configure,
-            timeout=acquire_timeout, reconnect_timeout=RECONNECT_TIMEOUT_S, name="citylod-reader", open=False)
+            self.conninfo,
+            min_size=1,
+            max_size=size,
+            kwargs={"autocommit": True},
+            configure=_configure,
+            timeout=acquire_timeout,
+            reconnect_timeout=RECONNECT_TIMEOUT_S,
+            name="citylod-reader",
+            open=False,
+        )
         self._probe_lock = threading.Lock()
         # (monotonic time of the last failed attempt, its error); -inf: attempt at the next read
         self._down: tuple[float, str] | None = (-math.inf, "not connected yet")

@@ -53,10 +53,19 @@ def uvicorn_server(app: Any) -> uvicorn.Server:
     """A uvicorn server for ``app``, to be run with ``server.run(sockets=[listen(...)])`` (stops when
     ``server.should_exit`` is set, or on SIGINT/SIGTERM when run in the main thread)."""
     config = uvicorn.Config(
-        app, loop="uvloop", http="httptools", interface="asgi3", lifespan="off",
-        log_config=None, access_log=False,  # failures are logged by app.Cors
-        proxy_headers=False, server_header=False, backlog=BACKLOG,
-        timeout_keep_alive=KEEP_ALIVE_S, timeout_graceful_shutdown=5)
+        app,
+        loop="uvloop",
+        http="httptools",
+        interface="asgi3",
+        lifespan="off",
+        log_config=None,
+        access_log=False,  # failures are logged by app.Cors
+        proxy_headers=False,
+        server_header=False,
+        backlog=BACKLOG,
+        timeout_keep_alive=KEEP_ALIVE_S,
+        timeout_graceful_shutdown=5,
+    )
     return uvicorn.Server(config)
 
 
@@ -88,8 +97,9 @@ def _run(app: Any, sock: socket.socket, notes: list[str]) -> None:
     print(f"{ANNOUNCE}{url_of(sock)}", flush=True)
     for note in notes:
         print(f"  {note}", file=sys.stderr)
-    print(f"  data {ATTRIBUTION}: keep this attribution visible wherever the tiles are shown",
-          file=sys.stderr, flush=True)
+    print(
+        f"  data {ATTRIBUTION}: keep this attribution visible wherever the tiles are shown", file=sys.stderr, flush=True
+    )
     try:
         uvicorn_server(app).run(sockets=[sock])
     except KeyboardInterrupt:
@@ -102,8 +112,10 @@ def serve(tiles_dir: Path, host: str = "127.0.0.1", port: int = 8765) -> None:
     """Serve ``tiles_dir`` and the viewer until SIGINT/SIGTERM."""
     tiles_dir = Path(tiles_dir).resolve()
     if not (tiles_dir / "tileset.json").is_file():
-        sys.exit(f"citylod serve: no tileset at {tiles_dir / 'tileset.json'}; "
-                 f"build one first with `make export` (or `python -m etl export --out {tiles_dir}`)")
+        sys.exit(
+            f"citylod serve: no tileset at {tiles_dir / 'tileset.json'}; "
+            f"build one first with `make export` (or `python -m etl export --out {tiles_dir}`)"
+        )
     _check_cesium()
     sock = _listen_or_exit(host, port)
     _run(make_app(tiles_dir=tiles_dir), sock, [f"tiles: {tiles_dir}"])
@@ -122,14 +134,21 @@ def _serve_source(source: Any, host: str, port: int, describe: Any) -> None:
         try:
             tileset = source.tileset()
         except DbUnavailable as e:
-            sys.exit(f"citylod serve --db: cannot read the database as {READER_ROLE}: {e}\n"
-                     f"  run `make migrate` (migration 0011 creates the role), or set {READER_URL_ENV}")
+            sys.exit(
+                f"citylod serve --db: cannot read the database as {READER_ROLE}: {e}\n"
+                f"  run `make migrate` (migration 0011 creates the role), or set {READER_URL_ENV}"
+            )
         except NotReady as e:
             sys.exit(f"citylod serve --db: {e}")
         try:
-            _run(make_app(source=source), sock, [
-                describe(source, tileset),
-                f"cache: {source.cache.budget / 2**20:,.0f} MiB; pool: {source.reader.size} connections"])
+            _run(
+                make_app(source=source),
+                sock,
+                [
+                    describe(source, tileset),
+                    f"cache: {source.cache.budget / 2**20:,.0f} MiB; pool: {source.reader.size} connections",
+                ],
+            )
         finally:
             sock.close()
     finally:
@@ -143,9 +162,15 @@ def serve_db(url: str, host: str = "127.0.0.1", port: int = 8765, **source_optio
     from exporter.serve.source import DbTileSource
 
     lod = source_options.get("lod")
-    _serve_source(DbTileSource(url, **source_options), host, port, lambda src, tileset: (
-        f"tiles: straight from the database ({len(src.snapshot().by_uri):,} glb tiles, "
-        f"{'LOD' + str(lod) if lod else 'every LOD'}, tileset.json {len(tileset.body):,} bytes)"))
+    _serve_source(
+        DbTileSource(url, **source_options),
+        host,
+        port,
+        lambda src, tileset: (
+            f"tiles: straight from the database ({len(src.snapshot().by_uri):,} glb tiles, "
+            f"{'LOD' + str(lod) if lod else 'every LOD'}, tileset.json {len(tileset.body):,} bytes)"
+        ),
+    )
 
 
 def serve_published(url: str, name: str, host: str = "127.0.0.1", port: int = 8765, **source_options: Any) -> None:
@@ -157,7 +182,9 @@ def serve_published(url: str, name: str, host: str = "127.0.0.1", port: int = 87
 
     def describe(src: PublishedSource, tileset: Any) -> str:
         listing = src.listing()
-        return (f"tiles: the published tileset {name!r}, generation {listing.generation} ({len(listing.files):,} "
-                f"files, tileset.json {len(tileset.body):,} bytes); a new export is picked up as it commits")
+        return (
+            f"tiles: the published tileset {name!r}, generation {listing.generation} ({len(listing.files):,} "
+            f"files, tileset.json {len(tileset.body):,} bytes); a new export is picked up as it commits"
+        )
 
     _serve_source(PublishedSource(url, name, **source_options), host, port, describe)

@@ -64,9 +64,17 @@ def _generation(conn: psycopg.Connection) -> tuple[Any, ...]:
 class DbTileSource:
     """tileset.json and tile glbs from the database at ``url`` (the reader role's), cached."""
 
-    def __init__(self, url: str, lod: int | None = None, base_height: float = 0.0, cache_bytes: int = 256 << 20,
-                 stream: StreamOptions = COMPACT,
-                 pool_size: int | None = None, revalidate_s: float = 1.0, acquire_timeout: float = 30.0) -> None:
+    def __init__(
+        self,
+        url: str,
+        lod: int | None = None,
+        base_height: float = 0.0,
+        cache_bytes: int = 256 << 20,
+        stream: StreamOptions = COMPACT,
+        pool_size: int | None = None,
+        revalidate_s: float = 1.0,
+        acquire_timeout: float = 30.0,
+    ) -> None:
         if lod not in (None, 1, 2, 3):
             raise ValueError(f"lod must be 1, 2, 3 or None, not {lod}")
         self.lod, self.base_height, self.revalidate_s, self.stream = lod, base_height, revalidate_s, stream
@@ -95,9 +103,14 @@ class DbTileSource:
                 missing = sorted(uris - by_uri.keys())[:3]
                 raise NotReady(f"tileset.json references content the tile tree lacks: {missing}")
             root_region = next(r.region for r in records if r.level == 0)
-            return Snapshot(generation, make_payload(js, "application/json"),
-                            {u: make_payload(b, "application/octet-stream") for u, b in files.items()},
-                            {u: by_uri[u] for u in uris}, root_region, time.monotonic())
+            return Snapshot(
+                generation,
+                make_payload(js, "application/json"),
+                {u: make_payload(b, "application/octet-stream") for u, b in files.items()},
+                {u: by_uri[u] for u in uris},
+                root_region,
+                time.monotonic(),
+            )
 
         snap = self.reader.read(read)
         if old is None or snap.generation != old.generation:
@@ -161,9 +174,11 @@ class DbTileSource:
                         raise
                     except Exception as e:  # noqa: BLE001 - a TRUNCATE is not MVCC-safe: the tables emptied under us
                         log.warning("tile %s could not be built", uri, exc_info=True)
-                        raise NotReady(f"the tables changed while tile {uri} was being built ({type(e).__name__}): "
-                                       "a stage is rebuilding them; serve --db without --live streams the last "
-                                       "published generation meanwhile") from e
+                        raise NotReady(
+                            f"the tables changed while tile {uri} was being built ({type(e).__name__}): "
+                            "a stage is rebuilding them; serve --db without --live streams the last "
+                            "published generation meanwhile"
+                        ) from e
 
                 glb = self.reader.read(read)
                 with self._count_lock:

@@ -16,8 +16,9 @@ from exporter.gltf import read_glb
 from tests.conftest import BUILD, SPINE_FILES, merge_osm, run_etl
 
 STAGES = ("ingest", "lod", "landmarks", "tiles", "generalize", "textures", "export")
-LINE = re.compile(r"^(\w+): in ([\d,]+) ([\w ]+?) = (.+) \+ rejected ([\d,]+) \| .+ \| [\d.]+ s \| [\d,]+ buildings/s$",
-                  re.M)
+LINE = re.compile(
+    r"^(\w+): in ([\d,]+) ([\w ]+?) = (.+) \+ rejected ([\d,]+) \| .+ \| [\d.]+ s \| [\d,]+ buildings/s$", re.M
+)
 
 
 def number(s: str) -> int:
@@ -43,8 +44,11 @@ def test_every_stage_prints_and_records_its_balance(pipeline, conn_of) -> None:
     url, _, lines = pipeline
     conn = conn_of(url)
     for stage in STAGES:
-        counts = conn.execute("""SELECT counts FROM meta.pipeline_run WHERE stage = %s AND status = 'ok'
-                                 ORDER BY run_id DESC LIMIT 1""", (stage,)).fetchone()[0]
+        counts = conn.execute(
+            """SELECT counts FROM meta.pipeline_run WHERE stage = %s AND status = 'ok'
+                                 ORDER BY run_id DESC LIMIT 1""",
+            (stage,),
+        ).fetchone()[0]
         _, n_in, unit, outs, rejected = lines[stage]
         assert counts["in"] == number(n_in) and counts["rejected"] == number(rejected), (stage, counts)
         assert counts["unit"] == unit and counts["in"] == counts["out"] + counts["rejected"] > 0, (stage, counts)
@@ -61,8 +65,9 @@ def test_each_side_of_the_balances_is_what_the_tables_hold(pipeline, conn_of) ->
         return int(conn.execute(q).fetchone()[0])
 
     def counts(stage: str) -> dict:
-        return conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = %s AND status = 'ok'",
-                            (stage,)).fetchone()[0]
+        return conn.execute(
+            "SELECT counts FROM meta.pipeline_run WHERE stage = %s AND status = 'ok'", (stage,)
+        ).fetchone()[0]
 
     ingest = counts("ingest")
     assert ingest["out"] == one("SELECT count(*) FROM osm.building")

@@ -22,8 +22,9 @@ def test_report_saliency_on_helsinki(city, tmp_path) -> None:
 
     for name in ("saliency.md", "saliency.json", "saliency.png", "saliency/features.csv"):
         assert (tmp_path / name).stat().st_size > 0, name
-    assert sorted(p.name for p in (tmp_path / "saliency").glob("frame_*.png")) == \
-        [f"frame_{k:03d}.png" for k in range(FRAMES)]
+    assert sorted(p.name for p in (tmp_path / "saliency").glob("frame_*.png")) == [
+        f"frame_{k:03d}.png" for k in range(FRAMES)
+    ]
 
     report = json.loads((tmp_path / "saliency.json").read_text())
     frames, top = report["frames"], report["top"]

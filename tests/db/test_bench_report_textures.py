@@ -33,8 +33,9 @@ def test_report_textures_on_helsinki(textured, conn_of, tmp_path) -> None:  # no
     t = report["totals"]
     assert 0 < t["utilization"] <= 1
     assert t["utilization"] == pytest.approx(weighted, abs=1e-4) == pytest.approx(counts["utilization"], abs=1e-4)
-    assert t["pages"] == n_pages == sum(b["pages"] for b in report["bands"]) == sum(lv["pages"] for lv in
-                                                                                     report["levels"])
+    assert (
+        t["pages"] == n_pages == sum(b["pages"] for b in report["bands"]) == sum(lv["pages"] for lv in report["levels"])
+    )
     assert t["bytes"] == n_bytes == sum(b["bytes"] for b in report["bands"])
     for b in report["bands"]:
         if b["pages"]:
@@ -70,8 +71,9 @@ def test_report_textures_on_helsinki(textured, conn_of, tmp_path) -> None:  # no
     pk = report["packers"]
     assert pk["tiles"] == 3 and pk["totals"]["shelf"]["ok"] and pk["totals"]["xatlas"]["ok"]
     for row in pk["rows"]:
-        n = conn.execute("SELECT sum(n_charts) FROM tex.page WHERE (level, x, y) = (%s, %s, %s)",
-                         (row["level"], row["x"], row["y"])).fetchone()[0]
+        n = conn.execute(
+            "SELECT sum(n_charts) FROM tex.page WHERE (level, x, y) = (%s, %s, %s)", (row["level"], row["x"], row["y"])
+        ).fetchone()[0]
         assert row["charts"] == n
         for p in ("shelf", "xatlas"):
             assert row[p]["placed_ok"] and 0 < row[p]["utilization"] <= 1 and row[p]["pages"] >= 1

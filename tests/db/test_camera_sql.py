@@ -19,10 +19,14 @@ def test_sql_and_python_screen_space_error_agree(new_db, conn_of) -> None:
     fov = rng.uniform(math.radians(10), math.radians(120), n)
     height = rng.integers(100, 4000, n).astype(float)
     conn = conn_of(new_db("camera_sql"))
-    got = np.array(conn.execute(
-        """SELECT tiles.screen_space_error(e, d, f, h)
+    got = np.array(
+        conn.execute(
+            """SELECT tiles.screen_space_error(e, d, f, h)
            FROM unnest(%s::float8[], %s::float8[], %s::float8[], %s::float8[]) WITH ORDINALITY u(e, d, f, h, i)
-           ORDER BY i""", (err.tolist(), dist.tolist(), fov.tolist(), height.tolist())).fetchall())[:, 0]
+           ORDER BY i""",
+            (err.tolist(), dist.tolist(), fov.tolist(), height.tolist()),
+        ).fetchall()
+    )[:, 0]
     want = np.array([screen_space_error(e, d, f, h) for e, d, f, h in zip(err, dist, fov, height, strict=True)])
     # the same expression; PostgreSQL's tan() and numpy's may differ in the last bit
     np.testing.assert_allclose(got, want, rtol=1e-14)
@@ -30,7 +34,10 @@ def test_sql_and_python_screen_space_error_agree(new_db, conn_of) -> None:
     ref = err * height / (np.maximum(dist, 1e-7) * 2 * np.tan(fov / 2))
     np.testing.assert_allclose(got, ref, rtol=1e-12)
     # the SQL function is inlined where api.lod_for_view calls it (a function call per tile visited otherwise)
-    plan = json.dumps(conn.execute(
-        """EXPLAIN (VERBOSE, FORMAT JSON)
-           SELECT tiles.screen_space_error(geometric_error, x, y, level) FROM tiles.tile""").fetchone()[0])
+    plan = json.dumps(
+        conn.execute(
+            """EXPLAIN (VERBOSE, FORMAT JSON)
+           SELECT tiles.screen_space_error(geometric_error, x, y, level) FROM tiles.tile"""
+        ).fetchone()[0]
+    )
     assert "screen_space_error" not in plan and "tan(" in plan

@@ -43,16 +43,29 @@ def test_a_killed_stage_is_failed_at_its_last_heartbeat_and_its_workers_end(city
     locker.autocommit = False
     locker.execute("LOCK TABLE lm.building IN ACCESS EXCLUSIVE MODE")
     before = watch.execute("SELECT coalesce(max(run_id), 0) FROM meta.pipeline_run").fetchone()[0]
-    proc = subprocess.Popen([sys.executable, "-m", "etl", "export", "--out", str(tmp_path / "tiles"), "--no-publish"],
-                            cwd=REPO,
-                            env={**os.environ, "DATABASE_URL": c.url, "CITYLOD_EXPORT_WORKERS": "2"},
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "etl", "export", "--out", str(tmp_path / "tiles"), "--no-publish"],
+        cwd=REPO,
+        env={**os.environ, "DATABASE_URL": c.url, "CITYLOD_EXPORT_WORKERS": "2"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     try:
         stage = psutil.Process(proc.pid)
-        _wait(lambda: watch.execute("SELECT count(*) FROM pg_locks WHERE relation = 'lm.building'::regclass "
-                                    "AND NOT granted").fetchone()[0] >= 1, 120, "worker waiting on lm.building")
-        run_id, status = watch.execute("SELECT run_id, status FROM meta.pipeline_run WHERE run_id > %s "
-                                       "AND stage = 'export'", (before,)).fetchone()
+        _wait(
+            lambda: (
+                watch.execute(
+                    "SELECT count(*) FROM pg_locks WHERE relation = 'lm.building'::regclass AND NOT granted"
+                ).fetchone()[0]
+                >= 1
+            ),
+            120,
+            "worker waiting on lm.building",
+        )
+        run_id, status = watch.execute(
+            "SELECT run_id, status FROM meta.pipeline_run WHERE run_id > %s AND stage = 'export'", (before,)
+        ).fetchone()
         assert status == "running"
         workers = [p.pid for p in stage.children(recursive=True)]
         assert _alive(workers)
@@ -70,7 +83,8 @@ def test_a_killed_stage_is_failed_at_its_last_heartbeat_and_its_workers_end(city
     run_etl(c.url, "export", "--out", str(tmp_path / "again"))  # the next stage to start records it
     status, finished, beat, started, err = conn.execute(
         "SELECT status, finished_at, heartbeat_at, started_at, error FROM meta.pipeline_run WHERE run_id = %s",
-        (run_id,)).fetchone()
+        (run_id,),
+    ).fetchone()
     assert status == "failed" and "died without recording its end" in err
     assert finished == beat and started < beat <= killed_at
     assert (killed_at - beat).total_seconds() < 5 + 2  # within a heartbeat of its death

@@ -21,8 +21,12 @@ from exporter.stream import StreamOptions
 from tests.conftest import REPO, node_bin, run_etl, validate_glb
 
 # Helsinki is the real city of make test; Munich and London (the extract tier) add parts and materials.
-CITIES = ["fixtures", "helsinki", pytest.param("munich", marks=pytest.mark.extracts),
-          pytest.param("london", marks=pytest.mark.extracts)]
+CITIES = [
+    "fixtures",
+    "helsinki",
+    pytest.param("munich", marks=pytest.mark.extracts),
+    pytest.param("london", marks=pytest.mark.extracts),
+]
 
 
 @pytest.mark.parametrize("name", CITIES)
@@ -60,8 +64,11 @@ def assert_final_tiles(conn, final: dict) -> None:
 
 
 def parse_with_3d_tiles_tools(tiles) -> dict:
-    proc = subprocess.run([node_bin(), str(REPO / "tests/js/parse_tileset.mjs"), str(tiles / "tileset.json")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [node_bin(), str(REPO / "tests/js/parse_tileset.mjs"), str(tiles / "tileset.json")],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -106,8 +113,7 @@ def test_implicit_and_explicit_tilings_share_every_glb(city, conn_of, tmp_path) 
     a, b = parse_with_3d_tiles_tools(out), parse_with_3d_tiles_tools(implicit)
     assert not a["implicit"] and b["implicit"] and a["tiles"] == b["tiles"] and a["final"] == b["final"]
     explicit_tree = expand(ts, lambda u: b"")
-    implicit_tree = expand(json.loads((implicit / "tileset.json").read_text()),
-                           lambda u: (implicit / u).read_bytes())
+    implicit_tree = expand(json.loads((implicit / "tileset.json").read_text()), lambda u: (implicit / u).read_bytes())
     assert content_uris(explicit_tree) == content_uris(implicit_tree)
     # a one-LOD tileset: content at the leaves only (contentAvailability apart from tileAvailability), ADD
     lod = tmp_path / "lod2"
@@ -123,7 +129,9 @@ def test_implicit_and_explicit_tilings_share_every_glb(city, conn_of, tmp_path) 
 def tile_of(conn, building_id: int):
     return conn.execute(
         """SELECT t.content_uri FROM tiles.building_tile bt JOIN tiles.tile t USING (level, x, y)
-           WHERE bt.building_id = %s""", (building_id,)).fetchone()[0]
+           WHERE bt.building_id = %s""",
+        (building_id,),
+    ).fetchone()[0]
 
 
 def tile_world(tiles_dir, uri: str) -> np.ndarray:
@@ -163,11 +171,14 @@ def assert_placed(conn, tiles_dir, base: float = 0.0) -> float:
         verts, props = feature_vertices(tiles_dir, uri, osm_id)
         m = tile_world(tiles_dir, uri)
         ecef = (np.c_[verts, np.ones(len(verts))] @ m.T)[:, :3]
-        truth = np.array(conn.execute(
-            """SELECT ST_X(p), ST_Y(p), ST_Z(p) FROM (
+        truth = np.array(
+            conn.execute(
+                """SELECT ST_X(p), ST_Y(p), ST_Z(p) FROM (
                    SELECT ST_Transform(ST_Translate(ST_Force3D((ST_DumpPoints(geom_local)).geom), 0, 0, z), 4978) p
                    FROM osm.building, unnest(ARRAY[%s, %s]::float8[]) z WHERE osm_id = %s) q""",
-            (base + bottom, base + top, osm_id)).fetchall())
+                (base + bottom, base + top, osm_id),
+            ).fetchall()
+        )
         assert len(truth) >= 8
         # every exported vertex is a true corner (bottom or top), and every true corner is exported
         d = np.linalg.norm(ecef[:, None, :] - truth[None, :, :], axis=2)
@@ -201,11 +212,25 @@ def test_feature_metadata(city, conn_of) -> None:
     c = city("fixtures")
     conn = conn_of(c.url)
     _, sq = feature_vertices(c.tiles, tile_of(conn, 10001), 10001)
-    assert (sq["name"], sq["osm_type"], sq["kind"], sq["height"], sq["min_height"], sq["lod"], sq["gen_level"],
-            sq["n_members"], sq["error_m"]) == ("Square 100", "way", "building", 12.0, 0.0, 3, 4, 1, 0.0)  # a leaf
+    assert (
+        sq["name"],
+        sq["osm_type"],
+        sq["kind"],
+        sq["height"],
+        sq["min_height"],
+        sq["lod"],
+        sq["gen_level"],
+        sq["n_members"],
+        sq["error_m"],
+    ) == ("Square 100", "way", "building", 12.0, 0.0, 3, 4, 1, 0.0)  # a leaf
     _, part = feature_vertices(c.tiles, tile_of(conn, 13003), 13003)
     assert (part["kind"], part["building_osm_id"], part["building_osm_type"], part["min_height"], part["height"]) == (
-        "part", 13001, "way", 5.0, 20.0)
+        "part",
+        13001,
+        "way",
+        5.0,
+        20.0,
+    )
     assert part["name"] == "Parts 130"  # a part without a name shows its building's
     _, court = feature_vertices(c.tiles, tile_of(conn, -1201), 1201)
     assert (court["osm_type"], court["building"]) == ("relation", "apartments")
@@ -216,14 +241,22 @@ def test_landmark_exaggeration_metadata(city, conn_of) -> None:
     footprint circle in the glTF's frame, and a covered neighbour's gap and direction; the glbs stay valid."""
     c = city("helsinki")
     conn = conn_of(c.url)
-    want = {r[0]: r[1:] for r in conn.execute(
-        """SELECT lo.osm_id, l.scale_distances_m[1], l.scale_factors[1],
+    want = {
+        r[0]: r[1:]
+        for r in conn.execute(
+            """SELECT lo.osm_id, l.scale_distances_m[1], l.scale_factors[1],
                   l.scale_factors[cardinality(l.scale_factors)], l.radius_m
-           FROM lm.building l JOIN osm.building lo ON lo.id = l.building_id WHERE l.is_landmark""")}
-    gaps = {r[0]: (r[1], r[2]) for r in conn.execute(
-        """SELECT b.osm_id, lo.osm_id, x.gap_m FROM lm.building l JOIN osm.building b ON b.id = l.building_id
+           FROM lm.building l JOIN osm.building lo ON lo.id = l.building_id WHERE l.is_landmark"""
+        )
+    }
+    gaps = {
+        r[0]: (r[1], r[2])
+        for r in conn.execute(
+            """SELECT b.osm_id, lo.osm_id, x.gap_m FROM lm.building l JOIN osm.building b ON b.id = l.building_id
            CROSS JOIN LATERAL lm.exaggeration_role(l.building_id) x JOIN osm.building lo ON lo.id = x.landmark_id
-           WHERE x.role = 2""")}
+           WHERE x.role = 2"""
+        )
+    }
     seen = {1: 0, 2: 0}
     for path in sorted(c.tiles.rglob("*.glb")):
         gltf, binary = read_glb(path.read_bytes())
@@ -264,11 +297,13 @@ def test_triangle_counts_and_run_record(city, conn_of) -> None:
     for p in c.tiles.rglob("*.glb"):
         gltf, _ = read_glb(p.read_bytes())
         # every mesh (a wide compact tile has one per chunk of features) and primitive
-        total += sum(gltf["accessors"][prim["indices"]]["count"] // 3
-                     for m in gltf["meshes"] for prim in m["primitives"])
+        total += sum(
+            gltf["accessors"][prim["indices"]]["count"] // 3 for m in gltf["meshes"] for prim in m["primitives"]
+        )
         assert gltf["asset"]["copyright"].startswith("© OpenStreetMap contributors")
     stored, features = conn.execute(
-        "SELECT sum(content_triangles)::bigint, sum(content_features)::bigint FROM tiles.tile").fetchone()
+        "SELECT sum(content_triangles)::bigint, sum(content_features)::bigint FROM tiles.tile"
+    ).fetchone()
     assert 0.99 * stored <= total <= stored  # only zero-area triangles are dropped
     counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' AND status = 'ok'").fetchone()[0]
     assert counts["triangles"] == total and counts["features"] == features
@@ -348,8 +383,7 @@ def _tree_bytes(root) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
-def test_the_same_files_from_one_process_or_dask_workers_and_a_hung_tile_keeps_the_old_tileset(city,
-                                                                                               tmp_path) -> None:
+def test_the_same_files_from_one_process_or_dask_workers_and_a_hung_tile_keeps_the_old_tileset(city, tmp_path) -> None:
     """Tiles written in the export's own process or as Dask tasks on 2 workers are the same bytes (Helsinki:
     textured, compact); a tile past its time limit stops the export with that tile named and leaves the
     tileset in place untouched."""
@@ -364,8 +398,9 @@ def test_the_same_files_from_one_process_or_dask_workers_and_a_hung_tile_keeps_t
     assert _tree_bytes(two) == files
 
 
-def test_an_export_swaps_its_tileset_in_whole_and_exports_into_one_directory_take_turns(city, tmp_path,
-                                                                                     monkeypatch) -> None:
+def test_an_export_swaps_its_tileset_in_whole_and_exports_into_one_directory_take_turns(
+    city, tmp_path, monkeypatch
+) -> None:
     import fcntl
     import os
     import shutil
@@ -395,9 +430,14 @@ def test_an_export_swaps_its_tileset_in_whole_and_exports_into_one_directory_tak
     # another export holds the directory: this one waits for it, then writes
     with open(out.with_name(".ts.lock"), "w") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
-        proc = subprocess.Popen([sys.executable, "-m", "etl", "export", "--out", str(out)], cwd=REPO, text=True,
-                                env={**os.environ, "DATABASE_URL": c.url}, stderr=subprocess.PIPE,
-                                stdout=subprocess.PIPE)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "etl", "export", "--out", str(out)],
+            cwd=REPO,
+            text=True,
+            env={**os.environ, "DATABASE_URL": c.url},
+            stderr=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+        )
         time.sleep(8)
         assert proc.poll() is None and (out / "tileset.json").read_bytes() != first
     _, err = proc.communicate(timeout=300)

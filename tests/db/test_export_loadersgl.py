@@ -36,11 +36,18 @@ PLAIN_FLAGS = ["--geometry", "plain", "--textures", "webp", "--tiling", "explici
 
 def client(*args: str | Path, expect_rc: int = 0, env: dict[str, str] | None = None) -> dict:
     """Run the loaders.gl client; its JSON report (an unexpected exit code fails with its output)."""
-    proc = subprocess.run([node_bin(), str(CLIENT), *map(str, args)], cwd=REPO, capture_output=True, text=True,
-                          timeout=300, env={**os.environ, **(env or {})})
+    proc = subprocess.run(
+        [node_bin(), str(CLIENT), *map(str, args)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, **(env or {})},
+    )
     lines = proc.stdout.strip().splitlines()
-    context = (f"loaders.gl client exit {proc.returncode}\nstdout:\n{proc.stdout[-4000:]}\n"
-               f"stderr:\n{proc.stderr[-4000:]}")
+    context = (
+        f"loaders.gl client exit {proc.returncode}\nstdout:\n{proc.stdout[-4000:]}\nstderr:\n{proc.stderr[-4000:]}"
+    )
     assert lines, context
     report = json.loads(lines[-1])
     assert proc.returncode == expect_rc, context
@@ -71,14 +78,20 @@ def make_ktx2(tmp: Path, width: int = 300, height: int = 200) -> tuple[Path, np.
     out.write_image(rgb)
     out.close()
     ktx2 = tmp / "page.ktx2"
-    proc = subprocess.run([str(basisu(tmp)), "-ktx2", "-mipmap", str(png), "-output_file", str(ktx2)], cwd=tmp,
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [str(basisu(tmp)), "-ktx2", "-mipmap", str(png), "-output_file", str(ktx2)],
+        cwd=tmp,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0 and ktx2.exists(), proc.stdout[-2000:] + proc.stderr[-2000:]
     assert ktx2.read_bytes()[:12] == b"\xabKTX 20\xbb\r\n\x1a\n"
     return ktx2, rgb
 
 
 # --- the decoders, on inputs made here -------------------------------------------------------------------------
+
 
 def test_basis_ktx2_transcodes_offline_with_every_mip_level(tmp_path: Path) -> None:
     ktx2, rgb = make_ktx2(tmp_path)
@@ -107,8 +120,7 @@ def compact_glb(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     report = validate_glb(glb)
     assert report["errors"] == 0, report["reports"]
     gltf, _ = read_glb(glb.read_bytes())
-    assert {"EXT_meshopt_compression", "KHR_mesh_quantization", "KHR_texture_basisu"} <= set(
-        gltf["extensionsRequired"])
+    assert {"EXT_meshopt_compression", "KHR_mesh_quantization", "KHR_texture_basisu"} <= set(gltf["extensionsRequired"])
     return glb, made
 
 
@@ -131,10 +143,20 @@ def test_meshopt_quantized_basis_glb_decodes_offline(compact_glb: tuple[Path, di
     (tmp_path / "content").mkdir()
     shutil.copy(glb, tmp_path / "content" / "a.glb")
     region = [0.4352, 1.0500, 0.4353, 1.0501, 0.0, 50.0]
-    (tmp_path / "tileset.json").write_text(json.dumps({
-        "asset": {"version": "1.1"}, "geometricError": 100,
-        "root": {"boundingVolume": {"region": region}, "geometricError": 0, "refine": "REPLACE",
-                 "content": {"uri": "content/a.glb"}}}))
+    (tmp_path / "tileset.json").write_text(
+        json.dumps(
+            {
+                "asset": {"version": "1.1"},
+                "geometricError": 100,
+                "root": {
+                    "boundingVolume": {"region": region},
+                    "geometricError": 0,
+                    "refine": "REPLACE",
+                    "content": {"uri": "content/a.glb"},
+                },
+            }
+        )
+    )
     rep = client("tileset", tmp_path / "tileset.json")
     assert rep["network"] == [] and rep["errors"] == []
     [c] = rep["contents"]
@@ -173,19 +195,25 @@ def subtree_bytes(root: tuple[int, int, int], root_geometric_error: float) -> by
         for lvl, x, y in sorted(AVAILABLE, key=lambda t: (t[0], morton(t[1], t[2]))):
             if lvl != rl + local or (x >> local, y >> local) != (rx, ry):
                 continue
-            i = (4 ** local - 1) // 3 + morton(x - (rx << local), y - (ry << local))
+            i = (4**local - 1) // 3 + morton(x - (rx << local), y - (ry << local))
             tiles.add(i)
             if (lvl, x, y) not in NO_CONTENT:
                 content.add(i)
     for i in sorted(tiles):
         lvl = next(level for level in range(SUBTREE_LEVELS) if i < (4 ** (level + 1) - 1) // 3)
         metadata.append(root_geometric_error / 2 ** (rl + lvl))
-    children = {morton(x - (rx << SUBTREE_LEVELS), y - (ry << SUBTREE_LEVELS))
-                for lvl, x, y in AVAILABLE
-                if lvl == rl + SUBTREE_LEVELS and (x >> SUBTREE_LEVELS, y >> SUBTREE_LEVELS) == (rx, ry)}
-    n_tiles = (4 ** SUBTREE_LEVELS - 1) // 3
-    views = [bitstream(tiles, n_tiles), bitstream(content, n_tiles), bitstream(children, 4 ** SUBTREE_LEVELS),
-             struct.pack(f"<{len(metadata)}d", *metadata)]
+    children = {
+        morton(x - (rx << SUBTREE_LEVELS), y - (ry << SUBTREE_LEVELS))
+        for lvl, x, y in AVAILABLE
+        if lvl == rl + SUBTREE_LEVELS and (x >> SUBTREE_LEVELS, y >> SUBTREE_LEVELS) == (rx, ry)
+    }
+    n_tiles = (4**SUBTREE_LEVELS - 1) // 3
+    views = [
+        bitstream(tiles, n_tiles),
+        bitstream(content, n_tiles),
+        bitstream(children, 4**SUBTREE_LEVELS),
+        struct.pack(f"<{len(metadata)}d", *metadata),
+    ]
     binary = b""
     bv = []
     for v in views:
@@ -193,15 +221,19 @@ def subtree_bytes(root: tuple[int, int, int], root_geometric_error: float) -> by
         bv.append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(v)})
         binary += v
     binary += b"\0" * (-len(binary) % 8)
-    js = json.dumps({
-        "buffers": [{"byteLength": len(binary)}], "bufferViews": bv,
-        "tileAvailability": {"bitstream": 0, "availableCount": len(tiles)},
-        "contentAvailability": [{"bitstream": 1, "availableCount": len(content)}],
-        "childSubtreeAvailability": {"bitstream": 2, "availableCount": len(children)} if children
-        else {"constant": 0},
-        "propertyTables": [{"class": "tile", "count": len(tiles), "properties": {"geometricError": {"values": 3}}}],
-        "tileMetadata": 0,
-    }).encode()
+    js = json.dumps(
+        {
+            "buffers": [{"byteLength": len(binary)}],
+            "bufferViews": bv,
+            "tileAvailability": {"bitstream": 0, "availableCount": len(tiles)},
+            "contentAvailability": [{"bitstream": 1, "availableCount": len(content)}],
+            "childSubtreeAvailability": {"bitstream": 2, "availableCount": len(children)}
+            if children
+            else {"constant": 0},
+            "propertyTables": [{"class": "tile", "count": len(tiles), "properties": {"geometricError": {"values": 3}}}],
+            "tileMetadata": 0,
+        }
+    ).encode()
     js += b" " * (-len(js) % 8)
     return struct.pack("<4sIQQ", b"subt", 1, len(js), len(binary)) + js + binary
 
@@ -217,15 +249,40 @@ def test_implicit_tiling_is_expanded_through_every_subtree(compact_glb: tuple[Pa
     for lvl, x, y in AVAILABLE:  # 1/0/0 gets a decoy file: available without content, it must not be loaded
         (tmp_path / "content" / str(lvl) / str(x)).mkdir(parents=True, exist_ok=True)
         shutil.copy(glb, tmp_path / "content" / str(lvl) / str(x) / f"{y}.glb")
-    (tmp_path / "tileset.json").write_text(json.dumps({
-        "asset": {"version": "1.1"}, "geometricError": 2 * root_error,
-        "schema": {"id": "implicit", "classes": {"tile": {"properties": {
-            "geometricError": {"type": "SCALAR", "componentType": "FLOAT64", "semantic": "TILE_GEOMETRIC_ERROR"}}}}},
-        "root": {"boundingVolume": {"region": region}, "geometricError": root_error, "refine": "REPLACE",
-                 "content": {"uri": "content/{level}/{x}/{y}.glb"},
-                 "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": SUBTREE_LEVELS,
-                                    "availableLevels": AVAILABLE_LEVELS,
-                                    "subtrees": {"uri": "subtrees/{level}.{x}.{y}.subtree"}}}}))
+    (tmp_path / "tileset.json").write_text(
+        json.dumps(
+            {
+                "asset": {"version": "1.1"},
+                "geometricError": 2 * root_error,
+                "schema": {
+                    "id": "implicit",
+                    "classes": {
+                        "tile": {
+                            "properties": {
+                                "geometricError": {
+                                    "type": "SCALAR",
+                                    "componentType": "FLOAT64",
+                                    "semantic": "TILE_GEOMETRIC_ERROR",
+                                }
+                            }
+                        }
+                    },
+                },
+                "root": {
+                    "boundingVolume": {"region": region},
+                    "geometricError": root_error,
+                    "refine": "REPLACE",
+                    "content": {"uri": "content/{level}/{x}/{y}.glb"},
+                    "implicitTiling": {
+                        "subdivisionScheme": "QUADTREE",
+                        "subtreeLevels": SUBTREE_LEVELS,
+                        "availableLevels": AVAILABLE_LEVELS,
+                        "subtrees": {"uri": "subtrees/{level}.{x}.{y}.subtree"},
+                    },
+                },
+            }
+        )
+    )
 
     rep = client("tileset", tmp_path / "tileset.json")
     assert rep["network"] == [] and rep["errors"] == [] and rep["implicit"]
@@ -239,9 +296,11 @@ def test_implicit_tiling_is_expanded_through_every_subtree(compact_glb: tuple[Pa
     for lvl, x, y in AVAILABLE - NO_CONTENT:
         c = got[f"content/{lvl}/{x}/{y}.glb"]
         assert c["depth"] == lvl
-        k = 2 ** lvl  # the quadtree's subdivision of the root region
-        np.testing.assert_allclose(c["region"][:4], [w + (e - w) * x / k, s + (n - s) * y / k,
-                                                     w + (e - w) * (x + 1) / k, s + (n - s) * (y + 1) / k])
+        k = 2**lvl  # the quadtree's subdivision of the root region
+        np.testing.assert_allclose(
+            c["region"][:4],
+            [w + (e - w) * x / k, s + (n - s) * y / k, w + (e - w) * (x + 1) / k, s + (n - s) * (y + 1) / k],
+        )
         assert c["geometricError"] == pytest.approx(root_error / k)
         assert_content_is(c, made)
 
@@ -256,6 +315,7 @@ def test_without_the_local_decoders_loadersgl_goes_to_the_network_and_the_run_fa
 
 
 # --- the export ------------------------------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def exports(new_db: Callable[[str], str], city: Callable, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:

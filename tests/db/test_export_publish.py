@@ -58,14 +58,17 @@ def soak_url(fixtures_city: City, server_url: str, copy_url: str) -> Iterator[st
 def listing(url: str, name: str) -> tuple[int, dict[str, str]]:
     with psycopg.connect(url) as conn:
         (gen,) = conn.execute("SELECT max(generation) FROM pub.generation WHERE tileset = %s", (name,)).fetchone()
-        files = {p: bytes(s).hex() for p, s in conn.execute(
-            "SELECT path, sha256 FROM pub.file WHERE generation = %s", (gen,))}
+        files = {
+            p: bytes(s).hex()
+            for p, s in conn.execute("SELECT path, sha256 FROM pub.file WHERE generation = %s", (gen,))
+        }
     return gen, files
 
 
 def on_disk(d: Path) -> dict[str, str]:
-    return {p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in d.rglob("*") if p.is_file()}
+    return {
+        p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in d.rglob("*") if p.is_file()
+    }
 
 
 @contextmanager
@@ -86,22 +89,33 @@ def test_the_export_is_published_and_streamed_byte_for_byte(fixtures_city: City)
     with psycopg.connect(fixtures_city.url) as conn:
         stage, options = conn.execute(
             "SELECT r.stage, g.options FROM pub.generation g JOIN meta.pipeline_run r USING (run_id) "
-            "WHERE g.generation = %s", (gen,)).fetchone()
+            "WHERE g.generation = %s",
+            (gen,),
+        ).fetchone()
     assert stage == "export" and options["lod"] is None and options["geometry"] == "compact"
     with published(fixtures_city.url, name) as (source, base):
         c = Client(base)
         try:
-            uris = ["tileset.json", *tileset_files(json.loads((fixtures_city.tiles / "tileset.json").read_bytes()),
-                                                   lambda u: (fixtures_city.tiles / u).read_bytes())]
+            uris = [
+                "tileset.json",
+                *tileset_files(
+                    json.loads((fixtures_city.tiles / "tileset.json").read_bytes()),
+                    lambda u: (fixtures_city.tiles / u).read_bytes(),
+                ),
+            ]
             assert sorted(uris) == sorted(files)
             for uri in uris:
                 status, headers, body = c.get(f"/tiles/{uri}")
                 assert status == 200, (uri, body[:200])
                 assert body == (fixtures_city.tiles / uri).read_bytes(), uri
                 assert headers["etag"] == f'"{files[uri][:32]}"'
-                assert headers["content-type"] == ("application/json" if uri.endswith(".json") else
-                                                   "model/gltf-binary" if uri.endswith(".glb")
-                                                   else "application/octet-stream")
+                assert headers["content-type"] == (
+                    "application/json"
+                    if uri.endswith(".json")
+                    else "model/gltf-binary"
+                    if uri.endswith(".glb")
+                    else "application/octet-stream"
+                )
                 assert c.get(f"/tiles/{uri}", If_None_Match=headers["etag"])[0] == 304
             assert source.stats()["reads"] == len(uris), "each file read from the database once"
             assert c.get("/tiles/content/9/0/0.glb")[0] == 404  # a tile this tileset does not have
@@ -133,16 +147,18 @@ def test_a_new_generation_stores_and_serves_only_what_changed(copy_url: str, tmp
             run_etl(copy_url, "export", "--out", str(out), env=small)  # nothing changed: nothing new stored
             g2, files2 = listing(copy_url, "t")
             with psycopg.connect(copy_url) as conn:
-                assert conn.execute("SELECT n_files, n_new_files FROM pub.generation WHERE generation = %s",
-                                    (g2,)).fetchone() == (len(files1), 0)
+                assert conn.execute(
+                    "SELECT n_files, n_new_files FROM pub.generation WHERE generation = %s", (g2,)
+                ).fetchone() == (len(files1), 0)
             assert g2 > g1 and files2 == files1
             reads = source.stats()["reads"]
             assert {u: c.get(f"/tiles/{u}")[1]["etag"] for u in files1} == etags
             assert source.stats()["reads"] == reads, "the same bytes: served from the cache"
 
             with psycopg.connect(copy_url) as conn:  # one building renamed: only the tiles it is drawn in change
-                (bid,) = conn.execute("SELECT id FROM osm.building WHERE kind = 'building' AND n_parts = 0 "
-                                      "ORDER BY id LIMIT 1").fetchone()
+                (bid,) = conn.execute(
+                    "SELECT id FROM osm.building WHERE kind = 'building' AND n_parts = 0 ORDER BY id LIMIT 1"
+                ).fetchone()
                 conn.execute("UPDATE osm.building SET name = 'renamed once' WHERE id = %s", (bid,))
             run_etl(copy_url, "export", "--out", str(out), env=small)
             g3, files3 = listing(copy_url, "t")
@@ -150,13 +166,17 @@ def test_a_new_generation_stores_and_serves_only_what_changed(copy_url: str, tmp
             changed = {u for u in files3 if files3[u] != files1.get(u)}
             assert changed and len(changed) < len([u for u in files3 if u.endswith(".glb")])
             with psycopg.connect(copy_url) as conn:
-                assert conn.execute("SELECT n_new_files FROM pub.generation WHERE generation = %s",
-                                    (g3,)).fetchone() == (len(set(files3[u] for u in changed)),)
+                assert conn.execute(
+                    "SELECT n_new_files FROM pub.generation WHERE generation = %s", (g3,)
+                ).fetchone() == (len(set(files3[u] for u in changed)),)
                 # publish_keep = 2: the first generation is gone; its blobs were all named by the second
-                assert [g for (g,) in conn.execute("SELECT generation FROM pub.generation WHERE tileset = 't' "
-                                                   "ORDER BY 1")] == [g2, g3]
-                assert conn.execute("SELECT count(*) FROM pub.blob b WHERE NOT EXISTS "
-                                    "(SELECT 1 FROM pub.file f WHERE f.sha256 = b.sha256)").fetchone() == (0,)
+                assert [
+                    g for (g,) in conn.execute("SELECT generation FROM pub.generation WHERE tileset = 't' ORDER BY 1")
+                ] == [g2, g3]
+                assert conn.execute(
+                    "SELECT count(*) FROM pub.blob b WHERE NOT EXISTS "
+                    "(SELECT 1 FROM pub.file f WHERE f.sha256 = b.sha256)"
+                ).fetchone() == (0,)
             for u in files3:
                 status, headers, body = c.get(f"/tiles/{u}")
                 assert status == 200 and body == (out / u).read_bytes(), u
@@ -167,8 +187,9 @@ def test_a_new_generation_stores_and_serves_only_what_changed(copy_url: str, tmp
             run_etl(copy_url, "export", "--out", str(out), env=small)
             with psycopg.connect(copy_url) as conn:
                 gone = [files2[u] for u in changed]
-                assert conn.execute("SELECT count(*) FROM pub.blob WHERE encode(sha256, 'hex') = ANY(%s)",
-                                    (gone,)).fetchone() == (0,)
+                assert conn.execute(
+                    "SELECT count(*) FROM pub.blob WHERE encode(sha256, 'hex') = ANY(%s)", (gone,)
+                ).fetchone() == (0,)
         finally:
             c.close()
 
@@ -186,12 +207,17 @@ def test_soak_during_a_full_rebuild_and_an_update(soak_url: str, fixtures_city: 
     waits: list[tuple[str, str]] = []
     stop = threading.Event()
     with spawned(["etl", "serve", "--db", "--tileset", name, "--port", "0"], env, timeout=60) as (base, _, err):
+
         def watch() -> None:
             with psycopg.connect(soak_url, autocommit=True) as admin:
                 while not stop.is_set():
-                    waits.extend(admin.execute(
-                        "SELECT wait_event, query FROM pg_stat_activity WHERE usename = %s AND datname = %s "
-                        "AND wait_event_type = 'Lock'", (READER_ROLE, dbname)).fetchall())
+                    waits.extend(
+                        admin.execute(
+                            "SELECT wait_event, query FROM pg_stat_activity WHERE usename = %s AND datname = %s "
+                            "AND wait_event_type = 'Lock'",
+                            (READER_ROLE, dbname),
+                        ).fetchall()
+                    )
                     time.sleep(0.01)
 
         result: dict = {}
@@ -217,8 +243,10 @@ def test_soak_during_a_full_rebuild_and_an_update(soak_url: str, fixtures_city: 
             time.sleep(2.0)
             # then an update: the square's corner moves (tests/db/test_update.py writes the same node)
             osc = tmp_path / "move.osc"
-            osc.write_text('<?xml version="1.0"?><osmChange version="0.6"><modify><node id="100003" version="2" '
-                           'lat="60.2001795" lon="24.9004157"/></modify></osmChange>')
+            osc.write_text(
+                '<?xml version="1.0"?><osmChange version="0.6"><modify><node id="100003" version="2" '
+                'lat="60.2001795" lon="24.9004157"/></modify></osmChange>'
+            )
             run_etl(soak_url, "update", "--osc", str(osc), "--out", str(out))
             time.sleep(2.0)
         finally:

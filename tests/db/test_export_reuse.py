@@ -31,8 +31,9 @@ def reuse_url(city, server_url: str) -> Iterator[str]:
 
 def last_export(url: str) -> dict:
     with psycopg.connect(url) as conn:
-        (counts,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'export' "
-                                 "ORDER BY run_id DESC LIMIT 1").fetchone()
+        (counts,) = conn.execute(
+            "SELECT counts FROM meta.pipeline_run WHERE stage = 'export' ORDER BY run_id DESC LIMIT 1"
+        ).fetchone()
     return counts
 
 
@@ -44,13 +45,18 @@ def export(url: str, out: Path, *args: str) -> dict:
 @pytest.mark.db
 def test_the_digest_hashes_every_column_of_export_features(reuse_url: str) -> None:
     with psycopg.connect(reuse_url) as conn:
-        columns = [n for (n,) in conn.execute(
-            "SELECT a.n FROM pg_proc p, unnest(p.proargnames, p.proargmodes) AS a(n, m) "
-            "WHERE p.oid = 'api.export_features'::regproc AND a.m = 't'")]
+        columns = [
+            n
+            for (n,) in conn.execute(
+                "SELECT a.n FROM pg_proc p, unnest(p.proargnames, p.proargmodes) AS a(n, m) "
+                "WHERE p.oid = 'api.export_features'::regproc AND a.m = 't'"
+            )
+        ]
         (body,) = conn.execute("SELECT prosrc FROM pg_proc WHERE oid = 'api.export_digest'::regproc").fetchone()
     assert len(columns) > 30 and "lm_level" in columns and "lm_rank" not in columns
-    missing = [c for c in columns if not re.search(rf"\br\.{c}\b", body) or not re.search(rf"\bAS {c}\b|\bf\.{c}\b",
-                                                                                         body)]
+    missing = [
+        c for c in columns if not re.search(rf"\br\.{c}\b", body) or not re.search(rf"\bAS {c}\b|\bf\.{c}\b", body)
+    ]
     assert not missing, f"api.export_digest does not hash {missing}: a change there would keep a stale glb"
 
 
@@ -64,16 +70,25 @@ def test_an_export_builds_only_the_tiles_whose_input_changed(reuse_url: str, tmp
     again = export(reuse_url, out)  # nothing changed: every glb copied, the same bytes
     assert (again["glb_copied"], again["glb_built"]) == (n, 0)
     assert (again["features"], again["triangles"], again["bytes"]) == (
-        first["features"], first["triangles"], first["bytes"])
+        first["features"],
+        first["triangles"],
+        first["bytes"],
+    )
     before = on_disk(out)
 
     with psycopg.connect(reuse_url) as conn:  # one building renamed: the tiles it is drawn in
-        (bid,) = conn.execute("SELECT id FROM osm.building WHERE kind = 'building' AND n_parts = 0 "
-                              "ORDER BY id LIMIT 1").fetchone()
+        (bid,) = conn.execute(
+            "SELECT id FROM osm.building WHERE kind = 'building' AND n_parts = 0 ORDER BY id LIMIT 1"
+        ).fetchone()
         conn.execute("UPDATE osm.building SET name = 'renamed for reuse' WHERE id = %s", (bid,))
-        drawn_in = {f"content/{lv}/{x}/{y}.glb" for lv, x, y in conn.execute(
-            "SELECT t.level, t.x, t.y FROM tiles.tile t WHERE EXISTS (SELECT 1 FROM "
-            "api.buildings_for_tile(t.level, t.x, t.y) f WHERE f.kind <> 'block' AND f.building_id = %s)", (bid,))}
+        drawn_in = {
+            f"content/{lv}/{x}/{y}.glb"
+            for lv, x, y in conn.execute(
+                "SELECT t.level, t.x, t.y FROM tiles.tile t WHERE EXISTS (SELECT 1 FROM "
+                "api.buildings_for_tile(t.level, t.x, t.y) f WHERE f.kind <> 'block' AND f.building_id = %s)",
+                (bid,),
+            )
+        }
     renamed = export(reuse_url, out)
     after = on_disk(out)
     changed = {u for u in after if u.endswith(".glb") and after[u] != before[u]}
@@ -82,12 +97,16 @@ def test_an_export_builds_only_the_tiles_whose_input_changed(reuse_url: str, tmp
     built = export(reuse_url, full, "--no-publish")  # every tile built: the same files
     assert built["glb_copied"] == 0 and on_disk(full) == after
     assert (renamed["features"], renamed["triangles"], renamed["bytes"]) == (
-        built["features"], built["triangles"], built["bytes"])
+        built["features"],
+        built["triangles"],
+        built["bytes"],
+    )
     assert sum(glb_triangles((out / u).read_bytes()) for u in after if u.endswith(".glb")) == built["triangles"]
 
     with psycopg.connect(reuse_url) as conn:  # a building's landmark level (in the glbs it is drawn in)
-        (lid,) = conn.execute("SELECT building_id FROM lm.building WHERE NOT is_landmark "
-                              "ORDER BY building_id LIMIT 1").fetchone()
+        (lid,) = conn.execute(
+            "SELECT building_id FROM lm.building WHERE NOT is_landmark ORDER BY building_id LIMIT 1"
+        ).fetchone()
         conn.execute("UPDATE lm.building SET level = level + 1 WHERE building_id = %s", (lid,))
     leveled = export(reuse_url, out)
     assert 0 < leveled["glb_built"] < n

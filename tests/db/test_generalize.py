@@ -46,9 +46,12 @@ def test_every_band_is_present(deep, conn_of) -> None:
                                                  (SELECT size FROM tiles.grid) / 2 ^ level)"""
     ).fetchone()[0]
     assert wrong == 0
-    lods = dict(conn.execute(
-        """SELECT t.gen_level, array_agg(DISTINCT f.lod) FROM tiles.tile t
-           CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f GROUP BY 1""").fetchall())
+    lods = dict(
+        conn.execute(
+            """SELECT t.gen_level, array_agg(DISTINCT f.lod) FROM tiles.tile t
+           CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f GROUP BY 1"""
+        ).fetchall()
+    )
     fine = {2: [1], 3: [2], 4: [3]}
     assert {g: v for g, v in lods.items() if g >= 2} == fine
     assert all(v in ([0, 1], [0]) for g, v in lods.items() if g <= 1), lods
@@ -89,14 +92,14 @@ def test_each_tile_draws_each_building_below_it_once(deep, conn_of) -> None:
     # LOD2 and LOD3 bands: every feature (building or part) below the tile once
     bad = conn.execute(
         """SELECT t.level, t.x, t.y FROM tiles.tile t
-           WHERE t.gen_level >= 3 AND t.content_features <> t.n_features""").fetchall()
+           WHERE t.gen_level >= 3 AND t.content_features <> t.n_features"""
+    ).fetchall()
     assert bad == []
 
 
 def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
     conn = conn_of(deep[0])
-    n_blocks, multi = conn.execute(
-        "SELECT count(*), count(*) FILTER (WHERE n_members > 1) FROM gen.block").fetchone()
+    n_blocks, multi = conn.execute("SELECT count(*), count(*) FILTER (WHERE n_members > 1) FROM gen.block").fetchone()
     assert multi > 20 and n_blocks > multi
     assert conn.execute("SELECT count(*) FROM gen.block WHERE n_members <> cardinality(members)").fetchone()[0] == 0
     # no two buildings of different blocks in one tile are within the band's distance (else one cluster); the
@@ -107,7 +110,8 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
            JOIN gen.footprint fa ON fa.building_id = ANY(a.members)
            JOIN gen.footprint fb ON fb.building_id = ANY(b.members)
            WHERE a.gen_level >= 0 AND ST_DWithin(fa.geom, fb.geom, gen.tolerance(a.gen_level) * 0.999)
-           LIMIT 3""").fetchall()
+           LIMIT 3"""
+    ).fetchall()
     assert close == []
     # members of one block are chained by gaps of at most the distance: the block covers its members (in the
     # coarser bands within the sum of the tolerances of the chain of blocks, < 2 x the band's)
@@ -117,7 +121,8 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
              AND ST_Area(ST_Difference(f.geom, ST_Buffer(k.footprint, gen.tolerance(k.gen_level)
                                                                       * CASE WHEN k.gen_level < 0 THEN 2 ELSE 1 END)
                  )) > 1
-           LIMIT 3""").fetchall()
+           LIMIT 3"""
+    ).fetchall()
     assert uncovered == []
     # a coarser band merges further: each of its tiles has fewer blocks than its children hold in their place
     # (drawn or omitted)
@@ -127,7 +132,8 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
              > (SELECT count(*) FROM tiles.tile_content c
                 WHERE c.level = t.level + 1 AND c.x >> 1 = t.x AND c.y >> 1 = t.y)
              + (SELECT count(*) FROM gen.block k
-                WHERE k.omitted AND k.level = t.level + 1 AND k.x >> 1 = t.x AND k.y >> 1 = t.y)""").fetchall()
+                WHERE k.omitted AND k.level = t.level + 1 AND k.x >> 1 = t.x AND k.y >> 1 = t.y)"""
+    ).fetchall()
     assert grew == []
     assert conn.execute("SELECT count(*) FROM gen.block WHERE gen_level < 0 AND n_members > 1").fetchone()[0] > 0
     # height is the members' area-weighted height
@@ -136,7 +142,8 @@ def test_blocks_merge_what_is_close_and_only_that(deep, conn_of) -> None:
            JOIN gen.footprint f ON f.building_id = ANY(k.members)
            JOIN gen.building_mesh g ON g.building_id = f.building_id AND g.gen_level = 2
            GROUP BY k.block_id, k.height
-           HAVING abs(k.height - sum(g.height * ST_Area(f.geom)) / sum(ST_Area(f.geom))) > 0.01""").fetchall()
+           HAVING abs(k.height - sum(g.height * ST_Area(f.geom)) / sum(ST_Area(f.geom))) > 0.01"""
+    ).fetchall()
     assert off == []
 
 
@@ -159,29 +166,34 @@ def test_blocks_too_small_for_their_band_are_omitted_with_their_error(deep, conn
                                    AND abs(collapse - gen.tolerance(gen_level)) > 1e-3),
                   count(*) FILTER (WHERE omitted AND abs(error_m - collapse) > 1e-3),
                   count(*) FILTER (WHERE within_tile_error AND collapse > gen.tolerance(gen_level) + 1e-3)
-           FROM k""").fetchone()
+           FROM k"""
+    ).fetchone()
     assert by_rule[0] > 0 and by_rule[1] > 0, by_rule
     assert by_rule[2:4] == (0, 0), by_rule
     assert by_rule[4] > 0, "no block omitted on its tile's error alone"
     # the selection on tile error: no drawn block fits within its tile's error
     drawn_within = conn.execute(
         """SELECT count(*) FROM gen.block k JOIN tiles.tile t USING (level, x, y)
-           WHERE NOT k.omitted AND k.collapse_m + (k.total_error_m - k.error_m) <= t.geometric_error""").fetchone()[0]
+           WHERE NOT k.omitted AND k.collapse_m + (k.total_error_m - k.error_m) <= t.geometric_error"""
+    ).fetchone()[0]
     assert drawn_within == 0
     # never drawn, and the tile's geometric error covers the omission
     drawn = conn.execute(
         """SELECT count(*) FROM gen.block k JOIN tiles.tile_content c
-             ON c.feature_kind = 'block' AND c.feature_id = k.block_id WHERE k.omitted""").fetchone()[0]
+             ON c.feature_kind = 'block' AND c.feature_id = k.block_id WHERE k.omitted"""
+    ).fetchone()[0]
     assert drawn == 0
     under = conn.execute(
         """SELECT count(*) FROM gen.block k JOIN tiles.tile t USING (level, x, y)
-           WHERE k.omitted AND t.geometric_error < k.total_error_m - 1e-3""").fetchone()[0]
+           WHERE k.omitted AND t.geometric_error < k.total_error_m - 1e-3"""
+    ).fetchone()[0]
     assert under == 0
     # the coarser bands still merge omitted blocks: some block of a band < 0 has an omitted child block's members
     merged = conn.execute(
         """SELECT count(*) FROM gen.block p JOIN gen.block c
              ON c.level = p.level + 1 AND c.x >> 1 = p.x AND c.y >> 1 = p.y AND c.omitted AND c.members <@ p.members
-           WHERE p.gen_level < 0 AND p.n_members > c.n_members""").fetchone()[0]
+           WHERE p.gen_level < 0 AND p.n_members > c.n_members"""
+    ).fetchone()[0]
     assert merged > 0
 
 
@@ -197,7 +209,8 @@ def test_tile_content_lists_what_each_tile_draws(deep, conn_of) -> None:
                              n_triangles, error_m FROM tiles.tile_content)
            SELECT (SELECT count(*) FROM (SELECT * FROM f EXCEPT SELECT * FROM c) a),
                   (SELECT count(*) FROM (SELECT * FROM c EXCEPT SELECT * FROM f) b),
-                  (SELECT count(*) FROM c), (SELECT count(*) FROM c WHERE feature_kind = 'block')""").fetchone()
+                  (SELECT count(*) FROM c), (SELECT count(*) FROM c WHERE feature_kind = 'block')"""
+    ).fetchone()
     assert (only_drawn, only_listed) == (0, 0) and listed > blocks > 0
     omitted = conn.execute("SELECT count(*) FROM gen.block WHERE built_error_m IS NOT NULL").fetchone()[0]
     assert omitted > 0, "no block omitted on its tile's error: the case is not covered"
@@ -212,7 +225,8 @@ def test_footprints_are_valid_close_and_smaller(deep, conn_of) -> None:
                                    OR status NOT LIKE 'kept_original%%'
                                    AND abs(area_out_m2 - area_in_m2) > 0.1 * area_in_m2 + 1e-6),
                   sum(n_vertices_in), sum(n_vertices_out), max(error_m), max(tolerance_m)
-           FROM gen.footprint""").fetchone()
+           FROM gen.footprint"""
+    ).fetchone()
     n, invalid, area_off, v_in, v_out, worst, tol = row
     groups = conn.execute("SELECT count(DISTINCT group_id) FROM tiles.building_tile").fetchone()[0]
     assert n == groups > 400 and invalid == 0 and area_off == 0  # one per building (outline and its parts)
@@ -221,7 +235,8 @@ def test_footprints_are_valid_close_and_smaller(deep, conn_of) -> None:
     # the stored error is the Hausdorff distance PostGIS measures between the outlines
     diff = conn.execute(
         """SELECT max(abs(f.error_m - ST_HausdorffDistance(ST_Boundary(b.geom_local), ST_Boundary(f.geom), 0.05)))
-           FROM gen.footprint f JOIN osm.building b ON b.id = f.building_id""").fetchone()[0]
+           FROM gen.footprint f JOIN osm.building b ON b.id = f.building_id"""
+    ).fetchone()[0]
     assert diff < 0.05
 
 
@@ -229,21 +244,34 @@ def test_decimation_within_tolerance(deep, conn_of) -> None:
     conn = conn_of(deep[0])
     n, worst, saved = conn.execute(
         """SELECT count(*), max(error_m), sum(n_triangles_in - n_triangles) FROM gen.building_mesh
-           WHERE gen_level = 3 AND geom IS NOT NULL""").fetchone()
+           WHERE gen_level = 3 AND geom IS NOT NULL"""
+    ).fetchone()
     assert n > 0 and worst <= conn.execute("SELECT gen.tolerance(3)").fetchone()[0] and saved > 0
-    assert conn.execute(
-        """SELECT count(*) FROM gen.building_mesh
-           WHERE gen_level = 3 AND geom IS NOT NULL AND n_triangles >= n_triangles_in""").fetchone()[0] == 0
+    assert (
+        conn.execute(
+            """SELECT count(*) FROM gen.building_mesh
+           WHERE gen_level = 3 AND geom IS NOT NULL AND n_triangles >= n_triangles_in"""
+        ).fetchone()[0]
+        == 0
+    )
     # every feature has its LOD2-band row, decimated or not
-    assert conn.execute(
-        """SELECT count(*) FROM tiles.building_tile bt LEFT JOIN gen.building_mesh g
-           ON g.building_id = bt.building_id AND g.gen_level = 3 WHERE g.building_id IS NULL""").fetchone()[0] == 0
+    assert (
+        conn.execute(
+            """SELECT count(*) FROM tiles.building_tile bt LEFT JOIN gen.building_mesh g
+           ON g.building_id = bt.building_id AND g.gen_level = 3 WHERE g.building_id IS NULL"""
+        ).fetchone()[0]
+        == 0
+    )
 
 
 def test_geometric_error_is_measured_and_monotone(deep, conn_of) -> None:
     conn = conn_of(deep[0])
-    rows = {(lv, x, y): (leaf, ge, ce) for lv, x, y, leaf, ge, ce in conn.execute(
-        "SELECT level, x, y, is_leaf, geometric_error, content_error_m FROM tiles.tile")}
+    rows = {
+        (lv, x, y): (leaf, ge, ce)
+        for lv, x, y, leaf, ge, ce in conn.execute(
+            "SELECT level, x, y, is_leaf, geometric_error, content_error_m FROM tiles.tile"
+        )
+    }
     for (lv, x, y), (leaf, ge, ce) in rows.items():
         if leaf:
             assert ge == 0 and ce == 0
@@ -280,11 +308,17 @@ def test_protected_buildings_are_never_merged(deep, conn_of, new_db) -> None:
         """SELECT k.members[1] FROM gen.block k WHERE k.n_members > 3 AND k.gen_level = 1
              AND EXISTS (SELECT 1 FROM tiles.tile t WHERE t.gen_level = 0 AND t.level < k.level
                          AND k.x >> (k.level - t.level) = t.x AND k.y >> (k.level - t.level) = t.y)
-           ORDER BY k.block_id LIMIT 1""").fetchone()[0]
-    above = {g for (g,) in conn.execute(
-        """SELECT DISTINCT t.gen_level FROM tiles.tile t JOIN tiles.building_tile bt ON bt.group_id = %s
+           ORDER BY k.block_id LIMIT 1"""
+    ).fetchone()[0]
+    above = {
+        g
+        for (g,) in conn.execute(
+            """SELECT DISTINCT t.gen_level FROM tiles.tile t JOIN tiles.building_tile bt ON bt.group_id = %s
            AND bt.level >= t.level AND bt.x >> (bt.level - t.level) = t.x AND bt.y >> (bt.level - t.level) = t.y
-           WHERE t.gen_level <= 2""", (bid,))}
+           WHERE t.gen_level <= 2""",
+            (bid,),
+        )
+    }
     assert {0, 1} <= above
     conn.execute("UPDATE osm.building SET protected = true WHERE id = %s", (bid,))
     try:
@@ -293,7 +327,9 @@ def test_protected_buildings_are_never_merged(deep, conn_of, new_db) -> None:
         bands = conn.execute(
             """SELECT DISTINCT t.gen_level, f.lod FROM tiles.tile t
                CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
-               WHERE f.feature_kind <> 'block' AND f.building_id = %s AND t.gen_level <= 2""", (bid,)).fetchall()
+               WHERE f.feature_kind <> 'block' AND f.building_id = %s AND t.gen_level <= 2""",
+            (bid,),
+        ).fetchall()
         assert {b for b, _ in bands} == above and {lod for _, lod in bands} == {1}
     finally:
         conn.execute("UPDATE osm.building SET protected = false WHERE id = %s", (bid,))
@@ -371,7 +407,8 @@ def test_feature_spheres_bound_their_meshes(deep, conn_of) -> None:
            CROSS JOIN LATERAL ST_DumpPoints(g.geom) d
            CROSS JOIN LATERAL (SELECT ST_Transform(d.geom, 4978) AS p) q  -- base height 0
            WHERE c.x % 3 = 0
-           GROUP BY 1, 2""").fetchall()
+           GROUP BY 1, 2"""
+    ).fetchall()
     assert {k for _, k, _, _ in rows} >= {"block", "building"}
     for level, kind, worst, n in rows:
         # never outside; the farthest vertex of a group near the sphere (at most radius / 1.002 at a box corner,
@@ -389,19 +426,29 @@ def test_tile_boxes_are_their_regions_boxes(deep, conn_of) -> None:
 def test_the_walk_inlines_its_box_tests(deep, conn_of) -> None:
     # tiles.box_visible / box_distance are SQL functions meant to be inlined into api.lod_for_view's walk: called
     # as functions they cost the walk several times over (a STRICT one stops being inlined)
-    plan = conn_of(deep[0]).execute(
-        """EXPLAIN (VERBOSE, FORMAT JSON)
+    plan = (
+        conn_of(deep[0])
+        .execute(
+            """EXPLAIN (VERBOSE, FORMAT JSON)
            SELECT tiles.box_visible(box, 1, 2, 3, ARRAY[1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1, 0, 0, 0, 1]),
                   tiles.box_distance(box, 1, 2, 3)
-           FROM tiles.tile""").fetchone()[0]
+           FROM tiles.tile"""
+        )
+        .fetchone()[0]
+    )
     text = json.dumps(plan)
     assert "box_visible" not in text and "box_distance" not in text and "box[12]" in text
     # and the per-feature sphere test, evaluated on every row of a drawn tile
-    plan = conn_of(deep[0]).execute(
-        """EXPLAIN (VERBOSE, FORMAT JSON)
+    plan = (
+        conn_of(deep[0])
+        .execute(
+            """EXPLAIN (VERBOSE, FORMAT JSON)
            SELECT tiles.sphere_visible(cx, cy, cz, radius, 1, 2, 3,
                                        ARRAY[1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1, 0, 0, 0, 1])
-           FROM tiles.tile_content""").fetchone()[0]
+           FROM tiles.tile_content"""
+        )
+        .fetchone()[0]
+    )
     assert "sphere_visible" not in json.dumps(plan)
 
 
@@ -415,8 +462,9 @@ def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:
                    ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326), %s, %s, %s, %s, cull_features => false) v
                CROSS JOIN LATERAL (SELECT n_triangles FROM api.buildings_for_tile(v.level, v.x, v.y) b
                                    WHERE b.feature_kind = v.feature_kind AND b.building_id = v.feature_id) f
-               GROUP BY v.lod""", (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov,
-                                   cam.viewport_height)).fetchall()
+               GROUP BY v.lod""",
+            (cam.lon, cam.lat, cam.height, cam.heading, cam.pitch, cam.fov, cam.viewport_height),
+        ).fetchall()
 
     far_lods = {lod for lod, *_ in view(far)}
     assert far_lods <= {0, 1}
@@ -429,8 +477,10 @@ def test_far_view_is_coarse_and_cheap(deep, conn_of) -> None:
 def test_a_tile_missing_buildings_is_refused(deep, conn_of) -> None:
     conn = conn_of(deep[0])
     # the transaction is rolled back: the module's database stays as it was
-    with pytest.raises(psycopg.errors.RaiseException, match="do not stand for the buildings below them"), \
-            conn.transaction():
+    with (
+        pytest.raises(psycopg.errors.RaiseException, match="do not stand for the buildings below them"),
+        conn.transaction(),
+    ):
         conn.execute("DELETE FROM gen.block WHERE block_id = (SELECT min(block_id) FROM gen.block)")
         conn.execute("CALL tiles.finish_hierarchy(0)")
 
@@ -446,7 +496,8 @@ def _gen_digest(conn: psycopg.Connection) -> tuple[str, str, str]:
                    FROM gen.building_mesh),
                   (SELECT md5(string_agg(concat_ws(':', level, x, y, members::text, md5(ST_AsEWKB(geom)::text),
                                                    error_m), ',' ORDER BY level, x, y, members::text))
-                   FROM gen.block)""").fetchone()
+                   FROM gen.block)"""
+    ).fetchone()
 
 
 def test_the_same_rows_on_one_or_two_dask_workers_and_a_hung_batch_is_kept_as_mapped(new_db, conn_of) -> None:
@@ -467,8 +518,9 @@ def test_the_same_rows_on_one_or_two_dask_workers_and_a_hung_batch_is_kept_as_ma
     assert _gen_digest(conn) == one
     proc = run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "2", "CITYLOD_GEN_BATCH_TIMEOUT_S": "0.001"})
     assert "Timeout (" in proc.stderr
-    c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' "
-                     "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    c = conn.execute(
+        "SELECT counts FROM meta.pipeline_run WHERE stage = 'generalize' ORDER BY run_id DESC LIMIT 1"
+    ).fetchone()[0]
     # nothing lost: every building kept as mapped, its LOD2 meshes its level-2 mesh, the status saying why
     assert c["in"] == c["out"] == c["out_by_kind"]["left as mapped"] == c["footprints"]["lost"] > 100
     fp = conn.execute("""SELECT count(*), count(*) FILTER (WHERE f.status LIKE 'kept_original: generalize hung%%'
@@ -479,8 +531,10 @@ def test_the_same_rows_on_one_or_two_dask_workers_and_a_hung_batch_is_kept_as_ma
                          FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id
                                                                       AND m.gen_level = 2""").fetchone()
     assert fp[0] == fp[1] == c["in"]
-    kept = conn.execute("SELECT count(*), count(*) FILTER (WHERE geom IS NULL AND status LIKE 'kept: decimation hung%')"
-                        " FROM gen.building_mesh WHERE gen_level = 3").fetchone()
+    kept = conn.execute(
+        "SELECT count(*), count(*) FILTER (WHERE geom IS NULL AND status LIKE 'kept: decimation hung%')"
+        " FROM gen.building_mesh WHERE gen_level = 3"
+    ).fetchone()
     assert kept[0] == c["decimation"]["features"] == c["decimation"]["lost"] == kept[1] > 100
     run_etl(url, "generalize", env={"CITYLOD_GEN_WORKERS": "1"})
     assert _gen_digest(conn) == one
@@ -500,11 +554,15 @@ def test_a_query_read_beside_a_failing_step_is_cancelled(server_url) -> None:
         except psycopg.errors.QueryCanceled:
             cancelled.append(True)
 
-    with psycopg.connect(server_url, autocommit=True) as watch, \
-            pytest.raises(RuntimeError, match="the step failed"), thread_map(server_url, sleep, [None], 1):
+    with (
+        psycopg.connect(server_url, autocommit=True) as watch,
+        pytest.raises(RuntimeError, match="the step failed"),
+        thread_map(server_url, sleep, [None], 1),
+    ):
         for _ in range(200):  # until the query runs: a cancel before it is sent cancels nothing
-            if watch.execute("SELECT count(*) FROM pg_stat_activity WHERE state = 'active' AND query LIKE %s",
-                             (f"%-- {mark}",)).fetchone()[0]:
+            if watch.execute(
+                "SELECT count(*) FROM pg_stat_activity WHERE state = 'active' AND query LIKE %s", (f"%-- {mark}",)
+            ).fetchone()[0]:
                 break
             time.sleep(0.05)
         raise RuntimeError("the step failed")

@@ -32,8 +32,11 @@ def test_counts_in_equals_loaded_plus_rejected(fx, conn_of) -> None:
 
 def test_run_is_recorded(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    run = one(conn, """SELECT status, input_file, input_sha256, params, duration_s, git_commit
-                       FROM meta.pipeline_run WHERE stage = 'ingest'""")
+    run = one(
+        conn,
+        """SELECT status, input_file, input_sha256, params, duration_s, git_commit
+                       FROM meta.pipeline_run WHERE stage = 'ingest'""",
+    )
     assert run[0] == "ok"
     assert run[1] == str(fx.osm)
     assert run[2] == hashlib.sha256(fx.osm.read_bytes()).hexdigest()
@@ -47,8 +50,11 @@ def test_run_is_recorded(fx, conn_of) -> None:
 
 def test_square_and_lshape(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    sq = one(conn, """SELECT kind, height, name, area_m2, ST_SRID(geom_local), ST_NPoints(geom)
-                       FROM osm.building WHERE id = 10001""")
+    sq = one(
+        conn,
+        """SELECT kind, height, name, area_m2, ST_SRID(geom_local), ST_NPoints(geom)
+                       FROM osm.building WHERE id = 10001""",
+    )
     assert sq[0:3] == ("building", 12.0, "Square 100")
     # 20 x 20 m drawn in degrees with a spherical approximation, measured in UTM 35N
     assert sq[3] == pytest.approx(400.0, rel=1e-2)
@@ -60,8 +66,11 @@ def test_square_and_lshape(fx, conn_of) -> None:
 
 def test_courtyard_multipolygon_keeps_its_hole(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    r = one(conn, """SELECT osm_type, osm_id, kind, building, height, ST_NumInteriorRings(ST_GeometryN(geom, 1)),
-                            area_m2 FROM osm.building WHERE id = -1201""")
+    r = one(
+        conn,
+        """SELECT osm_type, osm_id, kind, building, height, ST_NumInteriorRings(ST_GeometryN(geom, 1)),
+                            area_m2 FROM osm.building WHERE id = -1201""",
+    )
     assert r[0:4] == ("R", 1201, "building", "apartments")
     assert r[4] == pytest.approx(12.192)  # "40 ft"
     assert r[5] == 1
@@ -92,11 +101,15 @@ def test_type_building_relation(fx, conn_of) -> None:
 
 def test_units_and_typed_tags(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    heights = [r[0] for r in conn.execute(
-        "SELECT height FROM osm.building WHERE id BETWEEN 15001 AND 15006 ORDER BY id")]
+    heights = [
+        r[0] for r in conn.execute("SELECT height FROM osm.building WHERE id BETWEEN 15001 AND 15006 ORDER BY id")
+    ]
     assert heights == pytest.approx([12.0, 12.0, 12.5, 12.192, 12.192, 3.81], abs=1e-4)
-    r = one(conn, """SELECT roof_shape, roof_direction, roof_orientation, building_colour, roof_colour, roof_angle,
-                            levels, roof_levels, tags->>'building:colour' FROM osm.building WHERE id = 15011""")
+    r = one(
+        conn,
+        """SELECT roof_shape, roof_direction, roof_orientation, building_colour, roof_colour, roof_angle,
+                            levels, roof_levels, tags->>'building:colour' FROM osm.building WHERE id = 15011""",
+    )
     assert r == ("gabled", 22.5, "across", "#ff0000", "#aabbcc", 30.0, 2.0, 1.0, "red")
     r = one(conn, "SELECT min_level, roof_shape, building_material, roof_height FROM osm.building WHERE id = 15012")
     assert r == (1.0, "hipped", "brick", 2.5)
@@ -104,8 +117,10 @@ def test_units_and_typed_tags(fx, conn_of) -> None:
 
 def test_broken_input_is_rejected_with_reasons(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    rejects = dict(((t, i), reason) for t, i, reason in conn.execute(
-        "SELECT osm_type, osm_id, reason FROM osm.reject WHERE stage = 'ingest'"))
+    rejects = dict(
+        ((t, i), reason)
+        for t, i, reason in conn.execute("SELECT osm_type, osm_id, reason FROM osm.reject WHERE stage = 'ingest'")
+    )
     assert rejects == {
         ("W", 90001): "unclosed_way",
         ("W", 90003): "missing_nodes",
@@ -121,8 +136,11 @@ def test_broken_input_is_rejected_with_reasons(fx, conn_of) -> None:
 
 def test_invalid_geometry_is_repaired_and_flagged(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    r = one(conn, """SELECT repaired, repair_reason, ST_IsValid(geom_local), ST_NumGeometries(geom_local), area_m2
-                     FROM osm.building WHERE id = 90002""")
+    r = one(
+        conn,
+        """SELECT repaired, repair_reason, ST_IsValid(geom_local), ST_NumGeometries(geom_local), area_m2
+                     FROM osm.building WHERE id = 90002""",
+    )
     assert r[0] is True and r[1].startswith("Self-intersection")
     assert r[2] is True and r[3] == 2  # the bow-tie becomes its two triangles
     assert r[4] == pytest.approx(50.0, rel=1e-2)
@@ -134,10 +152,13 @@ def test_invalid_geometry_is_repaired_and_flagged(fx, conn_of) -> None:
 def test_bad_tag_values_are_refused_and_reported(fx, conn_of) -> None:
     conn = conn_of(fx.url)
     heights = conn.execute(
-        "SELECT id, height, tags->>'height' FROM osm.building WHERE id IN (90004, 90005, 90006) ORDER BY id")
+        "SELECT id, height, tags->>'height' FROM osm.building WHERE id IN (90004, 90005, 90006) ORDER BY id"
+    )
     assert [(i, h) for i, h, _ in heights] == [(90004, None), (90005, None), (90006, None)]
-    diags = dict(conn.execute("""SELECT osm_id, detail FROM meta.diagnostic WHERE code = 'invalid_tag'
-                                 AND osm_id IN (90004, 90005, 90006)""").fetchall())
+    diags = dict(
+        conn.execute("""SELECT osm_id, detail FROM meta.diagnostic WHERE code = 'invalid_tag'
+                                 AND osm_id IN (90004, 90005, 90006)""").fetchall()
+    )
     assert "negative" in diags[90004] and "not a length" in diags[90005] and "exceeds" in diags[90006]
 
 
@@ -149,11 +170,13 @@ def test_not_candidates_are_not_counted(fx, conn_of) -> None:
 
 def _snapshot(conn) -> str:
     h = hashlib.sha256()
-    for q in ("SELECT id, kind, tags::text, ST_AsEWKB(geom), ST_AsEWKB(geom_local), height, parent_id, part_coverage"
-              " FROM osm.building ORDER BY id",
-              "SELECT reject_id, osm_type, osm_id, stage, reason, detail FROM osm.reject ORDER BY reject_id",
-              "SELECT diagnostic_id, stage, osm_type, osm_id, code, detail FROM meta.diagnostic ORDER BY 1",
-              "SELECT srid, source_sha256 FROM meta.dataset"):
+    for q in (
+        "SELECT id, kind, tags::text, ST_AsEWKB(geom), ST_AsEWKB(geom_local), height, parent_id, part_coverage"
+        " FROM osm.building ORDER BY id",
+        "SELECT reject_id, osm_type, osm_id, stage, reason, detail FROM osm.reject ORDER BY reject_id",
+        "SELECT diagnostic_id, stage, osm_type, osm_id, code, detail FROM meta.diagnostic ORDER BY 1",
+        "SELECT srid, source_sha256 FROM meta.dataset",
+    ):
         for row in conn.execute(q):
             h.update(repr(row).encode())
     return h.hexdigest()
@@ -179,25 +202,33 @@ def test_replica_ingests_as_copies_of_the_city(new_db, conn_of, tmp_path) -> Non
     proc = run_etl(url, "ingest", "--osm", str(tmp_path / "x3.osm.pbf"))
     assert "ingest: in 99 buildings and parts = 78 loaded + rejected 21 |" in proc.stdout
     conn = conn_of(url)
-    links = conn.execute("""SELECT osm_type, osm_id %% %s, parent_id %% %s, parent_source, count(*),
+    links = conn.execute(
+        """SELECT osm_type, osm_id %% %s, parent_id %% %s, parent_source, count(*),
                                    max(area_m2) / min(area_m2)
-                            FROM osm.building GROUP BY 1, 2, 3, 4""", (step, step)).fetchall()
+                            FROM osm.building GROUP BY 1, 2, 3, 4""",
+        (step, step),
+    ).fetchall()
     assert len(links) == 26 and {r[4] for r in links} == {3}
     assert max(r[5] for r in links) < 1.01  # the same footprints, a few km apart in the working CRS
     assert sum(r[2] is not None for r in links) == 6  # the fixtures' 6 linked parts, linked in every copy
-    rejects = conn.execute("""SELECT osm_type, osm_id %% %s, reason, count(*) FROM osm.reject
-                              GROUP BY 1, 2, 3""", (step,)).fetchall()
+    rejects = conn.execute(
+        """SELECT osm_type, osm_id %% %s, reason, count(*) FROM osm.reject
+                              GROUP BY 1, 2, 3""",
+        (step,),
+    ).fetchall()
     assert len(rejects) == 7 and {r[3] for r in rejects} == {3}
 
 
 def test_a_way_whose_nodes_are_all_missing_is_missing_nodes(new_db, conn_of, tmp_path) -> None:
     src = tmp_path / "gone.osm"
-    src.write_text('<?xml version="1.0"?><osm version="0.6" generator="hand">'
-                   '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
-                   '<node id="3" lat="47.0002" lon="9.0"/>'
-                   '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/><tag k="building" v="yes"/></way>'
-                   '<way id="8"><nd ref="91"/><nd ref="92"/><nd ref="93"/><nd ref="91"/><tag k="building" v="yes"/>'
-                   '</way></osm>')
+    src.write_text(
+        '<?xml version="1.0"?><osm version="0.6" generator="hand">'
+        '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
+        '<node id="3" lat="47.0002" lon="9.0"/>'
+        '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/><tag k="building" v="yes"/></way>'
+        '<way id="8"><nd ref="91"/><nd ref="92"/><nd ref="93"/><nd ref="91"/><tag k="building" v="yes"/>'
+        "</way></osm>"
+    )
     url = new_db("ingest_all_missing")
     run_etl(url, "ingest", "--osm", str(src))
     rows = conn_of(url).execute("SELECT osm_id, reason, detail FROM osm.reject").fetchall()
@@ -214,8 +245,11 @@ def test_missing_file_is_a_clear_error(new_db, tmp_path) -> None:
     # building areas per ../shared/data/PROVENANCE.md (pyosmium's assembler), minus the ways tagged
     # building=no, which are not buildings (London has 3); Helsinki's counted alike (pyosmium 4.3.2 area handler,
     # building not no)
-    [("helsinki", 446), pytest.param("munich", 2425, marks=pytest.mark.extracts),
-     pytest.param("london", 2158 - 3, marks=pytest.mark.extracts)],
+    [
+        ("helsinki", 446),
+        pytest.param("munich", 2425, marks=pytest.mark.extracts),
+        pytest.param("london", 2158 - 3, marks=pytest.mark.extracts),
+    ],
 )
 def test_real_extracts(city, conn_of, name, buildings) -> None:
     c = city(name)
@@ -243,8 +277,11 @@ def test_unreadable_files_fail_with_one_clear_line(new_db, conn_of, tmp_path) ->
         assert proc.returncode == 1
         assert proc.stderr.startswith(f"ingest: error: cannot read {f}")
         assert "Traceback" not in proc.stderr
-    runs = conn_of(url).execute(
-        "SELECT status, error FROM meta.pipeline_run WHERE stage = 'ingest' ORDER BY run_id").fetchall()
+    runs = (
+        conn_of(url)
+        .execute("SELECT status, error FROM meta.pipeline_run WHERE stage = 'ingest' ORDER BY run_id")
+        .fetchall()
+    )
     assert [r[0] for r in runs] == ["failed", "failed"] and "PBF error" in runs[0][1]
 
 
@@ -253,12 +290,13 @@ def _osm(path, body: str, generator: str = "hand"):
     return path
 
 
-def test_a_file_whose_only_building_has_no_area_is_a_reject_and_lod_and_tiles_say_so(new_db, conn_of,
-                                                                                      tmp_path) -> None:
-    src = _osm(tmp_path / "line.osm",
-               '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
-               '<node id="3" lat="47.0" lon="9.0004"/>'
-               '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/><tag k="building" v="yes"/></way>')
+def test_a_file_whose_only_building_has_no_area_is_a_reject_and_lod_and_tiles_say_so(new_db, conn_of, tmp_path) -> None:
+    src = _osm(
+        tmp_path / "line.osm",
+        '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
+        '<node id="3" lat="47.0" lon="9.0004"/>'
+        '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/><tag k="building" v="yes"/></way>',
+    )
     url = new_db("ingest_collinear")
     run_etl(url, "ingest", "--osm", str(src))
     conn = conn_of(url)
@@ -272,14 +310,16 @@ def test_a_file_whose_only_building_has_no_area_is_a_reject_and_lod_and_tiles_sa
 
 def test_ways_of_nodes_with_negative_ids_are_built(new_db, conn_of, tmp_path) -> None:
     # as JOSM saves unsaved data: negative ids, which libosmium's location index does not keep
-    src = _osm(tmp_path / "josm.osm",
-               '<node id="-1" lat="47.0" lon="9.0"/><node id="-2" lat="47.0" lon="9.0002"/>'
-               '<node id="-3" lat="47.0002" lon="9.0002"/><node id="4" lat="47.0002" lon="9.0"/>'
-               '<way id="-5"><nd ref="-1"/><nd ref="-2"/><nd ref="-3"/><nd ref="4"/><nd ref="-1"/>'
-               '<tag k="building" v="yes"/></way>'
-               '<way id="-6"><nd ref="-1"/><nd ref="-2"/><nd ref="-99"/><nd ref="-1"/>'
-               '<tag k="building" v="yes"/></way>',
-               generator="JOSM")
+    src = _osm(
+        tmp_path / "josm.osm",
+        '<node id="-1" lat="47.0" lon="9.0"/><node id="-2" lat="47.0" lon="9.0002"/>'
+        '<node id="-3" lat="47.0002" lon="9.0002"/><node id="4" lat="47.0002" lon="9.0"/>'
+        '<way id="-5"><nd ref="-1"/><nd ref="-2"/><nd ref="-3"/><nd ref="4"/><nd ref="-1"/>'
+        '<tag k="building" v="yes"/></way>'
+        '<way id="-6"><nd ref="-1"/><nd ref="-2"/><nd ref="-99"/><nd ref="-1"/>'
+        '<tag k="building" v="yes"/></way>',
+        generator="JOSM",
+    )
     url = new_db("ingest_negative")
     run_etl(url, "ingest", "--osm", str(src))
     conn = conn_of(url)
@@ -291,17 +331,27 @@ def test_ways_of_nodes_with_negative_ids_are_built(new_db, conn_of, tmp_path) ->
 
 def test_a_string_over_libosmiums_limit_is_refused_with_its_place(new_db, conn_of, tmp_path) -> None:
     url = new_db("ingest_long_tag")
-    nodes = '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>' \
-            '<node id="3" lat="47.0002" lon="9.0002"/>'
-    ok = _osm(tmp_path / "ok.osm", nodes + '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>'
-              f'<tag k="building" v="yes"/><tag k="note" v="{"x" * 1024}"/></way>')
+    nodes = (
+        '<node id="1" lat="47.0" lon="9.0"/><node id="2" lat="47.0" lon="9.0002"/>'
+        '<node id="3" lat="47.0002" lon="9.0002"/>'
+    )
+    ok = _osm(
+        tmp_path / "ok.osm",
+        nodes + '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>'
+        f'<tag k="building" v="yes"/><tag k="note" v="{"x" * 1024}"/></way>',
+    )
     run_etl(url, "ingest", "--osm", str(ok))  # 1,024 bytes: libosmium's limit, still read
-    long = _osm(tmp_path / "long.osm", nodes + '\n<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>'
-                f'\n<tag k="building" v="yes"/><tag k="note" v="{"&amp;" * 1025}"/></way>')
+    long = _osm(
+        tmp_path / "long.osm",
+        nodes + '\n<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>'
+        f'\n<tag k="building" v="yes"/><tag k="note" v="{"&amp;" * 1025}"/></way>',
+    )
     proc = run_etl(url, "ingest", "--osm", str(long), check=False)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
-    assert (f"cannot read {long}: OSM tag value is too long (line 3, way 7: the value of tag 'note' has 1,025 "
-            "bytes; libosmium reads at most 1,024 bytes)") in proc.stderr
+    assert (
+        f"cannot read {long}: OSM tag value is too long (line 3, way 7: the value of tag 'note' has 1,025 "
+        "bytes; libosmium reads at most 1,024 bytes)"
+    ) in proc.stderr
     ctrl = _osm(tmp_path / "ctrl.osm", '\n<node id="1" lat="47.0" lon="9.0"><tag k="name" v="a\x01b"/></node>')
     proc = run_etl(url, "ingest", "--osm", str(ctrl), check=False)
     assert proc.returncode == 1 and "XML parsing error at line 2, column" in proc.stderr
@@ -310,15 +360,17 @@ def test_a_string_over_libosmiums_limit_is_refused_with_its_place(new_db, conn_o
 
 
 def test_a_building_across_the_antimeridian_is_rejected_not_a_world_wide_tile(new_db, conn_of, tmp_path) -> None:
-    src = _osm(tmp_path / "fiji.osm",
-               '<node id="1" lat="-16.8" lon="179.9999"/><node id="2" lat="-16.8" lon="-179.9999"/>'
-               '<node id="3" lat="-16.7999" lon="-179.9999"/><node id="4" lat="-16.7999" lon="179.9999"/>'
-               '<node id="11" lat="-16.8" lon="179.99"/><node id="12" lat="-16.8" lon="179.9902"/>'
-               '<node id="13" lat="-16.7998" lon="179.9902"/><node id="14" lat="-16.7998" lon="179.99"/>'
-               '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="4"/><nd ref="1"/>'
-               '<tag k="building" v="yes"/></way>'
-               '<way id="8"><nd ref="11"/><nd ref="12"/><nd ref="13"/><nd ref="14"/><nd ref="11"/>'
-               '<tag k="building" v="yes"/></way>')
+    src = _osm(
+        tmp_path / "fiji.osm",
+        '<node id="1" lat="-16.8" lon="179.9999"/><node id="2" lat="-16.8" lon="-179.9999"/>'
+        '<node id="3" lat="-16.7999" lon="-179.9999"/><node id="4" lat="-16.7999" lon="179.9999"/>'
+        '<node id="11" lat="-16.8" lon="179.99"/><node id="12" lat="-16.8" lon="179.9902"/>'
+        '<node id="13" lat="-16.7998" lon="179.9902"/><node id="14" lat="-16.7998" lon="179.99"/>'
+        '<way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="4"/><nd ref="1"/>'
+        '<tag k="building" v="yes"/></way>'
+        '<way id="8"><nd ref="11"/><nd ref="12"/><nd ref="13"/><nd ref="14"/><nd ref="11"/>'
+        '<tag k="building" v="yes"/></way>',
+    )
     url = new_db("ingest_antimeridian")
     run_etl(url, "ingest", "--osm", str(src))
     run_etl(url, "lod")

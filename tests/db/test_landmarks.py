@@ -23,7 +23,9 @@ TORNI = ("W", 123525580)
 def _rank(conn, osm: tuple[str, int]) -> tuple[int, int, bool]:
     return conn.execute(
         """SELECT l.rank, l.level, l.is_landmark FROM lm.building l JOIN osm.building b ON b.id = l.building_id
-           WHERE (b.osm_type, b.osm_id) = (%s, %s)""", osm).fetchone()
+           WHERE (b.osm_type, b.osm_id) = (%s, %s)""",
+        osm,
+    ).fetchone()
 
 
 def test_helsinki_landmarks_rank_at_the_top(city, conn_of) -> None:
@@ -42,19 +44,26 @@ def test_every_drawn_building_is_scored_once_with_its_measures(city, conn_of) ->
     drawn, scored, ranks = conn.execute(
         """SELECT (SELECT count(DISTINCT coalesce(o.parent_id, o.id)) FROM lod.building_mesh m
                    JOIN osm.building o ON o.id = m.building_id WHERE m.lod = 2),
-                  count(*), count(DISTINCT rank) FROM lm.building""").fetchone()
+                  count(*), count(DISTINCT rank) FROM lm.building"""
+    ).fetchone()
     assert drawn == scored == ranks > 400
     bad = conn.execute(
         """SELECT count(*) FROM lm.building WHERE NOT (score BETWEEN 0 AND 1 AND semantic BETWEEN 0 AND 1
            AND height_m > 0 AND volume_m3 > 0 AND area_m2 > 0 AND relative_height > 0
-           AND shape_distinctiveness >= 0)""").fetchone()[0]
+           AND shape_distinctiveness >= 0)"""
+    ).fetchone()[0]
     assert bad == 0
     # the stored measures are the ones that decide: the cathedral's semantic tags, the hotel's height
-    sem = conn.execute("""SELECT l.semantic FROM lm.building l JOIN osm.building b ON b.id = l.building_id
-                          WHERE (b.osm_type, b.osm_id) = (%s, %s)""", CATHEDRAL).fetchone()[0]
+    sem = conn.execute(
+        """SELECT l.semantic FROM lm.building l JOIN osm.building b ON b.id = l.building_id
+                          WHERE (b.osm_type, b.osm_id) = (%s, %s)""",
+        CATHEDRAL,
+    ).fetchone()[0]
     assert sem >= 0.6  # place of worship, cathedral, wikidata, name
-    tallest = conn.execute("SELECT b.osm_id FROM lm.building l JOIN osm.building b ON b.id = l.building_id"
-                           " ORDER BY l.height_m DESC LIMIT 1").fetchone()[0]
+    tallest = conn.execute(
+        "SELECT b.osm_id FROM lm.building l JOIN osm.building b ON b.id = l.building_id"
+        " ORDER BY l.height_m DESC LIMIT 1"
+    ).fetchone()[0]
     assert tallest == TORNI[1]
 
 
@@ -71,7 +80,8 @@ def test_hierarchy_levels_nest_and_the_most_salient_is_on_top(city, conn_of) -> 
     # landmarks are the highest levels: no landmark below a non-landmark's level
     lo_lm, hi_other = conn.execute(
         """SELECT min(level) FILTER (WHERE is_landmark), max(level) FILTER (WHERE NOT is_landmark)
-           FROM lm.building""").fetchone()
+           FROM lm.building"""
+    ).fetchone()
     assert lo_lm > hi_other
 
 
@@ -79,12 +89,14 @@ def test_landmarks_are_protected_and_never_aggregated(city, conn_of) -> None:
     conn = conn_of(city("helsinki").url)
     mismatch = conn.execute(
         """SELECT count(*) FROM osm.building b LEFT JOIN lm.building l ON l.building_id = b.id
-           WHERE b.protected IS DISTINCT FROM coalesce(l.is_landmark, false)""").fetchone()[0]
+           WHERE b.protected IS DISTINCT FROM coalesce(l.is_landmark, false)"""
+    ).fetchone()[0]
     assert mismatch == 0
     assert conn.execute("SELECT count(*) FROM osm.building WHERE protected").fetchone()[0] >= 3
     merged = conn.execute(
         """SELECT count(*) FROM gen.block k JOIN lm.building l ON l.building_id = ANY(k.members)
-           WHERE l.is_landmark""").fetchone()[0]
+           WHERE l.is_landmark"""
+    ).fetchone()[0]
     assert merged == 0
 
 
@@ -95,13 +107,19 @@ def test_weights_decide_the_ranking(city, new_db, conn_of, only) -> None:
     url = new_db(f"lm_{only}")
     run_etl(url, "ingest", "--osm", str(src.osm))
     run_etl(url, "lod")
-    zero = {f"CITYLOD_LM_W_{m.upper()}": "0" for m in ("height", "volume", "area", "relative_height", "shape",
-                                                      "semantic") if m != only}
+    zero = {
+        f"CITYLOD_LM_W_{m.upper()}": "0"
+        for m in ("height", "volume", "area", "relative_height", "shape", "semantic")
+        if m != only
+    }
     run_etl(url, "landmarks", env=zero)
     conn = conn_of(url)
     col = {"height": "height_m", "semantic": "semantic"}[only]
-    best, first = conn.execute(sql.SQL("SELECT max({c}), (SELECT {c} FROM lm.building WHERE rank = 1) FROM lm.building")
-                               .format(c=sql.Identifier(col))).fetchone()
+    best, first = conn.execute(
+        sql.SQL("SELECT max({c}), (SELECT {c} FROM lm.building WHERE rank = 1) FROM lm.building").format(
+            c=sql.Identifier(col)
+        )
+    ).fetchone()
     assert first == best
     params = conn.execute("""SELECT params FROM meta.pipeline_run WHERE stage = 'landmarks'
                              ORDER BY run_id DESC LIMIT 1""").fetchone()[0]
@@ -127,7 +145,8 @@ def test_landmarks_stay_at_lod2_from_their_band_down(city, conn_of) -> None:
                    JOIN osm.building o ON o.id = c.feature_id
                    WHERE (c.level, c.x, c.y) = (lt.level, lt.x, lt.y) AND c.feature_kind <> 'block'
                      AND coalesce(o.parent_id, o.id) = lt.building_id)
-           FROM lt""").fetchall()
+           FROM lt"""
+    ).fetchall()
     assert rows
     for bid, band, lod2_band, lods in rows:
         assert lods, (bid, band)  # drawn in every tile above it
@@ -145,12 +164,18 @@ def test_each_landmark_has_its_predefined_exaggeration_intervals(city, conn_of) 
     conn = conn_of(city("helsinki").url)
     rows = conn.execute(
         """SELECT height_m, level, scale_distances_m, scale_factors, is_landmark, radius_m, area_m2
-           FROM lm.building""").fetchall()
+           FROM lm.building"""
+    ).fetchall()
     s = Settings.from_env({})
     landmark_levels = [r[1] for r in rows if r[4]]
-    from_m, top = exaggeration_intervals(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
-                                         min(landmark_levels), min_screen_px=s.lm_min_screen_px,
-                                         step=s.lm_scale_step, max_scale=s.lm_max_scale)
+    from_m, top = exaggeration_intervals(
+        np.array([r[0] for r in rows]),
+        np.array([r[1] for r in rows]),
+        min(landmark_levels),
+        min_screen_px=s.lm_min_screen_px,
+        step=s.lm_scale_step,
+        max_scale=s.lm_max_scale,
+    )
     for r, f, t in zip(rows, from_m, top, strict=True):
         # the footprint circle covers at least the footprint's area
         assert math.pi * r[5] ** 2 >= r[6] * 0.999
@@ -171,8 +196,12 @@ def test_the_stored_exaggeration_roles_are_the_rule_for_every_building(city, con
     got = conn.execute("SELECT * FROM lm.exaggeration ORDER BY building_id").fetchall()
     assert got == want
     roles = [r[1] for r in got]
-    assert roles.count(1) == conn.execute(
-        "SELECT count(*) FROM lm.building WHERE is_landmark AND cardinality(scale_factors) > 0").fetchone()[0]
+    assert (
+        roles.count(1)
+        == conn.execute(
+            "SELECT count(*) FROM lm.building WHERE is_landmark AND cardinality(scale_factors) > 0"
+        ).fetchone()[0]
+    )
     assert roles.count(2) > 0
     (counted,) = conn.execute("""SELECT (counts->>'exaggeration_roles')::int FROM meta.pipeline_run
                                  WHERE stage = 'landmarks' AND status = 'ok' ORDER BY run_id DESC LIMIT 1""").fetchone()
@@ -200,7 +229,9 @@ def test_landmark_exaggeration_displaces_what_the_scaled_landmarks_would_cover(c
     cam = (24.9414, 60.1700, 3000.0)  # over the cathedral and the station
     rows = conn.execute(
         """SELECT e.role, e.building_id, e.landmark_id, e.distance_m, e.scale, e.dx, e.dy
-           FROM api.landmark_exaggeration(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326)) e""", cam).fetchall()
+           FROM api.landmark_exaggeration(ST_SetSRID(ST_MakePoint(%s, %s, %s), 4326)) e""",
+        cam,
+    ).fetchall()
     lm_rows = {r[1]: r for r in rows if r[0] == "landmark"}
     moved = {r[1]: r for r in rows if r[0] == "displaced"}
     n_landmarks = conn.execute("SELECT count(*) FROM lm.building WHERE is_landmark").fetchone()[0]
@@ -212,9 +243,15 @@ def test_landmark_exaggeration_displaces_what_the_scaled_landmarks_would_cover(c
                           FROM lm.building ORDER BY building_id""").fetchall()
     lmk = [g for g in geo if g[4]]
     others = [g for g in geo if not g[4]]
-    want = displacement(np.array([[g[1], g[2]] for g in lmk]), np.array([g[3] for g in lmk]),
-                        np.array([lm_rows[g[0]][4] for g in lmk]), np.array([[g[1], g[2]] for g in others]),
-                        np.array([g[3] for g in others]), combine="max", only_growth=True)
+    want = displacement(
+        np.array([[g[1], g[2]] for g in lmk]),
+        np.array([g[3] for g in lmk]),
+        np.array([lm_rows[g[0]][4] for g in lmk]),
+        np.array([[g[1], g[2]] for g in others]),
+        np.array([g[3] for g in others]),
+        combine="max",
+        only_growth=True,
+    )
     want_moved = {g[0]: w for g, w in zip(others, want, strict=True) if np.hypot(*w) > 1e-9}
     assert set(want_moved) == set(moved)
     for bid, w in want_moved.items():

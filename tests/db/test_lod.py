@@ -70,8 +70,12 @@ def test_sfcgal_agrees_on_volume(fx, conn_of) -> None:
 
 def test_heights_from_tags_and_defaults(fx, conn_of) -> None:
     conn = conn_of(fx.url)
-    rows = {r[0]: r[1:] for r in conn.execute(
-        "SELECT building_id, min_height, height, height_source, volume_m3 FROM lod.building_mesh WHERE lod = 1")}
+    rows = {
+        r[0]: r[1:]
+        for r in conn.execute(
+            "SELECT building_id, min_height, height, height_source, volume_m3 FROM lod.building_mesh WHERE lod = 1"
+        )
+    }
     area = dict(conn.execute("SELECT id, area_m2 FROM osm.building").fetchall())
     assert rows[10001][:3] == (0.0, 12.0, "height")
     assert rows[11001][:3] == (0.0, 12.0, "levels")  # 4 levels x 3 m
@@ -91,10 +95,15 @@ def test_s3db_outline_rule(fx, conn_of) -> None:
     assert 13001 not in ids and 14001 not in ids  # outlines covered by their parts are not drawn
     assert {13002, 13003, 14002, 14003, 14004} <= ids
     floating = conn.execute(
-        "SELECT min_height, height FROM lod.building_mesh WHERE building_id = 13003 AND lod = 1").fetchone()
+        "SELECT min_height, height FROM lod.building_mesh WHERE building_id = 13003 AND lod = 1"
+    ).fetchone()
     assert floating == (5.0, 20.0)
-    hidden = {r[0] for r in conn.execute(
-        "SELECT osm_id FROM meta.diagnostic WHERE stage = 'lod' AND code = 'outline_hidden_by_parts'")}
+    hidden = {
+        r[0]
+        for r in conn.execute(
+            "SELECT osm_id FROM meta.diagnostic WHERE stage = 'lod' AND code = 'outline_hidden_by_parts'"
+        )
+    }
     assert hidden == {13001, 14001}
 
 
@@ -138,9 +147,14 @@ def test_contradicting_heights_are_rejected(fx, conn_of) -> None:
     assert r == [("min_height_ge_height", "height 10 m <= bottom 20 m", "upside down")]
 
 
-@pytest.mark.parametrize(("name", "min_meshes"), [  # LOD1 + LOD2: Helsinki 2 x 562, Munich and London > 2000
-    ("helsinki", 1000), pytest.param("munich", 2000, marks=pytest.mark.extracts),
-    pytest.param("london", 2000, marks=pytest.mark.extracts)])
+@pytest.mark.parametrize(
+    ("name", "min_meshes"),
+    [  # LOD1 + LOD2: Helsinki 2 x 562, Munich and London > 2000
+        ("helsinki", 1000),
+        pytest.param("munich", 2000, marks=pytest.mark.extracts),
+        pytest.param("london", 2000, marks=pytest.mark.extracts),
+    ],
+)
 def test_real_extract_solids_are_closed(city, conn_of, name, min_meshes) -> None:
     conn = conn_of(city(name).url)
     rows = meshes(conn)
@@ -170,13 +184,18 @@ def test_the_same_meshes_with_one_worker_or_dask_tasks_and_a_hung_batch_is_rejec
     one = _mesh_digest(conn)
     run_etl(url, "lod", env={"CITYLOD_LOD_WORKERS": "2", "CITYLOD_LOD_BATCH_SIZE": "50"})
     assert _mesh_digest(conn) == one
-    proc = run_etl(url, "lod", env={"CITYLOD_LOD_WORKERS": "2", "CITYLOD_LOD_BATCH_SIZE": "50",
-                                    "CITYLOD_LOD_BATCH_TIMEOUT_S": "0.001"})
+    proc = run_etl(
+        url,
+        "lod",
+        env={"CITYLOD_LOD_WORKERS": "2", "CITYLOD_LOD_BATCH_SIZE": "50", "CITYLOD_LOD_BATCH_TIMEOUT_S": "0.001"},
+    )
     assert "Timeout (" in proc.stderr
-    c = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
-                     "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    c = conn.execute(
+        "SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' ORDER BY run_id DESC LIMIT 1"
+    ).fetchone()[0]
     assert c["buildings"] == 0 and c["rejected"] > 500 and c["in"] == c["hidden_by_parts"] + c["rejected"]
-    reasons = conn.execute("SELECT reason, count(*), bool_and(detail LIKE '%time limit%') FROM osm.reject "
-                           "WHERE stage = 'lod' GROUP BY 1").fetchall()
+    reasons = conn.execute(
+        "SELECT reason, count(*), bool_and(detail LIKE '%time limit%') FROM osm.reject WHERE stage = 'lod' GROUP BY 1"
+    ).fetchall()
     assert reasons == [("lod_hung", c["rejected"], True)]
     assert conn.execute("SELECT count(*) FROM lod.building_mesh").fetchone()[0] == 0

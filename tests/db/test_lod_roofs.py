@@ -21,11 +21,16 @@ def gallery(city, conn_of):
 
 
 def rows(conn, lod: int) -> dict[str, tuple]:
-    return {r[0]: r[1:] for r in conn.execute(
-        """SELECT b.tags->>'ref', m.roof_shape, m.roof_engine, m.roof_height, m.height, m.min_height,
+    return {
+        r[0]: r[1:]
+        for r in conn.execute(
+            """SELECT b.tags->>'ref', m.roof_shape, m.roof_engine, m.roof_height, m.height, m.min_height,
                   ST_AsBinary(m.geom), m.semantics, m.watertight, m.winding_consistent, m.volume_m3, m.n_windows,
                   m.n_doors, m.n_triangles
-           FROM lod.building_mesh m JOIN osm.building b ON b.id = m.building_id WHERE m.lod = %s""", (lod,))}
+           FROM lod.building_mesh m JOIN osm.building b ON b.id = m.building_id WHERE m.lod = %s""",
+            (lod,),
+        )
+    }
 
 
 def test_every_catalogue_shape_is_drawn_closed(gallery) -> None:
@@ -61,9 +66,12 @@ def test_tag_variants(gallery) -> None:
     tris = decode_triangles(part[5])
     assert tris[:, :, 2].min() >= 4.0 - 1e-6 and part[4] == 4.0
     assert set(np.frombuffer(part[6], np.uint8)) <= {SEM_GROUND, SEM_ROOF}
-    codes = dict(gallery.execute(
-        """SELECT b.tags->>'ref', string_agg(d.code, ',' ORDER BY d.code) FROM meta.building_diagnostic d
-           JOIN osm.building b ON b.id = d.building_id GROUP BY 1""").fetchall())
+    codes = dict(
+        gallery.execute(
+            """SELECT b.tags->>'ref', string_agg(d.code, ',' ORDER BY d.code) FROM meta.building_diagnostic d
+           JOIN osm.building b ON b.id = d.building_id GROUP BY 1"""
+        ).fetchall()
+    )
     assert codes["many/rect"] == "unknown_roof_shape"
     assert codes["gabled_levels0/rect"] == "pitched_roof_zero_levels"
     assert codes["hipped_feet/rect"] == "unit_converted"
@@ -90,28 +98,48 @@ def test_lod3_adds_windows_and_doors(gallery) -> None:
         assert (sem3 == 3).sum() == 2 * n_win and (sem3 == 4).sum() == 2 * n_door, ref
 
 
-@pytest.mark.parametrize(("name", "min_pitched", "shapes"), [  # pitched: Helsinki 23, London 54, Munich 387
-    ("helsinki", 20, {"flat", "gabled", "hipped", "pyramidal", "dome", "round", "gambrel"}),
-    pytest.param("munich", 50, {"flat", "gabled", "hipped", "pyramidal", "dome", "skillion", "onion", "gambrel"},
-                 marks=pytest.mark.extracts),
-    pytest.param("london", 50, {"flat", "gabled", "hipped", "pyramidal", "dome", "mansard", "gambrel"},
-                 marks=pytest.mark.extracts)], ids=["helsinki", "munich", "london"])
+@pytest.mark.parametrize(
+    ("name", "min_pitched", "shapes"),
+    [  # pitched: Helsinki 23, London 54, Munich 387
+        ("helsinki", 20, {"flat", "gabled", "hipped", "pyramidal", "dome", "round", "gambrel"}),
+        pytest.param(
+            "munich",
+            50,
+            {"flat", "gabled", "hipped", "pyramidal", "dome", "skillion", "onion", "gambrel"},
+            marks=pytest.mark.extracts,
+        ),
+        pytest.param(
+            "london",
+            50,
+            {"flat", "gabled", "hipped", "pyramidal", "dome", "mansard", "gambrel"},
+            marks=pytest.mark.extracts,
+        ),
+    ],
+    ids=["helsinki", "munich", "london"],
+)
 def test_real_extract_lod2_watertight(city, conn_of, name, min_pitched, shapes) -> None:
     conn = conn_of(city(name).url)
     total, closed, pitched = conn.execute(
         """SELECT count(*), count(*) FILTER (WHERE watertight AND winding_consistent AND volume_m3 > 0),
-                  count(*) FILTER (WHERE roof_shape <> 'flat') FROM lod.building_mesh WHERE lod = 2""").fetchone()
+                  count(*) FILTER (WHERE roof_shape <> 'flat') FROM lod.building_mesh WHERE lod = 2"""
+    ).fetchone()
     assert pitched > min_pitched  # real roofs were built, not all flattened
     drawn = {r[0] for r in conn.execute("SELECT DISTINCT roof_shape FROM lod.building_mesh WHERE lod = 2")}
     assert shapes <= drawn  # the city's tagged shapes, each drawn as itself
     assert closed / total >= 0.995
     # roofs that could not be built are drawn flat (and closed): they must stay rare among pitched ones
-    fallbacks = conn.execute("SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'roof_fallback'"
-                             " AND detail LIKE '%drawn flat'").fetchone()[0]
+    fallbacks = conn.execute(
+        "SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'roof_fallback'"
+        " AND detail LIKE '%drawn flat'"
+    ).fetchone()[0]
     assert fallbacks <= 0.01 * pitched
     # every one that is not closed is in the diagnostics with its reason
-    assert total - closed == conn.execute(
-        "SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'not_watertight'").fetchone()[0]
+    assert (
+        total - closed
+        == conn.execute(
+            "SELECT count(*) FROM meta.diagnostic WHERE stage = 'lod' AND code = 'not_watertight'"
+        ).fetchone()[0]
+    )
 
 
 @pytest.mark.parametrize("lod", [1, 2, 3])
@@ -122,8 +150,9 @@ def test_export_lod_option(city, conn_of, tmp_path, lod) -> None:
     report = validate_glb(out)
     assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
-    stored = conn_of(c.url).execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = %s",
-                                    (lod,)).fetchone()[0]
+    stored = (
+        conn_of(c.url).execute("SELECT sum(n_triangles) FROM lod.building_mesh WHERE lod = %s", (lod,)).fetchone()[0]
+    )
     written = 0
     colours: set[tuple[int, ...]] = set()
     for p in out.rglob("*.glb"):

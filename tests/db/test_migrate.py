@@ -56,7 +56,8 @@ def test_reload_rejects_misnamed_file(new_db, tmp_path) -> None:
     url = new_db("migrate_misnamed")
     (tmp_path / "api").mkdir()
     (tmp_path / "api" / "wrong_name.sql").write_text(
-        "CREATE OR REPLACE FUNCTION api.other() RETURNS int LANGUAGE sql AS 'SELECT 1';")
+        "CREATE OR REPLACE FUNCTION api.other() RETURNS int LANGUAGE sql AS 'SELECT 1';"
+    )
     with psycopg.connect(url) as conn, pytest.raises(MigrationError, match="must define api.wrong_name"):
         reload_sql(conn, directory=tmp_path, quiet=True)
 
@@ -85,10 +86,14 @@ def test_every_table_and_column_is_commented(new_db, conn_of) -> None:
     and the check finds one that has none, in a schema of its own too."""
     conn = conn_of(new_db("migrate_comments"))
     missing = [r[0] for r in conn.execute(_UNCOMMENTED).fetchall()]
-    assert not missing, (f"{len(missing)} tables, views or columns have no COMMENT ON (a table's go in a new "
-                         "migration, a view's in its sql/ file): " + ", ".join(missing))
-    conn.execute("CREATE SCHEMA probe; CREATE TABLE probe.t (x int, y int); COMMENT ON COLUMN probe.t.x IS 'x.'; "
-                 "CREATE VIEW osm.v AS SELECT 1 AS one; COMMENT ON VIEW osm.v IS 'v.'")
+    assert not missing, (
+        f"{len(missing)} tables, views or columns have no COMMENT ON (a table's go in a new "
+        "migration, a view's in its sql/ file): " + ", ".join(missing)
+    )
+    conn.execute(
+        "CREATE SCHEMA probe; CREATE TABLE probe.t (x int, y int); COMMENT ON COLUMN probe.t.x IS 'x.'; "
+        "CREATE VIEW osm.v AS SELECT 1 AS one; COMMENT ON VIEW osm.v IS 'v.'"
+    )
     assert {r[0] for r in conn.execute(_UNCOMMENTED).fetchall()} == {"osm.v.one", "probe.t", "probe.t.y"}
 
 

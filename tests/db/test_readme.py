@@ -36,7 +36,9 @@ def test_tallest(helsinki) -> None:
     station = {r[1]: r for r in rows}[STATION]
     outline = helsinki.execute(
         """SELECT m.height FROM lod.building_mesh m JOIN osm.building b ON b.id = m.building_id
-           WHERE b.osm_id = %s AND b.kind = 'building' AND m.lod = 1""", (STATION,)).fetchone()[0]
+           WHERE b.osm_id = %s AND b.kind = 'building' AND m.lod = 1""",
+        (STATION,),
+    ).fetchone()[0]
     assert station[3] == pytest.approx(48.5) and station[4] == 6 and outline < 20
 
 
@@ -46,7 +48,8 @@ def test_buildings_per_tile(helsinki) -> None:
     assert len(rows) == leaves
     buildings = helsinki.execute(
         "SELECT count(DISTINCT coalesce(b.parent_id, b.id)) FROM tiles.building_tile t"
-        " JOIN osm.building b ON b.id = t.building_id").fetchone()[0]
+        " JOIN osm.building b ON b.id = t.building_id"
+    ).fetchone()[0]
     assert sum(r[3] for r in rows) == buildings  # a building is in exactly one tile
 
 
@@ -61,15 +64,18 @@ def test_volume_per_building(helsinki) -> None:
         parts = helsinki.execute(
             """SELECT m.volume_m3, ST_AsBinary(m.geom), m.geom FROM lod.building_mesh m
                JOIN osm.building b ON b.id = m.building_id WHERE m.lod = 1 AND coalesce(b.parent_id, b.id) =
-               (SELECT id FROM osm.building WHERE osm_id = %s AND kind = 'building')""", (osm_id,)).fetchall()
+               (SELECT id FROM osm.building WHERE osm_id = %s AND kind = 'building')""",
+            (osm_id,),
+        ).fetchall()
         assert len(parts) == meshes and sum(p[0] for p in parts) == pytest.approx(float(vol), abs=0.5), osm_id
         if osm_id != STATION:
             continue  # SFCGAL's exact arithmetic takes seconds per mesh: one building is enough
         shells = []
         for v, blob, geom in parts:
             tris = decode_triangles(blob)
-            shells.append(trimesh.Trimesh((tris - tris[0, 0]).reshape(-1, 3),
-                                          np.arange(tris.size // 3).reshape(-1, 3)).body_count)
+            shells.append(
+                trimesh.Trimesh((tris - tris[0, 0]).reshape(-1, 3), np.arange(tris.size // 3).reshape(-1, 3)).body_count
+            )
             if shells[-1] == 1:
                 sfcgal = helsinki.execute("SELECT ST_Volume(ST_MakeSolid(%s::geometry))", (geom,)).fetchone()[0]
                 assert sfcgal == pytest.approx(v, rel=1e-6)

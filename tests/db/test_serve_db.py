@@ -164,7 +164,11 @@ def test_reader_url() -> None:
     derived = psycopg.conninfo.conninfo_to_dict(reader_url(url, environ={}))
     assert derived["user"] == READER_ROLE and "password" not in derived
     assert (derived["host"], derived["port"], derived["dbname"], derived["sslmode"]) == (
-        "db.example", "5433", "city", "require")
+        "db.example",
+        "5433",
+        "city",
+        "require",
+    )
     sock = "postgresql://citylod@/citylod?host=/work/var/pg/sock&port=55432"  # the local cluster's form
     assert psycopg.conninfo.conninfo_to_dict(reader_url(sock, environ={}))["host"] == "/work/var/pg/sock"
     assert reader_url(url, environ={"CITYLOD_READER_URL": "postgresql://r@h/d"}) == "postgresql://r@h/d"
@@ -229,8 +233,9 @@ def city_copy(city: City, server_url: str, suffix: str) -> Iterator[str]:
         deadline = time.monotonic() + 30
         while True:
             try:
-                admin.execute(sql.SQL("CREATE DATABASE {} TEMPLATE {}").format(
-                    sql.Identifier(name), sql.Identifier(src)))
+                admin.execute(
+                    sql.SQL("CREATE DATABASE {} TEMPLATE {}").format(sql.Identifier(name), sql.Identifier(src))
+                )
                 break
             except psycopg.errors.ObjectInUse:  # some session is still on the source: wait for it to leave
                 if time.monotonic() > deadline:
@@ -278,21 +283,26 @@ def test_every_tile_byte_for_byte_the_file_export(db_server: tuple[DbTileSource,
         assert body == (files / "tileset.json").read_bytes()
         # implicit: the content is listed in the subtree files
         uris = tileset_files(json.loads(body), lambda u: (files / u).read_bytes())
-        on_disk = sorted(p.relative_to(files).as_posix() for p in files.rglob("*")
-                         if p.is_file() and p.name != "tileset.json")
+        on_disk = sorted(
+            p.relative_to(files).as_posix() for p in files.rglob("*") if p.is_file() and p.name != "tileset.json"
+        )
         assert uris == on_disk and uris, "the tileset lists exactly the exported glb and subtree files"
         assert any(u.endswith(".subtree") for u in uris) and any(u.endswith(".glb") for u in uris)
         for uri in uris:
             status, headers, body = c.get(f"/tiles/{uri}")
             assert status == 200, (uri, body[:200])
-            assert headers["content-type"] == ("model/gltf-binary" if uri.endswith(".glb")
-                                               else "application/octet-stream"), uri
+            assert headers["content-type"] == (
+                "model/gltf-binary" if uri.endswith(".glb") else "application/octet-stream"
+            ), uri
             assert headers["access-control-allow-origin"] == "*", uri
             assert int(headers["content-length"]) == len(body)
             assert body == (files / uri).read_bytes(), f"{uri} differs from the file export"
         # the viewer and CesiumJS are served in DB mode too, exactly as in file mode
-        for path, media in (("/", "text/html"), ("/viewer/viewer.js", "text/javascript"),
-                            ("/cesium/Cesium.js", "text/javascript")):
+        for path, media in (
+            ("/", "text/html"),
+            ("/viewer/viewer.js", "text/javascript"),
+            ("/cesium/Cesium.js", "text/javascript"),
+        ):
             status, headers, _ = c.get(path)
             assert (status, headers["content-type"].split(";")[0]) == (200, media), path
         assert c.get("/tiles/tileset.json", "OPTIONS")[0] == 204
@@ -368,16 +378,20 @@ def test_gzip_negotiated(db_server: tuple[DbTileSource, str], fixtures_city: Cit
 
 
 @pytest.mark.db
-@pytest.mark.parametrize(("rel", "status"), BAD_ADDRESSES + [
-    ("content/30/1073741823/1073741823.glb", 404),  # in range, no such tile
-    ("content/16/0/0.glb", 404),
-    ("subtrees/5/0/0.subtree", 404),  # no subtree starts at level 5 here
-    ("content/0/0/0.glb%00", 400),
-    ("%2e%2e/%2e%2e/etc/passwd", 400),
-    ("content/%2e%2e/tileset.json", 400),
-    ("content/%ff/0/0.glb", 400),  # not UTF-8
-    ("content/0/0/0.glb%2fextra", 400),
-])
+@pytest.mark.parametrize(
+    ("rel", "status"),
+    BAD_ADDRESSES
+    + [
+        ("content/30/1073741823/1073741823.glb", 404),  # in range, no such tile
+        ("content/16/0/0.glb", 404),
+        ("subtrees/5/0/0.subtree", 404),  # no subtree starts at level 5 here
+        ("content/0/0/0.glb%00", 400),
+        ("%2e%2e/%2e%2e/etc/passwd", 400),
+        ("content/%2e%2e/tileset.json", 400),
+        ("content/%ff/0/0.glb", 400),  # not UTF-8
+        ("content/0/0/0.glb%2fextra", 400),
+    ],
+)
 def test_bad_addresses_are_400_or_404(db_server: tuple[DbTileSource, str], rel: str, status: int) -> None:
     _, base = db_server
     path = "/tiles/" + rel.replace("\x00", "%00").replace("\\", "%5C")
@@ -397,8 +411,9 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbT
     """32 threads fetch every tile at once from a fresh server: every answer is right, each tile is built once,
     and the server never holds more connections than its pool."""
     files = fixtures_city.tiles
-    uris = ["tileset.json"] + tileset_files(json.loads((files / "tileset.json").read_bytes()),
-                                            lambda u: (files / u).read_bytes())
+    uris = ["tileset.json"] + tileset_files(
+        json.loads((files / "tileset.json").read_bytes()), lambda u: (files / u).read_bytes()
+    )
     expected = {u: (files / u).read_bytes() for u in uris}
     dbname = psycopg.conninfo.conninfo_to_dict(fixtures_city.url)["dbname"]
     with running(reader_url(fixtures_city.url, environ={}), pool_size=3) as (server, base):
@@ -408,7 +423,7 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbT
         def worker(i: int) -> None:
             c = Client(base)
             try:
-                for u in uris[i % len(uris):] + uris[:i % len(uris)]:
+                for u in uris[i % len(uris) :] + uris[: i % len(uris)]:
                     status, _, body = c.get(f"/tiles/{u}")
                     if status != 200 or body != expected[u]:
                         errors.append(f"{u}: {status}")
@@ -422,8 +437,10 @@ def test_concurrent_clients_cold_cache(fixtures_city: City, db_server: tuple[DbT
         def watch() -> None:
             with psycopg.connect(fixtures_city.url, autocommit=True) as admin:
                 while not stop.is_set():
-                    n = admin.execute("SELECT count(*) FROM pg_stat_activity WHERE usename = %s AND datname = %s",
-                                      (READER_ROLE, dbname)).fetchone()[0]
+                    n = admin.execute(
+                        "SELECT count(*) FROM pg_stat_activity WHERE usename = %s AND datname = %s",
+                        (READER_ROLE, dbname),
+                    ).fetchone()[0]
                     peak[0] = max(peak[0], n)
                     time.sleep(0.005)
 
@@ -471,13 +488,16 @@ def test_server_connection_cannot_write(db_server: tuple[DbTileSource, str], fix
         finally:
             conn.read_only = True
     with psycopg.connect(fixtures_city.url) as admin:
-        row = admin.execute("SELECT rolcanlogin, rolinherit, rolsuper, rolcreaterole, rolcreatedb FROM pg_roles "
-                            "WHERE rolname = %s", (READER_ROLE,)).fetchone()
+        row = admin.execute(
+            "SELECT rolcanlogin, rolinherit, rolsuper, rolcreaterole, rolcreatedb FROM pg_roles WHERE rolname = %s",
+            (READER_ROLE,),
+        ).fetchone()
         assert row == (True, False, False, False, False)
         unreadable = admin.execute(
             "SELECT schemaname || '.' || tablename FROM pg_tables WHERE schemaname = ANY(%s)"
             " AND NOT has_table_privilege(%s, quote_ident(schemaname) || '.' || quote_ident(tablename), 'SELECT')",
-            (["meta", "osm", "lod", "gen", "tiles", "api", "pub"], READER_ROLE)).fetchall()
+            (["meta", "osm", "lod", "gen", "tiles", "api", "pub"], READER_ROLE),
+        ).fetchall()
         assert unreadable == []
 
 
@@ -514,8 +534,9 @@ def test_a_pipeline_rerun_drops_the_cache(rerun_url: str, tmp_path: Path) -> Non
         try:
             status, _, js = c.get("/tiles/tileset.json")
             assert status == 200
-            uri = max(content_uris(json.loads(js), lambda u: c.get(f"/tiles/{u}")[2]),
-                      key=lambda u: int(u.split("/")[1]))  # a leaf: named buildings
+            uri = max(
+                content_uris(json.loads(js), lambda u: c.get(f"/tiles/{u}")[2]), key=lambda u: int(u.split("/")[1])
+            )  # a leaf: named buildings
             status, _, before = c.get(f"/tiles/{uri}")
             assert status == 200 and b"renamed by a re-run" not in before
             builds = server.stats()["builds"]
@@ -546,7 +567,9 @@ def test_connections_killed_under_the_server_are_replaced(fixtures_city: City, s
                 with psycopg.connect(server_url, autocommit=True) as admin:
                     killed = admin.execute(
                         "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity"
-                        " WHERE usename = %s AND datname = %s", (READER_ROLE, dbname)).fetchone()[0]
+                        " WHERE usename = %s AND datname = %s",
+                        (READER_ROLE, dbname),
+                    ).fetchone()[0]
                 assert killed >= 1
                 status, _, body = c.get("/tiles/tileset.json")
                 assert status == 200, body[:300]
@@ -565,8 +588,11 @@ def test_database_outage_is_503(outage_url: str, fixtures_city: City, server_url
             assert c.get("/tiles/tileset.json")[2] == (files / "tileset.json").read_bytes()
             assert c.get(f"/tiles/{uris[0]}")[0] == 200
             with psycopg.connect(server_url, autocommit=True) as admin:
-                admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(
-                    sql.Identifier(psycopg.conninfo.conninfo_to_dict(outage_url)["dbname"])))
+                admin.execute(
+                    sql.SQL("DROP DATABASE {} WITH (FORCE)").format(
+                        sql.Identifier(psycopg.conninfo.conninfo_to_dict(outage_url)["dbname"])
+                    )
+                )
             for path in ("/tiles/tileset.json", f"/tiles/{uris[0]}", f"/tiles/{uris[-1]}"):
                 for _ in range(2):  # the dead pooled connection, then a failed reconnect
                     status, headers, body = c.get(path)
@@ -582,8 +608,14 @@ def test_database_outage_is_503(outage_url: str, fixtures_city: City, server_url
     # unreachable from the start: the CLI refuses to start, with a hint, and no traceback
     env = {**os.environ, "DATABASE_URL": outage_url}
     env.pop("CITYLOD_READER_URL", None)
-    r = subprocess.run([sys.executable, "-m", "etl", "serve", "--db", "--port", "0"], cwd=REPO, env=env,
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "etl", "serve", "--db", "--port", "0"],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode != 0 and r.stdout == ""
     assert "cannot read the database" in r.stderr and "make migrate" in r.stderr
     assert "Traceback" not in r.stderr
@@ -643,9 +675,20 @@ def test_cli_serves_from_the_database(fixtures_city: City) -> None:
         assert "straight from the database" in stderr.read()
 
     for args in (["--lod", "2"], ["--live"]):
-        r = subprocess.run([sys.executable, "-m", "etl", "serve", *args, "--port", "0"], cwd=REPO,
-                           capture_output=True, text=True, timeout=60)
+        r = subprocess.run(
+            [sys.executable, "-m", "etl", "serve", *args, "--port", "0"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert r.returncode == 2 and "need --db" in r.stderr
-    r = subprocess.run([sys.executable, "-m", "etl", "serve", "--db", "--lod", "2", "--port", "0"], cwd=REPO,
-                       capture_output=True, text=True, timeout=60, env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", "etl", "serve", "--db", "--lod", "2", "--port", "0"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
     assert r.returncode == 2 and "--lod needs --live" in r.stderr

@@ -31,12 +31,31 @@ READ = {
 
 #: api.buildings_for_tile's output columns: analysts' queries and the exporter read them by name.
 FEATURE_COLUMNS = [
-    ("feature_kind", "text"), ("building_id", "bigint"), ("osm_type", "text"), ("osm_id", "bigint"),
-    ("kind", "text"), ("building_osm_type", "text"), ("building_osm_id", "bigint"), ("name", "text"),
-    ("building", "text"), ("height", "real"), ("min_height", "real"), ("levels", "real"), ("roof_shape", "text"),
-    ("building_colour", "text"), ("roof_colour", "text"), ("building_material", "text"), ("roof_material", "text"),
-    ("lod", "smallint"), ("gen_level", "smallint"), ("n_members", "integer"), ("error_m", "real"),
-    ("n_triangles", "integer"), ("roof_height", "real"), ("semantics", "bytea"), ("geom", "geometry"),
+    ("feature_kind", "text"),
+    ("building_id", "bigint"),
+    ("osm_type", "text"),
+    ("osm_id", "bigint"),
+    ("kind", "text"),
+    ("building_osm_type", "text"),
+    ("building_osm_id", "bigint"),
+    ("name", "text"),
+    ("building", "text"),
+    ("height", "real"),
+    ("min_height", "real"),
+    ("levels", "real"),
+    ("roof_shape", "text"),
+    ("building_colour", "text"),
+    ("roof_colour", "text"),
+    ("building_material", "text"),
+    ("roof_material", "text"),
+    ("lod", "smallint"),
+    ("gen_level", "smallint"),
+    ("n_members", "integer"),
+    ("error_m", "real"),
+    ("n_triangles", "integer"),
+    ("roof_height", "real"),
+    ("semantics", "bytea"),
+    ("geom", "geometry"),
     ("mesh_md5", "text"),
 ]
 
@@ -82,8 +101,12 @@ def test_callers_over_the_city_inline_what_they_read(conn, name) -> None:
 def _columns(conn: psycopg.Connection, query: str) -> list[tuple[str, str]]:
     cur = conn.execute(f"{query} LIMIT 0")
     assert cur.description is not None
-    types = dict(conn.execute("SELECT oid::int, format_type(oid, NULL) FROM pg_type WHERE oid = ANY(%s)",
-                              ([d.type_code for d in cur.description],)).fetchall())
+    types = dict(
+        conn.execute(
+            "SELECT oid::int, format_type(oid, NULL) FROM pg_type WHERE oid = ANY(%s)",
+            ([d.type_code for d in cur.description],),
+        ).fetchall()
+    )
     return [(d.name, types[d.type_code]) for d in cur.description]
 
 
@@ -93,7 +116,8 @@ def test_the_feature_row_is_one_type_with_the_public_columns(conn) -> None:
     assert _columns(conn, "SELECT * FROM tiles.lod2_features(0, 0, 0)") == FEATURE_COLUMNS
     rettypes = conn.execute(
         """SELECT DISTINCT prorettype::regtype::text FROM pg_proc
-           WHERE oid IN ('api.buildings_for_tile'::regproc, 'tiles.lod2_features'::regproc)""").fetchall()
+           WHERE oid IN ('api.buildings_for_tile'::regproc, 'tiles.lod2_features'::regproc)"""
+    ).fetchall()
     assert rettypes == [("api.feature",)]
     args = conn.execute("SELECT pg_get_function_arguments('api.buildings_for_tile'::regproc)").fetchone()[0]
     assert args == "level integer, x integer, y integer, single_lod integer DEFAULT NULL::integer"

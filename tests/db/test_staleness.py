@@ -40,8 +40,9 @@ def run_make(url: str, *args: str, env: dict[str, str] | None = None) -> str:
     full_env = {**os.environ, "DATABASE_URL": url, **ENV, **(env or {})}
     full_env.pop("MAKEFLAGS", None)
     full_env.pop("MAKELEVEL", None)
-    with subprocess.Popen(cmd, env=full_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          start_new_session=True) as proc:
+    with subprocess.Popen(
+        cmd, env=full_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    ) as proc:
         try:
             out, _ = proc.communicate(timeout=ETL_TIMEOUT)
         except subprocess.TimeoutExpired:
@@ -65,8 +66,12 @@ def last_run_id(url: str) -> int:
 def runs_after(url: str, run_id: int) -> list[str]:
     """The stages that ran after ``run_id``, in order (a failed run would show as stage!status)."""
     with psycopg.connect(url) as conn:
-        return [s if st == "ok" else f"{s}!{st}" for s, st in conn.execute(
-            "SELECT stage, status FROM meta.pipeline_run WHERE run_id > %s ORDER BY run_id", (run_id,))]
+        return [
+            s if st == "ok" else f"{s}!{st}"
+            for s, st in conn.execute(
+                "SELECT stage, status FROM meta.pipeline_run WHERE run_id > %s ORDER BY run_id", (run_id,)
+            )
+        ]
 
 
 def reran(url: str, action: Callable[[], object]) -> list[str]:
@@ -105,8 +110,9 @@ def copy_of(built: Built, server_url: str) -> Iterator[Callable[[str], str]]:
         name = f"{PREFIX}_dag_{label}"[:63]
         with psycopg.connect(server_url, autocommit=True) as admin:
             admin.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(name)))
-            admin.execute(sql.SQL("CREATE DATABASE {} TEMPLATE {}").format(
-                sql.Identifier(name), sql.Identifier(built.dbname)))
+            admin.execute(
+                sql.SQL("CREATE DATABASE {} TEMPLATE {}").format(sql.Identifier(name), sql.Identifier(built.dbname))
+            )
         made.append(name)
         return _with_db(server_url, name)
 
@@ -129,8 +135,14 @@ def test_make_export_on_a_fresh_database_runs_every_stage(built: Built) -> None:
     assert inputs["ingest"]["file"]["path"] == str(built.osm)
     assert "level_height_m" in inputs["lod"]["settings"] and "tex_quality" not in inputs["lod"]["settings"]
     assert "etl/lod/stage.py" in inputs["lod"]["code"] and "exporter/export.py" not in inputs["lod"]["code"]
-    assert inputs["export"]["options"] == {"out": str(built.out), "lod": None, "geometry": "compact",
-                                           "textures": "ktx2", "tiling": "implicit", "publish": built.out.name}
+    assert inputs["export"]["options"] == {
+        "out": str(built.out),
+        "lod": None,
+        "geometry": "compact",
+        "textures": "ktx2",
+        "tiling": "implicit",
+        "publish": built.out.name,
+    }
 
 
 def test_second_make_export_does_no_stage_work(built: Built) -> None:
@@ -161,14 +173,25 @@ def test_a_setting_reruns_its_stage_and_below_only(built: Built, copy_of, tmp_pa
     changed = reran(url, lambda: run_make(url, "export", f"OSM={built.osm}", out, env={"CITYLOD_LM_W_HEIGHT": "2"}))
     assert changed == ["landmarks", "generalize", "textures", "export"]
     with psycopg.connect(url) as conn:
-        assert conn.execute("""SELECT inputs -> 'settings' -> 'lm_w_height' FROM meta.pipeline_run
-                               WHERE stage = 'landmarks' ORDER BY run_id DESC LIMIT 1""").fetchone()[0] == 2.0
+        assert (
+            conn.execute("""SELECT inputs -> 'settings' -> 'lm_w_height' FROM meta.pipeline_run
+                               WHERE stage = 'landmarks' ORDER BY run_id DESC LIMIT 1""").fetchone()[0]
+            == 2.0
+        )
     # a texture setting: textures and export
-    assert reran(url, lambda: run_make(url, "export", f"OSM={built.osm}", out, env={
-        "CITYLOD_LM_W_HEIGHT": "2", "CITYLOD_TEX_QUALITY": "80"})) == ["textures", "export"]
+    assert reran(
+        url,
+        lambda: run_make(
+            url, "export", f"OSM={built.osm}", out, env={"CITYLOD_LM_W_HEIGHT": "2", "CITYLOD_TEX_QUALITY": "80"}
+        ),
+    ) == ["textures", "export"]
     # back to the defaults: what ran with the other values reruns
     assert reran(url, lambda: run_make(url, "export", f"OSM={built.osm}", out)) == [
-        "landmarks", "generalize", "textures", "export"]
+        "landmarks",
+        "generalize",
+        "textures",
+        "export",
+    ]
 
 
 def test_export_reruns_for_another_directory_lod_or_missing_files(built: Built, copy_of, tmp_path) -> None:
@@ -201,8 +224,12 @@ def test_export_reruns_for_another_directory_lod_or_missing_files(built: Built, 
 def test_reingest_and_another_osm_file_rerun_everything_below(built: Built, copy_of, tmp_path) -> None:
     url = copy_of("ingest")
     out = str(tmp_path / "tiles")
-    stages = [[s, "--if-stale"] + (["--osm", str(built.osm)] if s == "ingest" else [])
-              + (["--out", out] if s == "export" else []) for s in ALL]
+    stages = [
+        [s, "--if-stale"]
+        + (["--osm", str(built.osm)] if s == "ingest" else [])
+        + (["--out", out] if s == "export" else [])
+        for s in ALL
+    ]
 
     def chain() -> None:  # what make runs, without make
         for args in stages:
@@ -223,12 +250,15 @@ def test_reingest_and_another_osm_file_rerun_everything_below(built: Built, copy
     assert re.fullmatch(r"ingest: stale since run \d+: file sha256 \w+ -> \w+; running", line), line
 
 
-def test_sql_edit_reruns_the_stages_that_call_it_and_migrate_reloads_once(built: Built, copy_of,
-                                                                          tmp_path) -> None:
+def test_sql_edit_reruns_the_stages_that_call_it_and_migrate_reloads_once(built: Built, copy_of, tmp_path) -> None:
     url = copy_of("sql")
     out = str(tmp_path / "tiles")
-    chain = [[s, "--if-stale"] + (["--osm", str(built.osm)] if s == "ingest" else [])
-             + (["--out", out] if s == "export" else []) for s in ALL]
+    chain = [
+        [s, "--if-stale"]
+        + (["--osm", str(built.osm)] if s == "ingest" else [])
+        + (["--out", out] if s == "export" else [])
+        for s in ALL
+    ]
     assert reran(url, lambda: [etl(url, *a) for a in chain]) == ["export"]
     # load an edited tiles.finish_hierarchy (generalize calls it; lod, landmarks and tiles do not)
     edited = tmp_path / "sql"

@@ -46,8 +46,10 @@ def textured(new_db: Callable[[str], str], tmp_path_factory: pytest.TempPathFact
     out = tmp_path_factory.mktemp("textures") / "helsinki"
     run_etl(url, "export", "--out", str(out))
     with psycopg.connect(url) as conn:
-        counts = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
-                              "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+        counts = conn.execute(
+            "SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
+            "ORDER BY run_id DESC LIMIT 1"
+        ).fetchone()[0]
     return url, out, counts
 
 
@@ -91,16 +93,21 @@ def test_pages_are_bounded_and_their_utilization_is_what_they_hold(textured, con
 def test_every_textured_feature_has_a_uv_in_its_chart_for_every_corner(textured, conn_of) -> None:
     url, _, counts = textured
     conn = conn_of(url)
-    feats = {(r[0], r[1], r[2], r[3], r[4]): r[5] for r in conn.execute(
-        """SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.n_triangles
-           FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f""")}
+    feats = {
+        (r[0], r[1], r[2], r[3], r[4]): r[5]
+        for r in conn.execute(
+            """SELECT t.level, t.x, t.y, f.feature_kind, f.building_id, f.n_triangles
+           FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f"""
+        )
+    }
     uvs = conn.execute("""SELECT level, x, y, feature_kind, feature_id, n_triangles, page, uv FROM tex.feature_uv
                           ORDER BY 1, 2, 3, 4, 5""").fetchall()
     failed = conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0]
     # count in = count out + rejects
     assert len(feats) == len(uvs) + failed == counts["features"] == counts["textured"] + counts["failed"]
-    dims = {(r[0], r[1], r[2], r[3]): (r[4], r[5], np.frombuffer(r[7], "<i4").reshape(-1, 4), r[9])
-            for r in pages(conn)}
+    dims = {
+        (r[0], r[1], r[2], r[3]): (r[4], r[5], np.frombuffer(r[7], "<i4").reshape(-1, 4), r[9]) for r in pages(conn)
+    }
     for level, x, y, kind, fid, n, page, uv in uvs:
         assert feats[(level, x, y, kind, fid)] == n  # the mesh the exporter writes has n triangles
         pg = np.frombuffer(page, "<i2")
@@ -111,20 +118,29 @@ def test_every_textured_feature_has_a_uv_in_its_chart_for_every_corner(textured,
             w, h, rects, _ = dims[(level, x, y, p)]
             px = corner[pg == p] * [w, h]
             lo, hi = px.min(axis=1), px.max(axis=1)
-            inside = ((lo[:, None, :] >= rects[None, :, :2] - 1e-3)
-                      & (hi[:, None, :] <= rects[None, :, :2] + rects[None, :, 2:] + 1e-3)).all(axis=2)
+            inside = (
+                (lo[:, None, :] >= rects[None, :, :2] - 1e-3)
+                & (hi[:, None, :] <= rects[None, :, :2] + rects[None, :, 2:] + 1e-3)
+            ).all(axis=2)
             assert inside.any(axis=1).all(), (level, x, y, kind, fid)  # every triangle inside one chart
 
 
 def test_coarser_tiles_get_fewer_texels_per_metre(textured, conn_of) -> None:
     conn = conn_of(textured[0])
-    rho = {(r[0], r[1], r[2]): (r[3], r[4], r[5]) for r in conn.execute(
-        """SELECT DISTINCT t.level, t.x, t.y, p.texels_per_metre, t.geometric_error, p.view_distance_m
-           FROM tex.page p JOIN tiles.tile t USING (level, x, y)""")}
+    rho = {
+        (r[0], r[1], r[2]): (r[3], r[4], r[5])
+        for r in conn.execute(
+            """SELECT DISTINCT t.level, t.x, t.y, p.texels_per_metre, t.geometric_error, p.view_distance_m
+           FROM tex.page p JOIN tiles.tile t USING (level, x, y)"""
+        )
+    }
     for (level, x, y), (r, err, d) in rho.items():
         # the thesis' rule at the distance the tile is first drawn from, capped
-        want = min(S.tex_max_texels_per_metre, S.tex_max_sse / (err * S.tex_px_per_texel)) if err > 0 \
+        want = (
+            min(S.tex_max_texels_per_metre, S.tex_max_sse / (err * S.tex_px_per_texel))
+            if err > 0
             else S.tex_max_texels_per_metre
+        )
         assert r == pytest.approx(want, rel=1e-5)
         assert float(A.texels_per_metre(d, np.radians(S.tex_fov_deg), S.tex_screen_height)) == pytest.approx(r, 1e-5)
         parent = rho.get((level - 1, x // 2, y // 2))
@@ -140,8 +156,9 @@ def _digest(conn: psycopg.Connection) -> tuple[str, str]:
     for row in conn.execute("SELECT level, x, y, page_no, bytes, ktx2 FROM tex.page ORDER BY 1, 2, 3, 4"):
         a.update(repr(row[:4]).encode() + bytes(row[4]) + bytes(row[5] or b""))
     b = hashlib.sha256()
-    for row in conn.execute("SELECT level, x, y, feature_kind, feature_id, page, uv FROM tex.feature_uv "
-                            "ORDER BY 1, 2, 3, 4, 5"):
+    for row in conn.execute(
+        "SELECT level, x, y, feature_kind, feature_id, page, uv FROM tex.feature_uv ORDER BY 1, 2, 3, 4, 5"
+    ):
         b.update(repr(row[:5]).encode() + bytes(row[5]) + bytes(row[6]))
     return a.hexdigest(), b.hexdigest()
 
@@ -161,12 +178,29 @@ def dask_cluster(extra_workers: int = 1):
     separately, as a user would add a machine: (scheduler address, the extra workers' Popen objects)."""
     from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as client:
-        extra = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", cluster.scheduler_address,
-                                   "--nthreads", "1", "--no-dashboard", "--name", f"extra-{i}"],
-                                  cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                 for i in range(extra_workers)]
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
+        extra = [
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "distributed.cli.dask_worker",
+                    cluster.scheduler_address,
+                    "--nthreads",
+                    "1",
+                    "--no-dashboard",
+                    "--name",
+                    f"extra-{i}",
+                ],
+                cwd=REPO,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            for i in range(extra_workers)
+        ]
         try:
             client.wait_for_workers(2 + extra_workers, timeout=60)
             yield cluster.scheduler_address, extra
@@ -203,8 +237,14 @@ def test_a_worker_killed_mid_run_loses_nothing(textured, conn_of) -> None:
     failed_before = conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0]
     with dask_cluster() as (address, extra):
         env = {**os.environ, "DATABASE_URL": url, "CITYLOD_DASK_SCHEDULER": address, "CITYLOD_TEX_WORKERS": "2"}
-        stage = subprocess.Popen([sys.executable, "-m", "etl", "textures"], cwd=REPO, env=env,
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stage = subprocess.Popen(
+            [sys.executable, "-m", "etl", "textures"],
+            cwd=REPO,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         # the extra worker dies while it runs a unit of the stage
         from distributed import Client
 
@@ -221,8 +261,9 @@ def test_a_worker_killed_mid_run_loses_nothing(textured, conn_of) -> None:
     assert stage.returncode == 0, err
     assert _digest(conn) == before
     assert conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0] == failed_before
-    run = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
-                       "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    run = conn.execute(
+        "SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' ORDER BY run_id DESC LIMIT 1"
+    ).fetchone()[0]
     assert run["units_lost"] == 0
 
 
@@ -254,8 +295,9 @@ def test_export_validates_with_one_material_per_page(fmt, textured, webp_export,
         assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
     assert check_tileset(out / "tileset.json") == []
     ext, mime = {"ktx2": ("KHR_texture_basisu", "image/ktx2"), "webp": ("EXT_texture_webp", "image/webp")}[fmt]
-    n_pages = dict(((r[0], r[1], r[2]), r[3]) for r in conn.execute(
-        "SELECT level, x, y, count(*) FROM tex.page GROUP BY 1, 2, 3"))
+    n_pages = dict(
+        ((r[0], r[1], r[2]), r[3]) for r in conn.execute("SELECT level, x, y, count(*) FROM tex.page GROUP BY 1, 2, 3")
+    )
     features = textured_tiles = 0
     for glb in sorted(out.rglob("*.glb")):
         level, x, y = (int(p) for p in glb.relative_to(out / "content").with_suffix("").parts)
@@ -277,7 +319,7 @@ def test_export_validates_with_one_material_per_page(fmt, textured, webp_export,
                 _, binary = read_glb(glb.read_bytes())
                 for im in gltf["images"]:
                     view = gltf["bufferViews"][im["bufferView"]]
-                    assert binary[view["byteOffset"]:view["byteOffset"] + 12] == IDENTIFIER
+                    assert binary[view["byteOffset"] : view["byteOffset"] + 12] == IDENTIFIER
         features += gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["count"]
         assert len({p["material"] for p in prims}) == len(gltf["materials"]) <= n_pages.get((level, x, y), 0) + 1
     assert textured_tiles == len(n_pages)
@@ -289,17 +331,25 @@ def test_window_panels_show_the_painted_windows(textured, conn_of) -> None:
     glass on its page, each wall triangle its (lighter) wall."""
     url = textured[0]
     conn = conn_of(url)
-    level, x, y = conn.execute("SELECT level, x, y FROM tiles.tile WHERE is_leaf ORDER BY content_features DESC "
-                               "LIMIT 1").fetchone()
-    imgs = {r[0]: A.decode_image(bytes(r[1]), "webp") for r in conn.execute(
-        "SELECT page_no, bytes FROM tex.page WHERE (level, x, y) = (%s, %s, %s)", (level, x, y))}
-    uv = {(r[0], r[1]): (np.frombuffer(r[2], "<i2"), np.frombuffer(r[3], "<f4").reshape(-1, 3, 2)) for r in
-          conn.execute("SELECT feature_kind, feature_id, page, uv FROM tex.feature_uv WHERE (level, x, y) = "
-                       "(%s, %s, %s)", (level, x, y))}
+    level, x, y = conn.execute(
+        "SELECT level, x, y FROM tiles.tile WHERE is_leaf ORDER BY content_features DESC LIMIT 1"
+    ).fetchone()
+    imgs = {
+        r[0]: A.decode_image(bytes(r[1]), "webp")
+        for r in conn.execute("SELECT page_no, bytes FROM tex.page WHERE (level, x, y) = (%s, %s, %s)", (level, x, y))
+    }
+    uv = {
+        (r[0], r[1]): (np.frombuffer(r[2], "<i2"), np.frombuffer(r[3], "<f4").reshape(-1, 3, 2))
+        for r in conn.execute(
+            "SELECT feature_kind, feature_id, page, uv FROM tex.feature_uv WHERE (level, x, y) = (%s, %s, %s)",
+            (level, x, y),
+        )
+    }
     glass, wall = [], []
     for kind, bid, sem, wkb in conn.execute(
-            "SELECT feature_kind, building_id, semantics, ST_AsBinary(geom) FROM api.buildings_for_tile(%s, %s, %s)",
-            (level, x, y)):
+        "SELECT feature_kind, building_id, semantics, ST_AsBinary(geom) FROM api.buildings_for_tile(%s, %s, %s)",
+        (level, x, y),
+    ):
         s = np.frombuffer(sem, np.uint8)
         assert len(s) == len(decode_triangles(wkb))
         pg, corner = uv[(kind, bid)]
@@ -335,13 +385,16 @@ def test_units_past_their_time_limit_are_recorded_as_failed_not_lost(textured, c
     # a limit every unit exceeds: each worker's watchdog ends it mid-unit (as it would a hang in native code)
     proc = run_etl(url, "textures", env={"CITYLOD_TEX_UNIT_TIMEOUT_S": "0.001", "CITYLOD_TEX_WORKERS": "2"})
     assert "Timeout (" in proc.stderr and "most recent call first" in proc.stderr  # the workers' stacks
-    run = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
-                       "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+    run = conn.execute(
+        "SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' ORDER BY run_id DESC LIMIT 1"
+    ).fetchone()[0]
     assert run["units_lost"] == run["units"] > 0 and run["workers"] == 2
     assert run["textured"] == 0 and run["failed"] == run["features"] == counts["features"]
     assert conn.execute("SELECT count(*) FROM tex.page").fetchone()[0] == 0
-    reasons = conn.execute("SELECT reason, count(*), count(DISTINCT (level, x, y, feature_kind, feature_id)), "
-                           "bool_and(detail LIKE '%time limit%') FROM tex.failure GROUP BY 1").fetchall()
+    reasons = conn.execute(
+        "SELECT reason, count(*), count(DISTINCT (level, x, y, feature_kind, feature_id)), "
+        "bool_and(detail LIKE '%time limit%') FROM tex.failure GROUP BY 1"
+    ).fetchall()
     assert reasons == [("texturing_hung", counts["features"], counts["features"], True)]
     # every feature of every tile is there, as api.buildings_for_tile lists them
     missing = conn.execute("""
@@ -354,8 +407,9 @@ def test_units_past_their_time_limit_are_recorded_as_failed_not_lost(textured, c
     assert conn.execute("SELECT count(*) FROM tex.failure").fetchone()[0] == counts["failed"]
 
 
-def test_pages_the_ktx2_encoder_refuses_stay_webp_and_their_features_get_vertex_colours(textured, conn_of,
-                                                                                         tmp_path) -> None:
+def test_pages_the_ktx2_encoder_refuses_stay_webp_and_their_features_get_vertex_colours(
+    textured, conn_of, tmp_path
+) -> None:
     """An encoder that fails on every page: the stage still ends well, every page keeps its WebP, every textured
     feature is in tex.failure as ktx2_encode_failed (in = textured + textured in WebP only + rejected), a KTX2
     export draws them with vertex colours and validates, a WebP export is textured as before."""
@@ -366,19 +420,27 @@ def test_pages_the_ktx2_encoder_refuses_stay_webp_and_their_features_get_vertex_
     fake.chmod(0o755)
     try:
         run_etl(url, "textures", env={"CITYLOD_BASISU": str(fake)})
-        run = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
-                           "ORDER BY run_id DESC LIMIT 1").fetchone()[0]
+        run = conn.execute(
+            "SELECT counts FROM meta.pipeline_run WHERE stage = 'textures' AND status = 'ok' "
+            "ORDER BY run_id DESC LIMIT 1"
+        ).fetchone()[0]
         n = counts["textured"]
         assert n > 0 and run["ktx2_failed"] == n and run["ktx2_pages"] == 0 and run["pages"] == counts["pages"]
         assert (run["textured"], run["failed"]) == (counts["textured"], counts["failed"])
         assert run["out_by_kind"] == {"textured": 0, "textured in WebP only": n}
         assert run["in"] == run["out"] + run["rejected"] == counts["features"]
-        reasons = dict((r[0], r[1:]) for r in conn.execute(
-            "SELECT reason, count(*), bool_and(detail LIKE '%basisu exit 1%') FROM tex.failure GROUP BY 1"))
+        reasons = dict(
+            (r[0], r[1:])
+            for r in conn.execute(
+                "SELECT reason, count(*), bool_and(detail LIKE '%basisu exit 1%') FROM tex.failure GROUP BY 1"
+            )
+        )
         assert reasons.pop("ktx2_encode_failed") == (n, True)
         assert sum(r[0] for r in reasons.values()) == counts["failed"]
-        assert conn.execute("SELECT count(*) FROM tex.page WHERE ktx2 IS NULL AND bytes IS NOT NULL").fetchone()[0] \
+        assert (
+            conn.execute("SELECT count(*) FROM tex.page WHERE ktx2 IS NULL AND bytes IS NOT NULL").fetchone()[0]
             == counts["pages"]
+        )
         ktx2, webp = tmp_path / "ktx2", tmp_path / "webp"
         run_etl(url, "export", "--out", str(ktx2), "--textures", "ktx2")
         run_etl(url, "export", "--out", str(webp), "--textures", "webp")
@@ -386,7 +448,8 @@ def test_pages_the_ktx2_encoder_refuses_stay_webp_and_their_features_get_vertex_
         assert report["errors"] == 0 and report["warnings"] == 0, report["reports"][:3]
         assert not any("images" in read_glb(g.read_bytes())[0] for g in ktx2.rglob("*.glb"))  # vertex colours
         assert sum("images" in read_glb(g.read_bytes())[0] for g in webp.rglob("*.glb")) == len(
-            {(r[0], r[1], r[2]) for r in pages(conn)})
+            {(r[0], r[1], r[2]) for r in pages(conn)}
+        )
     finally:
         run_etl(url, "textures")  # back to the module's textured state
     assert conn.execute("SELECT count(*) FROM tex.page WHERE ktx2 IS NULL").fetchone()[0] == 0

@@ -55,7 +55,9 @@ def test_budget_and_single_assignment(small_budget, conn_of) -> None:
            FROM tiles.building_tile bt JOIN osm.building b ON b.id = bt.building_id
            JOIN lod.building_mesh m ON m.building_id = bt.building_id AND m.lod = 3
            WHERE bt.level < 16  -- the deepest level is a leaf whatever its load
-           GROUP BY 1, 2, 3 HAVING sum(m.n_triangles) > %s""", (TRIANGLES,)).fetchall()
+           GROUP BY 1, 2, 3 HAVING sum(m.n_triangles) > %s""",
+        (TRIANGLES,),
+    ).fetchall()
     assert all(groups == 1 for *_, groups in heavy), heavy
     total = conn.execute("SELECT count(*) FROM lod.building_mesh WHERE lod = 1").fetchone()[0]
     assigned = conn.execute("SELECT count(*), count(DISTINCT building_id) FROM tiles.building_tile").fetchone()
@@ -78,8 +80,12 @@ def test_every_leaf_has_its_parents(small_budget, conn_of) -> None:
 
 def test_regions_nest_and_errors_wait_for_generalize(small_budget, conn_of) -> None:
     conn = conn_of(small_budget)
-    tiles = {(lv, x, y): (leaf, reg, ge) for lv, x, y, leaf, reg, ge in conn.execute(
-        "SELECT level, x, y, is_leaf, region, geometric_error FROM tiles.tile")}
+    tiles = {
+        (lv, x, y): (leaf, reg, ge)
+        for lv, x, y, leaf, reg, ge in conn.execute(
+            "SELECT level, x, y, is_leaf, region, geometric_error FROM tiles.tile"
+        )
+    }
     for (lv, x, y), (leaf, reg, ge) in tiles.items():
         assert reg[0] <= reg[2] and reg[1] <= reg[3] and reg[4] < reg[5]
         # no rule of thumb: inner tiles get the error generalize measures, leaves are exact

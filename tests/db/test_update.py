@@ -29,8 +29,10 @@ from tests.conftest import City, run_etl
 def square(way: int, node: int, south: float, west: float, north: float, east: float, tags: str) -> str:
     """A closed way of four new nodes (``node`` to ``node + 3``, anticlockwise from the south-west corner)."""
     corners = [(south, west), (south, east), (north, east), (north, west)]
-    nodes = "".join(f'\n    <node id="{node + i}" version="1" lat="{lat:.7f}" lon="{lon:.7f}"/>'
-                    for i, (lat, lon) in enumerate(corners))
+    nodes = "".join(
+        f'\n    <node id="{node + i}" version="1" lat="{lat:.7f}" lon="{lon:.7f}"/>'
+        for i, (lat, lon) in enumerate(corners)
+    )
     refs = "".join(f'<nd ref="{node + i}"/>' for i in (0, 1, 2, 3, 0))
     return f'{nodes}\n    <way id="{way}" version="1">\n      {refs}\n      {tags}\n    </way>'
 
@@ -46,18 +48,31 @@ MOVE_AND_RETAG = """
       <tag k="name" v="L 110"/>
     </way>"""
 #: the L gains a building:part in its corner
-NEW_PART = square(17002, 170011, 60.20002, 24.90275, 60.20007, 24.90285,
-                  '<tag k="building:part" v="yes"/><tag k="height" v="30"/>')
+NEW_PART = square(
+    17002, 170011, 60.20002, 24.90275, 60.20007, 24.90285, '<tag k="building:part" v="yes"/><tag k="height" v="30"/>'
+)
 #: a new building east of the others
-NEW_HOUSE = square(17001, 170001, 60.2, 24.906, 60.2001, 24.9062,
-                   '<tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>')
+NEW_HOUSE = square(
+    17001,
+    170001,
+    60.2,
+    24.906,
+    60.2001,
+    24.9062,
+    '<tag k="building" v="house"/><tag k="height" v="7"/><tag k="roof:shape" v="gabled"/>',
+)
 
 
 def osm_change(modify: str = "", delete: str = "", create: str = "") -> str:
-    return ('<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6" generator="citylod tests">\n'
-            + "".join(f"  <{a}>{body}\n  </{a}>\n" for a, body in (("modify", modify), ("delete", delete),
-                                                                  ("create", create)) if body)
-            + "</osmChange>\n")
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n<osmChange version="0.6" generator="citylod tests">\n'
+        + "".join(
+            f"  <{a}>{body}\n  </{a}>\n"
+            for a, body in (("modify", modify), ("delete", delete), ("create", create))
+            if body
+        )
+        + "</osmChange>\n"
+    )
 
 
 CHANGE_1 = osm_change(MOVE_AND_RETAG, '\n    <way id="13003" version="2"/>', NEW_HOUSE + NEW_PART)
@@ -81,18 +96,20 @@ CHANGE_2 = """<?xml version="1.0" encoding="UTF-8"?>
 #: inside the data's extent (the working CRS stays, so an update reads only what the change touched): a moved node,
 #: a tag edit, the L gaining a part, and the outline of the parts fixture going (its two parts, unchanged, lose it)
 #: a part in the repaired bow tie (fixture 900: a repaired outline read again for the linking)
-PART_IN_BOWTIE = square(17003, 170021, 60.200035, 25.117195, 60.200045, 25.117205,
-                        '<tag k="building:part" v="yes"/><tag k="height" v="3"/>')
+PART_IN_BOWTIE = square(
+    17003, 170021, 60.200035, 25.117195, 60.200045, 25.117205, '<tag k="building:part" v="yes"/><tag k="height" v="3"/>'
+)
 CHANGE_INSIDE = osm_change(MOVE_AND_RETAG, '\n    <way id="13001" version="2"/>', NEW_PART + PART_IN_BOWTIE)
 
 #: two small buildings south-west and north-east of the fixtures (which all stand on one parallel, the edge of
 #: their extent), so that CHANGE_INSIDE moves no footprint on the edge of the data
-FRAME = osm_change(create=square(17101, 171001, 60.199, 24.899, 60.19905, 24.8991, '<tag k="building" v="shed"/>')
-                   + square(17102, 171011, 60.202, 25.12, 60.20205, 25.1201, '<tag k="building" v="shed"/>'))
+FRAME = osm_change(
+    create=square(17101, 171001, 60.199, 24.899, 60.19905, 24.8991, '<tag k="building" v="shed"/>')
+    + square(17102, 171011, 60.202, 25.12, 60.20205, 25.1201, '<tag k="building" v="shed"/>')
+)
 
 EXPECTED_CHANGES = {
-    1: {10001: "modified", 11001: "modified", 13003: "deleted", 13001: "modified", 17001: "added",
-        17002: "added"},
+    1: {10001: "modified", 11001: "modified", 13003: "deleted", 13001: "modified", 17001: "added", 17002: "added"},
     2: {-1201: "modified"},
 }
 PIPELINE = ("lod", "landmarks", "tiles", "generalize", "textures")
@@ -109,8 +126,11 @@ def build(url: str, osm: Path, out: Path) -> None:
 
 
 def files(d: Path) -> dict[str, str]:
-    return {p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(d.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(d).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(d.rglob("*"))
+        if p.is_file()
+    }
 
 
 @pytest.fixture(scope="module")
@@ -121,9 +141,11 @@ def fixtures_city(city: Callable[[str], City]) -> City:
 def test_count_change_and_refusals(tmp_path: Path) -> None:
     c1 = tmp_path / "c1.osc"
     c1.write_text(CHANGE_1)
-    assert count_change(c1) == {"create": {"node": 8, "way": 2, "relation": 0},
-                                "modify": {"node": 1, "way": 1, "relation": 0},
-                                "delete": {"node": 0, "way": 1, "relation": 0}}
+    assert count_change(c1) == {
+        "create": {"node": 8, "way": 2, "relation": 0},
+        "modify": {"node": 1, "way": 1, "relation": 0},
+        "delete": {"node": 0, "way": 1, "relation": 0},
+    }
     gz = tmp_path / "c2.osc.gz"
     gz.write_bytes(gzip.compress(CHANGE_2.encode()))
     assert count_change(gz)["modify"]["relation"] == 1
@@ -153,8 +175,9 @@ def test_only_a_state_file_the_database_left_is_dropped(tmp_path: Path, monkeypa
 
 
 @pytest.mark.db
-def test_input_digests_change_with_what_is_read_and_only_there(fixtures_city: City, new_db: Callable[[str], str],
-                                                                tmp_path: Path) -> None:
+def test_input_digests_change_with_what_is_read_and_only_there(
+    fixtures_city: City, new_db: Callable[[str], str], tmp_path: Path
+) -> None:
     """An update textures again only the tiles whose tex.input_digests changed: a colour tag of one of a tile's
     features and the LOD3 windows of one of its LOD2 buildings (read for the paint, not drawn there) each change
     that tile's digest, and only the digests of tiles that draw the building. Generalize likewise computes
@@ -167,28 +190,32 @@ def test_input_digests_change_with_what_is_read_and_only_there(fixtures_city: Ci
         # the digest stored with each mesh (migrations/0041), which the digests hash, is its mesh's
         n, wrong = conn.execute(
             "SELECT count(*), count(*) FILTER (WHERE f.mesh_md5 IS DISTINCT FROM md5(ST_AsEWKB(f.geom))) "
-            "FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f").fetchone()
+            "FROM tiles.tile t CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f"
+        ).fetchone()
         assert n > 0 and wrong == 0, (n, wrong)
         _check_input_digests(conn)
         _check_unit_digests(conn)
 
 
 def _check_unit_digests(conn: psycopg.Connection) -> None:
-    queries = {"footprints": "SELECT unit_level, unit_x, unit_y, group_ids, digest "
-                             "FROM gen.footprint_unit_digests(0.05, 8)",
-               "decimation": "SELECT unit_level, unit_x, unit_y, building_ids, digest "
-                             "FROM gen.decimation_unit_digests(0, 8)"}  # every mesh decimated: all read
+    queries = {
+        "footprints": "SELECT unit_level, unit_x, unit_y, group_ids, digest FROM gen.footprint_unit_digests(0.05, 8)",
+        "decimation": "SELECT unit_level, unit_x, unit_y, building_ids, digest FROM gen.decimation_unit_digests(0, 8)",
+    }  # every mesh decimated: all read
 
     def digests() -> dict[tuple[str, int, int, int], tuple[list[int], str]]:
         return {(step, lv, x, y): (ids, d) for step, q in queries.items() for lv, x, y, ids, d in conn.execute(q)}
 
     before = digests()
     assert digests() == before and len({k[1:] for k in before}) > 2, "more than one batch unit"
-    (bid,) = conn.execute("SELECT building_id FROM lod.building_mesh WHERE lod = 2 ORDER BY building_id LIMIT 1"
-                          ).fetchone()
+    (bid,) = conn.execute(
+        "SELECT building_id FROM lod.building_mesh WHERE lod = 2 ORDER BY building_id LIMIT 1"
+    ).fetchone()
     try:
-        conn.execute("UPDATE lod.building_mesh SET geom = ST_Translate(geom, 0.25, 0, 0) "
-                     "WHERE building_id = %s AND lod = 2", (bid,))
+        conn.execute(
+            "UPDATE lod.building_mesh SET geom = ST_Translate(geom, 0.25, 0, 0) WHERE building_id = %s AND lod = 2",
+            (bid,),
+        )
         after = digests()
         changed = {k for k in before if after[k][1] != before[k][1]}
         (group,) = conn.execute("SELECT coalesce(parent_id, id) FROM osm.building WHERE id = %s", (bid,)).fetchone()
@@ -205,7 +232,8 @@ def _check_unit_digests(conn: psycopg.Connection) -> None:
         "SELECT o.id, n.id FROM osm.building o JOIN u uo ON uo.id = o.id "
         "JOIN osm.building n ON n.parent_id IS NULL JOIN u un ON un.id = n.id "
         "AND (un.unit_level, un.unit_x, un.unit_y) <> (uo.unit_level, uo.unit_x, uo.unit_y) "
-        "WHERE o.parent_id IS NULL ORDER BY 1, 2 LIMIT 1").fetchone()
+        "WHERE o.parent_id IS NULL ORDER BY 1, 2 LIMIT 1"
+    ).fetchone()
     try:
         # by the vector between their closest points, and 1 cm past it
         conn.execute(
@@ -213,9 +241,14 @@ def _check_unit_digests(conn: psycopg.Connection) -> None:
             "(1 + 0.01 / d) * (ST_X(b) - ST_X(a)), (1 + 0.01 / d) * (ST_Y(b) - ST_Y(a))) "
             "FROM (SELECT ST_ClosestPoint(n.geom_local, o.geom_local) AS a, ST_ClosestPoint(o.geom_local, "
             "n.geom_local) AS b, ST_Distance(n.geom_local, o.geom_local) AS d FROM osm.building n, osm.building o "
-            "WHERE n.id = %s AND o.id = %s) c WHERE n.id = %s", (neighbour, pinned, neighbour))
-        assert conn.execute("SELECT ST_DWithin(n.geom_local, o.geom_local, 0.05) FROM osm.building n, osm.building o "
-                            "WHERE n.id = %s AND o.id = %s", (neighbour, pinned)).fetchone() == (True,)
+            "WHERE n.id = %s AND o.id = %s) c WHERE n.id = %s",
+            (neighbour, pinned, neighbour),
+        )
+        assert conn.execute(
+            "SELECT ST_DWithin(n.geom_local, o.geom_local, 0.05) FROM osm.building n, osm.building o "
+            "WHERE n.id = %s AND o.id = %s",
+            (neighbour, pinned),
+        ).fetchone() == (True,)
         after = digests()
         assert [k for k, (ids, d) in before.items() if k[0] == "footprints" and pinned in ids and after[k][1] != d]
     finally:
@@ -223,12 +256,15 @@ def _check_unit_digests(conn: psycopg.Connection) -> None:
 
 
 def _check_input_digests(conn: psycopg.Connection) -> None:
-    tiles = conn.execute("SELECT array_agg(level), array_agg(x), array_agg(y) FROM tiles.tile "
-                         "WHERE content_features > 0").fetchone()
+    tiles = conn.execute(
+        "SELECT array_agg(level), array_agg(x), array_agg(y) FROM tiles.tile WHERE content_features > 0"
+    ).fetchone()
 
     def digests() -> dict[tuple[int, int, int], str]:
-        return {(lv, x, y): d for lv, x, y, d in conn.execute(
-            "SELECT level, x, y, digest FROM tex.input_digests(%s, %s, %s)", tiles)}
+        return {
+            (lv, x, y): d
+            for lv, x, y, d in conn.execute("SELECT level, x, y, digest FROM tex.input_digests(%s, %s, %s)", tiles)
+        }
 
     before = digests()
     assert digests() == before and len(before) == len(tiles[0])
@@ -238,14 +274,22 @@ def _check_input_digests(conn: psycopg.Connection) -> None:
         "CROSS JOIN LATERAL tex.tile_features(t.level, t.x, t.y) f "
         "JOIN lod.building_mesh m ON m.building_id = f.building_id AND m.lod = 3 AND m.n_windows > 0 "
         "WHERE t.gen_level = 3 AND f.gen_level = 3 AND f.feature_kind <> 'block' "
-        "ORDER BY 1, 2, 3, 4 LIMIT 1").fetchone()
+        "ORDER BY 1, 2, 3, 4 LIMIT 1"
+    ).fetchone()
     # the tiles that draw it (its LOD3 mesh in its leaf): their digests may change too, no other tile's
-    drawing = {(a, b, c) for a, b, c in conn.execute(
-        "SELECT t.level, t.x, t.y FROM tiles.tile t CROSS JOIN LATERAL tex.tile_features(t.level, t.x, t.y) f "
-        "WHERE f.building_id = %s", (bid,))}
+    drawing = {
+        (a, b, c)
+        for a, b, c in conn.execute(
+            "SELECT t.level, t.x, t.y FROM tiles.tile t CROSS JOIN LATERAL tex.tile_features(t.level, t.x, t.y) f "
+            "WHERE f.building_id = %s",
+            (bid,),
+        )
+    }
     try:
-        conn.execute("UPDATE lod.building_mesh SET geom = ST_Translate(geom, 0, 0, 0.5) "
-                     "WHERE building_id = %s AND lod = 3", (bid,))
+        conn.execute(
+            "UPDATE lod.building_mesh SET geom = ST_Translate(geom, 0, 0, 0.5) WHERE building_id = %s AND lod = 3",
+            (bid,),
+        )
         after = digests()
         changed = {k for k in before if after[k] != before[k]}
         assert (lv, x, y) in changed and changed <= drawing, "the openings are read: covered"
@@ -262,16 +306,19 @@ def _check_input_digests(conn: psycopg.Connection) -> None:
 
 #: row versions of the generalized rows, of the tiles' content rows, and of the blocks (a block's row, all but its
 #: version, its version, and whether it is omitted on its tile's error)
-_VERSIONS = "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL " \
-            "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
+_VERSIONS = (
+    "SELECT 'footprint', building_id, xmin::text FROM gen.footprint UNION ALL "
+    "SELECT 'mesh', building_id * 4 + gen_level, xmin::text FROM gen.building_mesh"
+)
 _CONTENT = "SELECT (level, x, y, feature_kind, feature_id)::text, xmin::text FROM tiles.tile_content"
 _BLOCKS = "SELECT block_id, md5(k::text), xmin::text, built_error_m IS NOT NULL FROM gen.block k"
 _LAST_STATE = "SELECT state_sha256 FROM meta.osm_change ORDER BY seq DESC LIMIT 1"
 
 
 def _last_counts(conn: psycopg.Connection, stage: str) -> dict:
-    (counts,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = %s ORDER BY run_id DESC LIMIT 1",
-                             (stage,)).fetchone()
+    (counts,) = conn.execute(
+        "SELECT counts FROM meta.pipeline_run WHERE stage = %s ORDER BY run_id DESC LIMIT 1", (stage,)
+    ).fetchone()
     return counts
 
 
@@ -340,8 +387,12 @@ def test_update_equals_a_full_rebuild(fixtures_city: City, new_db: Callable[[str
     build(inc, base, tmp_path / "inc")
     for seq, change in ((1, c1), (2, c2)):
         with psycopg.connect(inc) as conn:
-            before = ({(t, k): v for t, k, v in conn.execute(_VERSIONS)}, dict(conn.execute(_CONTENT).fetchall()),
-                      {b: rest for b, *rest in conn.execute(_BLOCKS)}, conn.execute(_LAST_STATE).fetchone())
+            before = (
+                {(t, k): v for t, k, v in conn.execute(_VERSIONS)},
+                dict(conn.execute(_CONTENT).fetchall()),
+                {b: rest for b, *rest in conn.execute(_BLOCKS)},
+                conn.execute(_LAST_STATE).fetchone(),
+            )
         run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SMALL)
         with psycopg.connect(inc) as conn:
             _wrote_only_what_changed(conn, seq, before, base)
@@ -390,8 +441,11 @@ def _the_state_chain(inc: str, state_sha: str, base: Path, c1: Path, tmp_path: P
     # the state is made again from the base file and the recorded changes when its file is gone
     state_path(state_sha).unlink()
     c3 = tmp_path / "c3.osc"
-    c3.write_text(CHANGE_1.replace('version="2" lat="60.2001795" lon="24.9004157"',
-                                   'version="3" lat="60.2001795" lon="24.9003615"'))
+    c3.write_text(
+        CHANGE_1.replace(
+            'version="2" lat="60.2001795" lon="24.9004157"', 'version="3" lat="60.2001795" lon="24.9003615"'
+        )
+    )
     run_etl(inc, "update", "--osc", str(c3), env=SMALL)
     with psycopg.connect(inc) as conn:
         assert dict(conn.execute("SELECT id, change FROM osm.building_change")) == {10001: "modified"}
@@ -414,8 +468,9 @@ def _the_state_chain(inc: str, state_sha: str, base: Path, c1: Path, tmp_path: P
     run_etl(inc, "ingest", "--osm", str(base), env=SMALL)
     run_etl(inc, "update", "--osc", str(c4), env=SMALL)
     with psycopg.connect(inc) as conn:
-        (lod,) = conn.execute("SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' "
-                              "ORDER BY run_id DESC LIMIT 1").fetchone()
+        (lod,) = conn.execute(
+            "SELECT counts FROM meta.pipeline_run WHERE stage = 'lod' ORDER BY run_id DESC LIMIT 1"
+        ).fetchone()
         assert not lod["changed_only"]
         assert conn.execute("SELECT seq, path FROM meta.osm_change").fetchall() == [(1, str(c4))]
 
@@ -423,14 +478,20 @@ def _the_state_chain(inc: str, state_sha: str, base: Path, c1: Path, tmp_path: P
     # runs again, and its glbs are the same bytes
     run_etl(inc, "export", "--out", str(tmp_path / "before"), env=SMALL)
     c5 = tmp_path / "c5.osc"
-    c5.write_text('<?xml version="1.0"?><osmChange version="0.6"><create><node id="170101" version="1" '
-                  'lat="60.2005" lon="24.9010"><tag k="amenity" v="bench"/></node></create></osmChange>')
+    c5.write_text(
+        '<?xml version="1.0"?><osmChange version="0.6"><create><node id="170101" version="1" '
+        'lat="60.2005" lon="24.9010"><tag k="amenity" v="bench"/></node></create></osmChange>'
+    )
     r = run_etl(inc, "update", "--osc", str(c5), "--out", str(tmp_path / "after"), env=SMALL)
     assert "no building changed" in r.stderr
     with psycopg.connect(inc) as conn:
         assert conn.execute("SELECT count(*) FROM osm.building_change").fetchone() == (0,)
-        carried = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts ? 'carried_from' FROM "
-                                    "meta.pipeline_run WHERE status = 'ok' ORDER BY stage, run_id DESC"))
+        carried = dict(
+            conn.execute(
+                "SELECT DISTINCT ON (stage) stage, counts ? 'carried_from' FROM "
+                "meta.pipeline_run WHERE status = 'ok' ORDER BY stage, run_id DESC"
+            )
+        )
     assert all(carried[st] for st in PIPELINE) and not carried["export"] and not carried["ingest"]
     for st in PIPELINE:  # current with the new ingest run: make finds nothing to do
         assert "current" in run_etl(inc, st, "--if-stale", env=SMALL).stdout
@@ -448,10 +509,10 @@ def _the_state_chain(inc: str, state_sha: str, base: Path, c1: Path, tmp_path: P
         assert reached("generalize") is None and reached("textures") is None
 
 
-
 @pytest.mark.db
-def test_an_update_reads_only_what_its_change_touched(fixtures_city: City, new_db: Callable[[str], str],
-                                                      tmp_path: Path) -> None:
+def test_an_update_reads_only_what_its_change_touched(
+    fixtures_city: City, new_db: Callable[[str], str], tmp_path: Path
+) -> None:
     """Ingest in an update stages only the ways the change names or whose nodes it moves (and every relation);
     the part linking still finds what a full ingest of the new state finds."""
     frame, change = tmp_path / "frame.osc", tmp_path / "inside.osc"
@@ -464,25 +525,47 @@ def test_an_update_reads_only_what_its_change_touched(fixtures_city: City, new_d
     run_etl(inc, "ingest", "--osm", str(base))
     with psycopg.connect(inc) as conn:
         (n_before,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
-        ctx = Context(conn, inc, Settings.from_env(), 0, mode="update",
-                      options=ingest.Input(state, "x", update.change_ids([change])))
+        ctx = Context(
+            conn,
+            inc,
+            Settings.from_env(),
+            0,
+            mode="update",
+            options=ingest.Input(state, "x", update.change_ids([change])),
+        )
         counts = ingest.run(ctx).counts
         changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
     assert counts["partial"] and counts["staged"] < n_before / 2, counts
     # the parts of the outline that went are unchanged ways, linked again (to nothing); the L's new part is linked
-    assert changed == {10001: "modified", 11001: "modified", 13001: "deleted", 13002: "modified",
-                       13003: "modified", 17002: "added", 17003: "added", 90002: "modified"}, changed
+    assert changed == {
+        10001: "modified",
+        11001: "modified",
+        13001: "deleted",
+        13002: "modified",
+        13003: "modified",
+        17002: "added",
+        17003: "added",
+        90002: "modified",
+    }, changed
     full = new_db("partial_full")
     run_etl(full, "ingest", "--osm", str(state))
     with psycopg.connect(inc) as a, psycopg.connect(full) as b:
-        for table in ("osm.building", "osm.reject", "osm.building_relation", "osm.building_relation_member",
-                      "meta.dataset", "meta.diagnostic"):
+        for table in (
+            "osm.building",
+            "osm.reject",
+            "osm.building_relation",
+            "osm.building_relation_member",
+            "meta.dataset",
+            "meta.diagnostic",
+        ):
             ra, rb = table_rows(a, table), table_rows(b, table)
             assert ra == rb, (table, len(ra), len(rb), sorted(set(ra) ^ set(rb))[:3])
         assert a.execute("SELECT parent_id FROM osm.building WHERE id = 17002").fetchone() == (11001,)
         assert a.execute("SELECT n_parts FROM osm.building WHERE id = 11001").fetchone() == (1,)
-        assert a.execute("SELECT b.parent_id, o.repaired FROM osm.building b JOIN osm.building o ON o.id = b.parent_id "
-                         "WHERE b.id = 17003").fetchone() == (90002, True)
+        assert a.execute(
+            "SELECT b.parent_id, o.repaired FROM osm.building b JOIN osm.building o ON o.id = b.parent_id "
+            "WHERE b.id = 17003"
+        ).fetchone() == (90002, True)
 
 
 def test_a_small_write_leaves_the_statistics_to_autovacuum(new_db: Callable[[str], str]) -> None:
@@ -504,12 +587,13 @@ def test_a_small_write_leaves_the_statistics_to_autovacuum(new_db: Callable[[str
 
 #: CHANGE_1's edits that delete or add no building (a moved node, a tag edit): every table the stages write holds
 #: as many rows after the update as before, or changes its count at one commit
-MODIFY_ONLY = CHANGE_1[:CHANGE_1.index("  <delete>")] + "</osmChange>\n"
+MODIFY_ONLY = CHANGE_1[: CHANGE_1.index("  <delete>")] + "</osmChange>\n"
 
 
 @pytest.mark.db
-def test_readers_never_wait_nor_see_a_table_half_written(fixtures_city: City, new_db: Callable[[str], str],
-                                                         tmp_path: Path) -> None:
+def test_readers_never_wait_nor_see_a_table_half_written(
+    fixtures_city: City, new_db: Callable[[str], str], tmp_path: Path
+) -> None:
     """Issue 20's generations for the analysts' tables: while an update runs, a reader counting the rows of
     every table the stages write (and the root tile's content through api.buildings_for_tile) over and over
     never waits on a lock for more than 100 ms and finds each table as it was before or as it is after, never

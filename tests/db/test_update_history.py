@@ -75,8 +75,12 @@ def test_real_creations_update_equals_a_full_rebuild(new_db: Callable[[str], str
     with psycopg.connect(inc) as conn:
         changed = dict(conn.execute("SELECT id, change FROM osm.building_change").fetchall())
         (after,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
-        runs = dict(conn.execute("SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
-                                 "WHERE status = 'ok' ORDER BY stage, run_id DESC").fetchall())
+        runs = dict(
+            conn.execute(
+                "SELECT DISTINCT ON (stage) stage, counts FROM meta.pipeline_run "
+                "WHERE status = 'ok' ORDER BY stage, run_id DESC"
+            ).fetchall()
+        )
     # new buildings (17), and the old ones that gained new parts (2): nothing deleted, most buildings untouched
     assert "added" in changed.values() and "deleted" not in changed.values(), changed
     assert after - before == sum(c == "added" for c in changed.values()) and len(changed) < after / 10
@@ -96,14 +100,20 @@ def test_real_creations_update_equals_a_full_rebuild(new_db: Callable[[str], str
 
 
 #: the Oakland history's three days: every change of its buildings falls between them
-DAYS = [dt.datetime(2014, 10, 1, tzinfo=dt.UTC), dt.datetime(2015, 6, 1, tzinfo=dt.UTC),
-        dt.datetime(2016, 12, 31, tzinfo=dt.UTC)]
+DAYS = [
+    dt.datetime(2014, 10, 1, tzinfo=dt.UTC),
+    dt.datetime(2015, 6, 1, tzinfo=dt.UTC),
+    dt.datetime(2016, 12, 31, tzinfo=dt.UTC),
+]
 
 
 def buildings(osm: Path) -> dict[int, tuple]:
     """The building ways of ``osm``: id -> (version, node ids, tags)."""
-    return {o.id: (o.version, tuple(n.ref for n in o.nodes), dict(o.tags)) for o in osmium.FileProcessor(str(osm))
-            if o.is_way() and "building" in o.tags}
+    return {
+        o.id: (o.version, tuple(n.ref for n in o.nodes), dict(o.tags))
+        for o in osmium.FileProcessor(str(osm))
+        if o.is_way() and "building" in o.tags
+    }
 
 
 @pytest.mark.db

@@ -50,8 +50,9 @@ def measured(deep: tuple[str, Path]) -> dict[str, Any]:  # noqa: F811 - the impo
     assert CHROMIUM.exists(), f"Chromium not found at {CHROMIUM}: run scripts/install-system.sh test"
     for pkg in ("playwright-core", "cesium"):
         assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
-    cams = [cesium_camera(Camera(**v, viewport_height=HEIGHT, aspect=WIDTH / HEIGHT), name)
-            for name, v in CAMERAS.items()]
+    cams = [
+        cesium_camera(Camera(**v, viewport_height=HEIGHT, aspect=WIDTH / HEIGHT), name) for name, v in CAMERAS.items()
+    ]
     if OUT.exists():
         for f in OUT.glob("*.png"):
             f.unlink()
@@ -69,9 +70,18 @@ def measured(deep: tuple[str, Path]) -> dict[str, Any]:  # noqa: F811 - the impo
 def test_the_page_draws_a_clean_binary_mask(measured: dict[str, Any]) -> None:
     context = measured["context"]
     assert measured["mask"] == {
-        "unlit": True, "globe": False, "fog": False, "fxaa": False, "msaaSamples": 1, "highDynamicRange": False,
-        "exaggeration": False, "cacheBytes": 8 * 1024**3, "dynamicScreenSpaceError": False,
-        "foveatedScreenSpaceError": False, "skipLevelOfDetail": False}, context
+        "unlit": True,
+        "globe": False,
+        "fog": False,
+        "fxaa": False,
+        "msaaSamples": 1,
+        "highDynamicRange": False,
+        "exaggeration": False,
+        "cacheBytes": 8 * 1024**3,
+        "dynamicScreenSpaceError": False,
+        "foveatedScreenSpaceError": False,
+        "skipLevelOfDetail": False,
+    }, context
     assert measured["hosts"] == [measured["host"]], f"requests left the local server: {measured['hosts']}"
     assert measured["consoleErrors"] == [] and measured["failedRequests"] == [], context
     for name, v in measured["by_name"].items():

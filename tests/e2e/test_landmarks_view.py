@@ -122,13 +122,31 @@ def test_landmark_exaggeration_in_chromium(city: Callable, conn_of: Callable) ->
         old.unlink()
     mid = ground + n_height / 2
     with served(helsinki.tiles) as (base, _proc):
-        res, context = run_driver(DRIVER, [
-            "--url", base, "--out-dir", str(OUT), "--max-sse", "1",
-            "--landmark", json.dumps({"osmId": str(osm_id), "lon": lon, "lat": lat, "ground": ground}),
-            "--camera", json.dumps({"heading": heading, "pitch": PITCH, "range": rng, "fov": FOV}),
-            "--pick-height", repr(height * (1 + scale) / 2),
-            "--neighbour", json.dumps({"osmId": str(n_osm), "from": {"lon": n_lon, "lat": n_lat, "height": mid},
-                                       "to": {"lon": m_lon, "lat": m_lat, "height": mid}})])
+        res, context = run_driver(
+            DRIVER,
+            [
+                "--url",
+                base,
+                "--out-dir",
+                str(OUT),
+                "--max-sse",
+                "1",
+                "--landmark",
+                json.dumps({"osmId": str(osm_id), "lon": lon, "lat": lat, "ground": ground}),
+                "--camera",
+                json.dumps({"heading": heading, "pitch": PITCH, "range": rng, "fov": FOV}),
+                "--pick-height",
+                repr(height * (1 + scale) / 2),
+                "--neighbour",
+                json.dumps(
+                    {
+                        "osmId": str(n_osm),
+                        "from": {"lon": n_lon, "lat": n_lat, "height": mid},
+                        "to": {"lon": m_lon, "lat": m_lat, "height": mid},
+                    }
+                ),
+            ],
+        )
 
     # The page: offline, clean, the toggle off at first and the checkbox following it.
     assert res["hosts"] == [urlsplit(base).netloc], context
@@ -164,10 +182,12 @@ def test_landmark_exaggeration_in_chromium(city: Callable, conn_of: Callable) ->
     want = np.array([nb["to"]["x"] - nb["from"]["x"], nb["to"]["y"] - nb["from"]["y"]])
     assert np.linalg.norm(want) > 5, f"a {push:.1f} m push is too small to measure from here\n{context}"
     assert np.linalg.norm(moved - want) <= 0.15 * np.linalg.norm(want) + 1.0, (moved, want, context)
-    print(f"landmark {osm_id} at {rng:.0f} m, scale {scale:.3f}: silhouette height x{on['height'] / off['height']:.3f},"
-          f" width x{on['width'] / off['width']:.3f}, area x{on['pixels'] / off['pixels']:.3f} (want {scale**2:.3f});"
-          f" {n_osm} pushed {push:.1f} m: moved {moved.round(2).tolist()} px, want {want.round(2).tolist()};"
-          f" pixels changed on {sc['offVsOn']}, off again {sc['offVsOffAgain']} of {sc['pixels']};"
-          f" driver {res['seconds']} s")
+    print(
+        f"landmark {osm_id} at {rng:.0f} m, scale {scale:.3f}: silhouette height x{on['height'] / off['height']:.3f},"
+        f" width x{on['width'] / off['width']:.3f}, area x{on['pixels'] / off['pixels']:.3f} (want {scale**2:.3f});"
+        f" {n_osm} pushed {push:.1f} m: moved {moved.round(2).tolist()} px, want {want.round(2).tolist()};"
+        f" pixels changed on {sc['offVsOn']}, off again {sc['offVsOffAgain']} of {sc['pixels']};"
+        f" driver {res['seconds']} s"
+    )
     for name in ("off", "on", "off_again", "landmark_off", "landmark_on", "neighbour_off", "neighbour_on"):
         assert (OUT / f"{name}.png").stat().st_size > 1000, name

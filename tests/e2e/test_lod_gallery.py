@@ -81,9 +81,21 @@ def test_roof_gallery_in_chromium(roofs_tiles: Path) -> None:
     for p in (SCREENSHOT, HIGHLIGHT_SCREENSHOT):
         p.unlink(missing_ok=True)
     with served(roofs_tiles) as (base, _proc):
-        res, context = run_driver(DRIVER, [
-            "--url", base, "--screenshot", str(SCREENSHOT), "--highlight", HIGHLIGHT,
-            "--highlight-screenshot", str(HIGHLIGHT_SCREENSHOT), "--pick-shape", PICK])
+        res, context = run_driver(
+            DRIVER,
+            [
+                "--url",
+                base,
+                "--screenshot",
+                str(SCREENSHOT),
+                "--highlight",
+                HIGHLIGHT,
+                "--highlight-screenshot",
+                str(HIGHLIGHT_SCREENSHOT),
+                "--pick-shape",
+                PICK,
+            ],
+        )
 
     # Counts read from the loaded tile content, and the legend the page shows.
     assert res["featureCount"] == total, context

@@ -236,8 +236,16 @@ def camera_of(view: dict[str, Any]) -> Camera:
     """The camera as CesiumJS held it (read back from the page), with its drawing buffer and frustum."""
     c = view["camera"]
     assert view["pixelRatio"] == 1, view["pixelRatio"]  # else CesiumJS divides its errors by it
-    return Camera(c["lon"], c["lat"], c["height"], c["heading"], c["pitch"], fov=view["fovyDeg"],
-                  viewport_height=int(view["drawingBufferHeight"]), aspect=view["aspect"])
+    return Camera(
+        c["lon"],
+        c["lat"],
+        c["height"],
+        c["heading"],
+        c["pitch"],
+        fov=view["fovyDeg"],
+        viewport_height=int(view["drawingBufferHeight"]),
+        aspect=view["aspect"],
+    )
 
 
 def lod_for_view(conn: psycopg.Connection, cam: Camera) -> dict[str, tuple[float, set[int]]]:
@@ -255,9 +263,13 @@ def lod_for_view(conn: psycopg.Connection, cam: Camera) -> dict[str, tuple[float
 
 
 def lods_in_db(conn: psycopg.Connection, tile: dict[str, Any]) -> dict[str, int]:
-    return {str(lod): n for lod, n in conn.execute(
-        "SELECT lod, count(*) FROM api.buildings_for_tile(%s, %s, %s) GROUP BY lod",
-        (tile["level"], tile["x"], tile["y"])).fetchall()}
+    return {
+        str(lod): n
+        for lod, n in conn.execute(
+            "SELECT lod, count(*) FROM api.buildings_for_tile(%s, %s, %s) GROUP BY lod",
+            (tile["level"], tile["x"], tile["y"]),
+        ).fetchall()
+    }
 
 
 def is_ancestor(a: tuple[int, int, int], b: tuple[int, int, int]) -> bool:
@@ -270,8 +282,12 @@ def is_ancestor(a: tuple[int, int, int], b: tuple[int, int, int]) -> bool:
 
 def test_every_view_settles_and_the_page_stays_clean(drawn: dict[str, Any]) -> None:
     context = drawn["context"]
-    assert drawn["tileset"] == {"maximumScreenSpaceError": MAX_SSE, "dynamicScreenSpaceError": False,
-                                "foveatedScreenSpaceError": False, "skipLevelOfDetail": False}, context
+    assert drawn["tileset"] == {
+        "maximumScreenSpaceError": MAX_SSE,
+        "dynamicScreenSpaceError": False,
+        "foveatedScreenSpaceError": False,
+        "skipLevelOfDetail": False,
+    }, context
     for name, v in drawn["by_name"].items():
         assert v["settled"]["loaded"] and v["tilesLoaded"], f"{name}: tiles still loading\n{context}"
         assert v["stable"], f"{name}: the drawn tiles changed from frame to frame: {v['frames']}\n{context}"
@@ -291,8 +307,9 @@ def test_features_are_those_of_the_tile(drawn: dict[str, Any], deep: tuple[str, 
     for name, v in drawn["by_name"].items():
         for t in v["tiles"]:
             assert t["lods"] == lods_in_db(conn, t), (name, t["uri"])
-            leaf = conn.execute("SELECT is_leaf FROM tiles.tile WHERE (level, x, y) = (%s, %s, %s)",
-                                (t["level"], t["x"], t["y"])).fetchone()[0]
+            leaf = conn.execute(
+                "SELECT is_leaf FROM tiles.tile WHERE (level, x, y) = (%s, %s, %s)", (t["level"], t["x"], t["y"])
+            ).fetchone()[0]
             assert t["leaf"] == leaf, (name, t["uri"])
 
 
@@ -308,10 +325,14 @@ def test_far_view_draws_only_coarse_tiles(drawn: dict[str, Any], deep: tuple[str
     assert not [t["uri"] for t in tiles if t["leaf"] or t["geometricError"] == 0]
     lods = {int(lod) for t in tiles for lod in t["lods"]}
     assert lods and lods <= {0, 1}, lods
-    bands = {g for (g,) in conn.execute(
-        """SELECT gen_level FROM tiles.tile
+    bands = {
+        g
+        for (g,) in conn.execute(
+            """SELECT gen_level FROM tiles.tile
            WHERE (level, x, y) IN (SELECT * FROM unnest(%s::int[], %s::int[], %s::int[]))""",
-        ([t["level"] for t in tiles], [t["x"] for t in tiles], [t["y"] for t in tiles]))}
+            ([t["level"] for t in tiles], [t["x"] for t in tiles], [t["y"] for t in tiles]),
+        )
+    }
     assert bands <= {0, 1, 2}, bands  # blocks and simplified solids, never the LOD2 or LOD3 bands
 
 
@@ -369,15 +390,19 @@ def test_cesium_agrees_with_lod_for_view(drawn: dict[str, Any], deep: tuple[str,
         predicted = judged.cesium(root, cull_with_children=not implicit)
         agreement = len(cesium & plain) / len(cesium | plain)
         # CesiumJS's own error for the tiles it draws (a private field, for the tolerance above): within it
-        ratios = [t["sse"] / judged.sse[by_uri[t["uri"]]] for t in v["tiles"]
-                  if isinstance(t.get("sse"), (int, float)) and t["geometricError"] > 0]
+        ratios = [
+            t["sse"] / judged.sse[by_uri[t["uri"]]]
+            for t in v["tiles"]
+            if isinstance(t.get("sse"), (int, float)) and t["geometricError"] > 0
+        ]
         unexplained = {n.uri: judged.borderline(n) for n in cesium ^ predicted}
         by_rules = len((cesium ^ plain) - (cesium ^ predicted))
         report.append(
             f"{name}: CesiumJS {len(cesium)} tiles, lod_for_view {len(plain)}, both {len(cesium & plain)} "
             f"({agreement:.0%}); only CesiumJS {sorted(n.uri for n in cesium - plain)}, only lod_for_view "
             f"{sorted(n.uri for n in plain - cesium)}; {by_rules} explained by CesiumJS's rules, knife edges "
-            f"{unexplained}; CesiumJS / our error {min(ratios, default=1):.3f}..{max(ratios, default=1):.3f}")
+            f"{unexplained}; CesiumJS / our error {min(ratios, default=1):.3f}..{max(ratios, default=1):.3f}"
+        )
         assert agreement >= MIN_AGREEMENT, report[-1]
         assert all(unexplained.values()), report[-1]
         assert all(abs(r - 1) <= SSE_TOLERANCE for r in ratios), report[-1]

@@ -91,9 +91,13 @@ def test_server_routes(city: Callable, tmp_path: Path) -> None:
         assert status == 200 and headers["content-type"] == "application/json"
         assert json.loads(body)["asset"]["version"] == "1.1"
 
-        for path, media in (("/", "text/html"), ("/index.html", "text/html"),
-                            ("/viewer/viewer.js", "text/javascript"), ("/viewer/viewer.css", "text/css"),
-                            ("/cesium/Cesium.js", "text/javascript")):
+        for path, media in (
+            ("/", "text/html"),
+            ("/index.html", "text/html"),
+            ("/viewer/viewer.js", "text/javascript"),
+            ("/viewer/viewer.css", "text/css"),
+            ("/cesium/Cesium.js", "text/javascript"),
+        ):
             status, headers, _ = raw_get(base, path)
             assert (status, headers["content-type"].split(";")[0]) == (200, media), path
             assert headers["access-control-allow-origin"] == "*", path
@@ -102,8 +106,13 @@ def test_server_routes(city: Callable, tmp_path: Path) -> None:
         assert status == 404
         assert headers["access-control-allow-origin"] == "*"  # errors too, so other origins can read them
         assert raw_get(base, "/tiles/content/")[0] == 404  # no directory listing
-        for path in ("/tiles/../../etc/passwd", "/tiles/%2e%2e/%2e%2e/etc/passwd",
-                     "/cesium/..%2f..%2f..%2fpackage.json", "/viewer/%00", "/../pyproject.toml"):
+        for path in (
+            "/tiles/../../etc/passwd",
+            "/tiles/%2e%2e/%2e%2e/etc/passwd",
+            "/cesium/..%2f..%2f..%2fpackage.json",
+            "/viewer/%00",
+            "/../pyproject.toml",
+        ):
             status, _, body = raw_get(base, path)
             assert status in (400, 404), (path, status)
             assert b"root:" not in body and b"[project]" not in body, path
@@ -114,8 +123,13 @@ def test_server_routes(city: Callable, tmp_path: Path) -> None:
         assert proc.wait(timeout=10) == 0
 
     # Nothing to serve: a clear message that says how to make a tileset.
-    r = subprocess.run([sys.executable, "-m", "exporter", "serve", "--dir", str(tmp_path), "--port", "0"],
-                       cwd=REPO, capture_output=True, text=True, timeout=30)
+    r = subprocess.run(
+        [sys.executable, "-m", "exporter", "serve", "--dir", str(tmp_path), "--port", "0"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert r.returncode != 0 and "make export" in r.stderr and r.stdout == ""
 
 
@@ -136,9 +150,23 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
     SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
     SCREENSHOT.unlink(missing_ok=True)
     with served(helsinki.tiles) as (base, _proc):
-        res, context = run_driver(DRIVER, [
-            "--url", base, "--lon", repr(lon), "--lat", repr(lat), "--height", repr(top),
-            "--screenshot", str(SCREENSHOT), "--expect-osm-id", str(osm_id)])
+        res, context = run_driver(
+            DRIVER,
+            [
+                "--url",
+                base,
+                "--lon",
+                repr(lon),
+                "--lat",
+                repr(lat),
+                "--height",
+                repr(top),
+                "--screenshot",
+                str(SCREENSHOT),
+                "--expect-osm-id",
+                str(osm_id),
+            ],
+        )
 
     assert res["tilesWithContent"] > 0, context
     assert res["triangles"] > 0, context
@@ -151,8 +179,9 @@ def test_viewer_picks_building_in_chromium(city: Callable, conn_of: Callable) ->
         kinds, members = view["kinds"], view["blockMembers"]
         assert members >= kinds["block"], view  # every block merges at least one building
         # the buildings the view stands for first, then how they are drawn: on their own, merged into blocks
-        assert f"{kinds['building'] + members:,} buildings shown: {kinds['building']:,} on their own" \
-            in view["status"], view["status"]
+        assert (
+            f"{kinds['building'] + members:,} buildings shown: {kinds['building']:,} on their own" in view["status"]
+        ), view["status"]
         assert f"{members:,} merged into {kinds['block']:,} blocks" in view["status"], view["status"]
     assert res["far"]["kinds"]["block"] > 0 and res["far"]["blockMembers"] > res["far"]["kinds"]["block"], res["far"]
     picked = res["picked"]

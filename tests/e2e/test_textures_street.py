@@ -105,8 +105,15 @@ def test_textured_street_shows_texture_detail(new_db: Callable[[str], str], tmp_
     for name, tiles in (("street_plain", plain), ("street", textured)):
         shot = SHOTS / f"{name}.png"
         shot.unlink(missing_ok=True)
-        cam = {"name": name, "lon": lon, "lat": lat, "height": EYE, "heading": heading, "pitch": 5.0,
-               "screenshot": str(shot)}
+        cam = {
+            "name": name,
+            "lon": lon,
+            "lat": lat,
+            "height": EYE,
+            "heading": heading,
+            "pitch": 5.0,
+            "screenshot": str(shot),
+        }
         with served(tiles) as (base, _):
             res, context = run_driver(DRIVER, ["--url", base, "--cameras", json.dumps([cam])])
         assert res["consoleErrors"] == [] and res["failedRequests"] == [], context
@@ -117,7 +124,14 @@ def test_textured_street_shows_texture_detail(new_db: Callable[[str], str], tmp_
     a, b = shots["street_plain"], shots["street"]
     assert a.shape == b.shape
     plain_detail, textured_detail = detail_within_faces(a, b)
-    (SHOTS / "street.json").write_text(json.dumps({
-        "camera": results["street"]["camera"], "tiles": [t["uri"] for t in results["street"]["tiles"]],
-        "luminance_spread_within_faces": {"plain": plain_detail, "textured": textured_detail}}, indent=1))
+    (SHOTS / "street.json").write_text(
+        json.dumps(
+            {
+                "camera": results["street"]["camera"],
+                "tiles": [t["uri"] for t in results["street"]["tiles"]],
+                "luminance_spread_within_faces": {"plain": plain_detail, "textured": textured_detail},
+            },
+            indent=1,
+        )
+    )
     assert textured_detail > 0.5 and textured_detail > 5 * plain_detail, (plain_detail, textured_detail)

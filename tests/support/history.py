@@ -81,8 +81,13 @@ def _xml(o: osmium.osm.OSMObject, kind: str) -> str:
         return f'{head} lat="{o.location.lat:.7f}" lon="{o.location.lon:.7f}">{_tags(o.tags)}</node>'
     if kind == "w":
         return head + ">" + "".join(f'<nd ref="{r.ref}"/>' for r in o.nodes) + _tags(o.tags) + "</way>"
-    return (head + ">" + "".join(f'<member type="{_KINDS[m.type]}" ref="{m.ref}" role={quoteattr(m.role)}/>'
-                                 for m in o.members) + _tags(o.tags) + "</relation>")
+    return (
+        head
+        + ">"
+        + "".join(f'<member type="{_KINDS[m.type]}" ref="{m.ref}" role={quoteattr(m.role)}/>' for m in o.members)
+        + _tags(o.tags)
+        + "</relation>"
+    )
 
 
 class _Split(osmium.SimpleHandler):
@@ -126,9 +131,19 @@ def split(osm: Path, before: dt.datetime, base: Path, change: Path) -> dict[str,
     finally:
         writer.close()
     change.parent.mkdir(parents=True, exist_ok=True)
-    change.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
-                                 '<osmChange version="0.6" generator="citylod tests.support.history">', "<create>",
-                                 *s.lines, "</create>", "</osmChange>", ""]))
+    change.write_text(
+        "\n".join(
+            [
+                '<?xml version="1.0" encoding="UTF-8"?>',
+                '<osmChange version="0.6" generator="citylod tests.support.history">',
+                "<create>",
+                *s.lines,
+                "</create>",
+                "</osmChange>",
+                "",
+            ]
+        )
+    )
     return {"nodes": len(nodes), "ways": len(scan.new_ways), "relations": len(scan.new_relations)}
 
 
@@ -173,8 +188,7 @@ def read_history(path: Path) -> History:
     out: History = {}
     for o in osmium.FileProcessor(str(path)):
         kind = "n" if o.is_node() else "w" if o.is_way() else "r"
-        out.setdefault((kind, o.id), []).append((o.version, o.timestamp, o.visible, _xml(o, kind) if o.visible
-                                                 else ""))
+        out.setdefault((kind, o.id), []).append((o.version, o.timestamp, o.visible, _xml(o, kind) if o.visible else ""))
     for versions in out.values():
         versions.sort()
     return out
@@ -198,8 +212,17 @@ def states(history: History, when: dt.datetime, out: Path) -> int:
         if now is not None and now[2]:
             rows.append(now[3])
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
-                               '<osm version="0.6" generator="citylod tests.support.history">', *rows, "</osm>", ""]))
+    out.write_text(
+        "\n".join(
+            [
+                '<?xml version="1.0" encoding="UTF-8"?>',
+                '<osm version="0.6" generator="citylod tests.support.history">',
+                *rows,
+                "</osm>",
+                "",
+            ]
+        )
+    )
     return len(rows)
 
 
@@ -218,15 +241,26 @@ def changes(history: History, start: dt.datetime, end: dt.datetime, out: Path) -
             acts["modify"].append(b[3])  # type: ignore[index]
         elif was and not now:  # b is the version that deleted it
             kind, oid = key
-            acts["delete"].append(f'<{_KINDS[kind]} id="{oid}" version="{b[0]}" '  # type: ignore[index]
-                                  f'timestamp="{b[1].strftime("%Y-%m-%dT%H:%M:%SZ")}"/>')  # type: ignore[index]
+            acts["delete"].append(
+                f'<{_KINDS[kind]} id="{oid}" version="{b[0]}" '  # type: ignore[index]
+                f'timestamp="{b[1].strftime("%Y-%m-%dT%H:%M:%SZ")}"/>'
+            )  # type: ignore[index]
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(['<?xml version="1.0" encoding="UTF-8"?>',
-                               '<osmChange version="0.6" generator="citylod tests.support.history">',
-                               *(f"<{a}>\n" + "\n".join(rows) + f"\n</{a}>" for a, rows in acts.items() if rows),
-                               "</osmChange>", ""]))
-    return {a: {_KINDS[k]: sum(1 for r in rows if r.startswith(f"<{_KINDS[k]} ")) for k in _KINDS}
-            for a, rows in acts.items()}
+    out.write_text(
+        "\n".join(
+            [
+                '<?xml version="1.0" encoding="UTF-8"?>',
+                '<osmChange version="0.6" generator="citylod tests.support.history">',
+                *(f"<{a}>\n" + "\n".join(rows) + f"\n</{a}>" for a, rows in acts.items() if rows),
+                "</osmChange>",
+                "",
+            ]
+        )
+    )
+    return {
+        a: {_KINDS[k]: sum(1 for r in rows if r.startswith(f"<{_KINDS[k]} ")) for k in _KINDS}
+        for a, rows in acts.items()
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -235,8 +269,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--before", type=dt.date.fromisoformat, help="YYYY-MM-DD (UTC midnight): the extract before it")
     p.add_argument("--base", required=True, type=Path, help="the earlier state (an .osm file with --history)")
     p.add_argument("--change", required=True, type=Path, help="the change from it to the extract or --to")
-    p.add_argument("--history", action="store_true",
-                   help="OSM is a history file: --base is the state at --before, --change the change to --to")
+    p.add_argument(
+        "--history",
+        action="store_true",
+        help="OSM is a history file: --base is the state at --before, --change the change to --to",
+    )
     p.add_argument("--to", type=dt.date.fromisoformat, help="with --history: YYYY-MM-DD (UTC midnight)")
     a = p.parse_args(argv)
     if a.before is None or a.history and a.to is None:

@@ -19,14 +19,21 @@ from exporter.serve.run import ANNOUNCE, listen, url_of, uvicorn_server
 
 
 @contextlib.contextmanager
-def spawned(args: list[str], env: Mapping[str, str] | None = None,
-            timeout: float = 30.0) -> Iterator[tuple[str, subprocess.Popen, IO[str]]]:
+def spawned(
+    args: list[str], env: Mapping[str, str] | None = None, timeout: float = 30.0
+) -> Iterator[tuple[str, subprocess.Popen, IO[str]]]:
     """Run ``python -m <args>`` (a serve command, usually with ``--port 0``) and yield (its base URL, the
     process, its stderr as a file); terminated after. The announcement is read on a thread, so a server that
     hangs before announcing raises RuntimeError with its stderr instead of hanging the caller."""
     with tempfile.TemporaryFile(mode="w+") as err:
-        proc = subprocess.Popen([sys.executable, "-m", *args], cwd=REPO, env=dict(env or os.environ),
-                                stdout=subprocess.PIPE, stderr=err, text=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", *args],
+            cwd=REPO,
+            env=dict(env or os.environ),
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+        )
         try:
             lines: queue.Queue[str] = queue.Queue()
             out = proc.stdout
@@ -38,9 +45,8 @@ def spawned(args: list[str], env: Mapping[str, str] | None = None,
                 line = ""
             if not line.startswith(ANNOUNCE):
                 err.seek(0)
-                raise RuntimeError(f"python -m {' '.join(args)} did not announce its URL (got {line!r}):\n"
-                                   f"{err.read()}")
-            yield line[len(ANNOUNCE):].strip(), proc, err
+                raise RuntimeError(f"python -m {' '.join(args)} did not announce its URL (got {line!r}):\n{err.read()}")
+            yield line[len(ANNOUNCE) :].strip(), proc, err
         finally:
             if proc.poll() is None:
                 proc.terminate()

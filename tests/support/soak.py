@@ -54,13 +54,20 @@ class SoakResult:
 
     def as_dict(self) -> dict[str, object]:
         lat = np.array(self.latencies_ms or [0.0])
-        return {"seconds": round(self.seconds, 1), "requests": self.requests,
-                "rate": round(self.requests / max(self.seconds, 1e-9), 1),
-                "statuses": {str(k): v for k, v in sorted(self.statuses.items())},
-                "failures": self.failures, "bad_etags": self.bad_etags, "late": self.late,
-                "generations": self.generations,
-                "p50_ms": round(float(np.percentile(lat, 50)), 1), "p99_ms": round(float(np.percentile(lat, 99)), 1),
-                "max_ms": round(float(lat.max()), 1), "errors": self.errors[:5]}
+        return {
+            "seconds": round(self.seconds, 1),
+            "requests": self.requests,
+            "rate": round(self.requests / max(self.seconds, 1e-9), 1),
+            "statuses": {str(k): v for k, v in sorted(self.statuses.items())},
+            "failures": self.failures,
+            "bad_etags": self.bad_etags,
+            "late": self.late,
+            "generations": self.generations,
+            "p50_ms": round(float(np.percentile(lat, 50)), 1),
+            "p99_ms": round(float(np.percentile(lat, 99)), 1),
+            "max_ms": round(float(lat.max()), 1),
+            "errors": self.errors[:5],
+        }
 
 
 class _Conn:
@@ -183,8 +190,9 @@ class _Soak:
         return t_start
 
 
-def soak(base: str, stop: threading.Event, rate: float = RATE, threads: int = 16,
-         max_seconds: float = 3600.0) -> SoakResult:
+def soak(
+    base: str, stop: threading.Event, rate: float = RATE, threads: int = 16, max_seconds: float = 3600.0
+) -> SoakResult:
     """Request the tileset at ``base`` (http://host:port/) at ``rate`` per second until ``stop`` is set."""
     s = _Soak(base)
     pool = [threading.Thread(target=s.worker, daemon=True) for _ in range(threads)]

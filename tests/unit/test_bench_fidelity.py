@@ -63,8 +63,16 @@ def test_compare_masks_counts_missed_and_extra_pixels() -> None:
     streamed = np.zeros_like(full)
     streamed[1:3] = True  # 4 on the city, 4 beside it
     c = fb.compare_masks(rgb(streamed), rgb(full))
-    assert c == {"iou": pytest.approx(4 / 12, abs=1e-4), "area_ratio": 1.0, "pixels": 16, "streamed_px": 8,
-                 "full_px": 8, "missed_px": 4, "extra_px": 4, "grey": {"streamed": 0.0, "full": 0.0}}
+    assert c == {
+        "iou": pytest.approx(4 / 12, abs=1e-4),
+        "area_ratio": 1.0,
+        "pixels": 16,
+        "streamed_px": 8,
+        "full_px": 8,
+        "missed_px": 4,
+        "extra_px": 4,
+        "grey": {"streamed": 0.0, "full": 0.0},
+    }
 
 
 def test_side_by_side_colours_the_difference() -> None:
@@ -76,7 +84,7 @@ def test_side_by_side_colours_the_difference() -> None:
     streamed[2, 3] = True
     pic = fb.side_by_side(rgb(streamed), rgb(full), gap=2)
     assert pic.shape == (3, 3 * 4 + 2 * 2, 3) and pic.dtype == np.uint8
-    diff = pic[:, 4 + 2 + 4 + 2:]
+    diff = pic[:, 4 + 2 + 4 + 2 :]
     assert (diff[0] == 255).all()
     assert tuple(diff[1, 0]) == fb.MISSED
     assert tuple(diff[2, 3]) == fb.EXTRA
@@ -126,12 +134,17 @@ def test_level_rows_cut_the_tree_at_each_level() -> None:
     tile_level = np.array([0, 1, 1, 2, 2])
     tile_leaf = np.array([False, True, False, True, True])
     # one row per feature: (tile level, leaf, members, vertices, triangles)
-    feats = np.array([
-        (0, 0, 30, 40, 20),  # a block at the root
-        (1, 1, 1, 100, 150), (1, 1, 1, 100, 150),  # the leaf at level 1
-        (1, 0, 20, 30, 12),  # a block in the inner child
-        (2, 1, 1, 200, 300), (2, 1, 1, 200, 300), (2, 1, 1, 200, 300),
-    ])
+    feats = np.array(
+        [
+            (0, 0, 30, 40, 20),  # a block at the root
+            (1, 1, 1, 100, 150),
+            (1, 1, 1, 100, 150),  # the leaf at level 1
+            (1, 0, 20, 30, 12),  # a block in the inner child
+            (2, 1, 1, 200, 300),
+            (2, 1, 1, 200, 300),
+            (2, 1, 1, 200, 300),
+        ]
+    )
     rows = fb.level_rows(feats[:, 0], feats[:, 1], feats[:, 2], feats[:, 3], feats[:, 4], tile_level, tile_leaf)
     assert [r["level"] for r in rows] == [0, 1, 2]
     assert [r["tiles"] for r in rows] == [1, 2, 3]
@@ -146,8 +159,12 @@ def test_level_rows_cut_the_tree_at_each_level() -> None:
 
 
 def view(iou: float | None, streamed_tri: int, full_tri: int, error: str | None = None) -> dict:
-    v: dict = {"passes": {"streamed": {"trianglesSelected": streamed_tri, "tilesDrawn": 4, "leavesDrawn": 0},
-                          "full": {"trianglesSelected": full_tri, "tilesDrawn": 40, "leavesDrawn": 40}}}
+    v: dict = {
+        "passes": {
+            "streamed": {"trianglesSelected": streamed_tri, "tilesDrawn": 4, "leavesDrawn": 0},
+            "full": {"trianglesSelected": full_tri, "tilesDrawn": 40, "leavesDrawn": 40},
+        }
+    }
     if iou is not None:
         v["masks"] = {"iou": iou, "area_ratio": iou}
     if error:
@@ -157,16 +174,45 @@ def view(iou: float | None, streamed_tri: int, full_tri: int, error: str | None 
 
 def result(views: dict) -> dict:
     cams = [{"name": n, "height": 1000.0 * (i + 1), "pitch": -90.0} for i, n in enumerate(views)]
-    return {"views": views, "cameras": cams, "levels": [
-        {"level": 0, "tiles": 1, "features": 10, "members": 300, "vertices": 100, "triangles": 50,
-         "vertex_reduction_pct": 99.0, "triangle_reduction_pct": 99.5},
-        {"level": 1, "tiles": 4, "features": 300, "members": 300, "vertices": 10_000, "triangles": 10_000,
-         "vertex_reduction_pct": 0.0, "triangle_reduction_pct": 0.0}]}
+    return {
+        "views": views,
+        "cameras": cams,
+        "levels": [
+            {
+                "level": 0,
+                "tiles": 1,
+                "features": 10,
+                "members": 300,
+                "vertices": 100,
+                "triangles": 50,
+                "vertex_reduction_pct": 99.0,
+                "triangle_reduction_pct": 99.5,
+            },
+            {
+                "level": 1,
+                "tiles": 4,
+                "features": 300,
+                "members": 300,
+                "vertices": 10_000,
+                "triangles": 10_000,
+                "vertex_reduction_pct": 0.0,
+                "triangle_reduction_pct": 0.0,
+            },
+        ],
+    }
 
 
 def test_judge_the_targets() -> None:
-    ok = fb.judge(result({"overview": view(0.95, 100, 10_000), "down-mid": view(0.85, 900, 1000),
-                          "oblique-low": view(None, 1, 1), "broken": view(None, 0, 0, error="boom")}))
+    ok = fb.judge(
+        result(
+            {
+                "overview": view(0.95, 100, 10_000),
+                "down-mid": view(0.85, 900, 1000),
+                "oblique-low": view(None, 1, 1),
+                "broken": view(None, 0, 0, error="boom"),
+            }
+        )
+    )
     assert ok["overview"] == {"iou": True, "triangles": True}
     assert ok["down-mid"] == {"iou": False}
     assert ok["oblique-low"] == {"iou": None} and ok["broken"] == {"iou": None}
@@ -176,8 +222,13 @@ def test_judge_the_targets() -> None:
 
 
 def test_section_shows_targets_failures_and_levels() -> None:
-    res = result({"overview": view(0.58, 1000, 10_000), "down-mid": view(0.95, 900, 1000),
-                  "oblique-low": view(None, 0, 0, error="tiles still loading after 600000 ms")})
+    res = result(
+        {
+            "overview": view(0.58, 1000, 10_000),
+            "down-mid": view(0.95, 900, 1000),
+            "oblique-low": view(None, 0, 0, error="tiles still loading after 600000 ms"),
+        }
+    )
     res["bound"] = {**fb.budget_bound(np.arange(1.0, 11.0), 1000), "iou_boxes": 0.61}
     broken = {**fb.failed("the driver | exited 1"), "bound_error": "no tiles"}
     text = "\n".join(fb.section_lines([("city", res), ("other", broken), ("none", {})]))
@@ -216,9 +267,11 @@ def test_compare_views_reads_the_masks_and_writes_side_by_side(tmp_path: Path) -
     for name, m in (("streamed", streamed), ("full", full)):
         paths[name] = tmp_path / f"c-{name}.png"
         paths[name].write_bytes(encode_image(rgb(m), "png")[0])
-    views = {"c": {"passes": {p: {"mask": str(paths[p]), "trianglesSelected": 1} for p in fb.PASSES}},
-             "lost": {"passes": {"streamed": {"mask": str(tmp_path / "nothing.png")}, "full": {}}},
-             "failed": {"name": "failed", "error": "tiles still loading"}}
+    views = {
+        "c": {"passes": {p: {"mask": str(paths[p]), "trianglesSelected": 1} for p in fb.PASSES}},
+        "lost": {"passes": {"streamed": {"mask": str(tmp_path / "nothing.png")}, "full": {}}},
+        "failed": {"name": "failed", "error": "tiles still loading"},
+    }
     fb.compare_views(views, tmp_path)
     assert views["c"]["masks"]["iou"] == pytest.approx(0.5) and views["c"]["masks"]["area_ratio"] == 0.5
     side = tmp_path / "c.png"

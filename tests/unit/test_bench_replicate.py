@@ -59,8 +59,7 @@ def test_copies_are_sorted_offset_and_reference_their_own_copy(spine: Path, tmp_
         off, (dx, dy) = k * lay.step, lay.shift(k)
         for nid, lon, lat, tags in src["n"]:
             gid, glon, glat, gtags = nodes[nid + off]
-            assert (glon, glat, gtags) == (pytest.approx(lon + dx, abs=1e-7), pytest.approx(lat + dy, abs=1e-7),
-                                           tags)
+            assert (glon, glat, gtags) == (pytest.approx(lon + dx, abs=1e-7), pytest.approx(lat + dy, abs=1e-7), tags)
     ways = {o[0]: o for o in got["w"]}
     for k in range(3):
         off = k * lay.step
@@ -84,7 +83,8 @@ def test_negative_ids_keep_their_sign(tmp_path: Path) -> None:
         '<node id="-3" lat="47.0" lon="9.0"/><node id="-2" lat="47.0" lon="9.001"/>'
         '<node id="-1" lat="47.001" lon="9.0"/>'
         '<way id="-5"><nd ref="-3"/><nd ref="-2"/><nd ref="-1"/><nd ref="-3"/><tag k="building" v="yes"/></way>'
-        "</osm>")
+        "</osm>"
+    )
     out = tmp_path / "josm2.osm"
     rp.replicate(src, 2, out)
     got = read(out)

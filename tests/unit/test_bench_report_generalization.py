@@ -34,8 +34,9 @@ def test_distinct_vertices_welds_per_owner():
 
 
 def test_outline_walls_one_wall_per_edge_hole_included():
-    g = shapely.MultiPolygon([shapely.Polygon(shapely.box(0, 0, 10, 10).exterior, [shapely.box(4, 4, 6, 6).exterior
-                                                                                  .coords])])
+    g = shapely.MultiPolygon(
+        [shapely.Polygon(shapely.box(0, 0, 10, 10).exterior, [shapely.box(4, 4, 6, 6).exterior.coords])]
+    )
     tri, own = rg.outline_walls(np.array([g, square(0, 0, 1)], dtype=object))
     assert len(tri) == 2 * (4 + 4 + 4)
     assert np.bincount(own).tolist() == [16, 8]
@@ -53,10 +54,10 @@ def test_outline_hausdorff_matches_dense_sampling(seed):
         b.append(shapely.MultiPolygon([shapely.simplify(hull, rng.uniform(0.5, 4.0))]))
     a, b = np.array(a, dtype=object), np.array(b, dtype=object)
     got = rg.outline_hausdorff(a, b, spacing=0.02)
-    ref = shapely.hausdorff_distance(shapely.segmentize(shapely.boundary(a), 0.01),
-                                     shapely.boundary(b))
-    ref = np.maximum(ref, shapely.hausdorff_distance(shapely.boundary(a),
-                                                     shapely.segmentize(shapely.boundary(b), 0.01)))
+    ref = shapely.hausdorff_distance(shapely.segmentize(shapely.boundary(a), 0.01), shapely.boundary(b))
+    ref = np.maximum(
+        ref, shapely.hausdorff_distance(shapely.boundary(a), shapely.segmentize(shapely.boundary(b), 0.01))
+    )
     # the reference samples one side only each way, so it is itself within 5 mm below the truth
     assert np.all(got >= ref - 0.02 - 1e-9)
     assert np.all(got <= ref + 0.005 + 1e-9)
@@ -66,8 +67,10 @@ def test_outline_hausdorff_known_cases():
     # a 10 m square against one with a 2 x 3 m notch cut into a wall: the notch bottom is 3 m from the wall
     cut = shapely.box(OFF[0] + 4, OFF[1] - 1, OFF[0] + 6, OFF[1] + 3)
     notched = shapely.MultiPolygon([shapely.difference(square(0, 0, 10).geoms[0], cut)])
-    h = rg.outline_hausdorff(np.array([square(0, 0, 10), square(0, 0, 10)], dtype=object),
-                             np.array([notched, square(0, 0, 10)], dtype=object))
+    h = rg.outline_hausdorff(
+        np.array([square(0, 0, 10), square(0, 0, 10)], dtype=object),
+        np.array([notched, square(0, 0, 10)], dtype=object),
+    )
     assert h[0] == pytest.approx(3.0, abs=rg.SPACING_FOOTPRINT_M)
     assert h[1] == 0.0
 
@@ -82,30 +85,74 @@ def test_markdown_table():
 
 def _report() -> dict:
     rows = []
-    for kind, unit, thresholds in ((rg.KIND_SIMPLIFIED, "m", rg.TOLERANCES_M), (rg.KIND_AGGREGATED, "m",
-                                   rg.TOLERANCES_M), (rg.KIND_DECIMATED, "target", rg.REDUCTIONS)):
+    for kind, unit, thresholds in (
+        (rg.KIND_SIMPLIFIED, "m", rg.TOLERANCES_M),
+        (rg.KIND_AGGREGATED, "m", rg.TOLERANCES_M),
+        (rg.KIND_DECIMATED, "target", rg.REDUCTIONS),
+    ):
         for i, t in enumerate(thresholds):
             r = rg.Row(kind, t, unit)
-            r.add(features_in=100, features_out=100 - 10 * i if kind == rg.KIND_AGGREGATED else 100,
-                  vertices_before=1000, vertices_after=900 - 100 * i, polygons_before=100,
-                  polygons_after=100 - 10 * i, errors=np.array([0.5 * t, t]),
-                  status=["kept: not closed after decimation"] if kind == rg.KIND_DECIMATED else ["simplified"])
+            r.add(
+                features_in=100,
+                features_out=100 - 10 * i if kind == rg.KIND_AGGREGATED else 100,
+                vertices_before=1000,
+                vertices_after=900 - 100 * i,
+                polygons_before=100,
+                polygons_after=100 - 10 * i,
+                errors=np.array([0.5 * t, t]),
+                status=["kept: not closed after decimation"] if kind == rg.KIND_DECIMATED else ["simplified"],
+            )
             rows.append(r.as_dict())
-    ex = {"key": "munich", "name": "munich_altstadt", "path": "x", "outlines": 100, "meshes": 100,
-          "seconds": {"build": 1.0, "footprints": 2.0, "meshes": 3.0}, "rows": rows}
-    return {"command": "python -m benchmarks.report_generalization --extracts munich", "machine": {"CPU": "test"},
-            "parameters": {"tolerances_m": list(rg.TOLERANCES_M), "reductions": list(rg.REDUCTIONS),
-                           "min_triangles": 8, "batch": 2000, "spacing_footprint_m": 0.05, "spacing_mesh_m": 0.1,
-                           "weld_m": 0.001, "pin": True, "max_area_change": 0.1},
-            "extracts": [ex, {**ex, "key": "london", "name": "london_city"}], "seconds": 6.0}
+    ex = {
+        "key": "munich",
+        "name": "munich_altstadt",
+        "path": "x",
+        "outlines": 100,
+        "meshes": 100,
+        "seconds": {"build": 1.0, "footprints": 2.0, "meshes": 3.0},
+        "rows": rows,
+    }
+    return {
+        "command": "python -m benchmarks.report_generalization --extracts munich",
+        "machine": {"CPU": "test"},
+        "parameters": {
+            "tolerances_m": list(rg.TOLERANCES_M),
+            "reductions": list(rg.REDUCTIONS),
+            "min_triangles": 8,
+            "batch": 2000,
+            "spacing_footprint_m": 0.05,
+            "spacing_mesh_m": 0.1,
+            "weld_m": 0.001,
+            "pin": True,
+            "max_area_change": 0.1,
+        },
+        "extracts": [ex, {**ex, "key": "london", "name": "london_city"}],
+        "seconds": 6.0,
+    }
 
 
 def test_row_statistics():
     r = rg.Row(rg.KIND_SIMPLIFIED, 1.0, "m")
-    r.add(features_in=3, features_out=3, vertices_before=30, vertices_after=20, polygons_before=3,
-          polygons_after=3, errors=np.array([0.5, 1.0]), status=["simplified", "simplified", "unchanged"])
-    r.add(features_in=1, features_out=1, vertices_before=10, vertices_after=10, polygons_before=1,
-          polygons_after=1, errors=np.array([]), status=["unchanged"])
+    r.add(
+        features_in=3,
+        features_out=3,
+        vertices_before=30,
+        vertices_after=20,
+        polygons_before=3,
+        polygons_after=3,
+        errors=np.array([0.5, 1.0]),
+        status=["simplified", "simplified", "unchanged"],
+    )
+    r.add(
+        features_in=1,
+        features_out=1,
+        vertices_before=10,
+        vertices_after=10,
+        polygons_before=1,
+        polygons_after=1,
+        errors=np.array([]),
+        status=["unchanged"],
+    )
     d = r.as_dict()
     assert d["changed"] == 2 and d["mean_error_m"] == 0.75 and d["max_error_m"] == 1.0
     assert d["vertex_reduction_pct"] == 25.0 and d["polygon_reduction_pct"] == 0.0
@@ -134,12 +181,22 @@ def test_the_report_carries_the_far_view_fidelity_pictures(tmp_path):
     (src / "city").mkdir(parents=True)
     pic = src / "city" / "overview.png"
     pic.write_bytes(b"\x89PNG\r\n\x1a\n")
-    (src / "city" / "fidelity.json").write_text(json.dumps({
-        "name": "city", "cameras": [{"name": "overview", "height": 7700.0, "pitch": -90.0}],
-        "views": {"overview": {"masks": {"iou": 0.58, "area_ratio": 0.55}, "side_by_side": str(pic),
-                               "passes": {"streamed": {"trianglesSelected": 1000},
-                                          "full": {"trianglesSelected": 90000}}},
-                  "oblique-low": {"error": "tiles still loading after 600000 ms"}}}))
+    (src / "city" / "fidelity.json").write_text(
+        json.dumps(
+            {
+                "name": "city",
+                "cameras": [{"name": "overview", "height": 7700.0, "pitch": -90.0}],
+                "views": {
+                    "overview": {
+                        "masks": {"iou": 0.58, "area_ratio": 0.55},
+                        "side_by_side": str(pic),
+                        "passes": {"streamed": {"trianglesSelected": 1000}, "full": {"trianglesSelected": 90000}},
+                    },
+                    "oblique-low": {"error": "tiles still loading after 600000 ms"},
+                },
+            }
+        )
+    )
     (src / "broken").mkdir()
     (src / "broken" / "fidelity.json").write_text("{not json")
     fid = rg.collect_fidelity(src, out)

@@ -8,12 +8,26 @@ from benchmarks import scale_bench as sb
 
 
 def run(copies: int, buildings: int, factor: float, o2p: float | None = 1.0) -> dict:
-    stages = {st: {"s": 2.0 * factor * (3.0 if st == "textures" else 1.0), "client_rss_mib": 100.0 * copies,
-                   "server_rss_mib": 50.0} for st in sb.STAGES}
+    stages = {
+        st: {
+            "s": 2.0 * factor * (3.0 if st == "textures" else 1.0),
+            "client_rss_mib": 100.0 * copies,
+            "server_rss_mib": 50.0,
+        }
+        for st in sb.STAGES
+    }
     total = sum(s["s"] for s in stages.values())
-    return {"copies": copies, "osm_bytes": 2_700_000 * copies, "buildings": buildings, "stages": stages,
-            "total_s": total, "buildings_per_s": buildings / total, "db_bytes": 10**8 * copies,
-            "tileset_bytes": 4 * 10**7 * copies, "osm2pgsql_s": o2p}
+    return {
+        "copies": copies,
+        "osm_bytes": 2_700_000 * copies,
+        "buildings": buildings,
+        "stages": stages,
+        "total_s": total,
+        "buildings_per_s": buildings / total,
+        "db_bytes": 10**8 * copies,
+        "tileset_bytes": 4 * 10**7 * copies,
+        "osm2pgsql_s": o2p,
+    }
 
 
 def test_exponents_are_one_for_linear_stages_and_two_for_quadratic_ones() -> None:

@@ -49,20 +49,42 @@ def test_glb_split_counts_stored_bytes_of_meshopt_and_external_views() -> None:
     doc = {
         "asset": {"version": "2.0"},
         # buffer 0: the glb's BIN; 1: the meshopt fallback (no data); 2: an external file
-        "buffers": [{"byteLength": 48}, {"byteLength": 400, "extensions": {"EXT_meshopt_compression":
-                                                                           {"fallback": True}}},
-                    {"byteLength": 10, "uri": "x.bin"}],
+        "buffers": [
+            {"byteLength": 48},
+            {"byteLength": 400, "extensions": {"EXT_meshopt_compression": {"fallback": True}}},
+            {"byteLength": 10, "uri": "x.bin"},
+        ],
         "bufferViews": [
-            {"buffer": 1, "byteLength": 400, "extensions": {"EXT_meshopt_compression": {
-                "buffer": 0, "byteOffset": 0, "byteLength": 24, "byteStride": 4, "mode": "ATTRIBUTES",
-                "count": 100}}},
+            {
+                "buffer": 1,
+                "byteLength": 400,
+                "extensions": {
+                    "EXT_meshopt_compression": {
+                        "buffer": 0,
+                        "byteOffset": 0,
+                        "byteLength": 24,
+                        "byteStride": 4,
+                        "mode": "ATTRIBUTES",
+                        "count": 100,
+                    }
+                },
+            },
             {"buffer": 0, "byteOffset": 24, "byteLength": 16},  # a KTX2 page
             {"buffer": 2, "byteLength": 10},  # an external image: not in the glb
             {"buffer": 0, "byteOffset": 40, "byteLength": 8},  # a property table column
         ],
         "images": [{"bufferView": 1, "mimeType": "image/ktx2"}, {"bufferView": 2, "mimeType": "image/png"}],
-        "extensions": {"EXT_structural_metadata": {"propertyTables": [
-            {"class": "b", "count": 2, "properties": {"h": {"values": 3}, "n": {"values": 0, "stringOffsets": 3}}}]}},
+        "extensions": {
+            "EXT_structural_metadata": {
+                "propertyTables": [
+                    {
+                        "class": "b",
+                        "count": 2,
+                        "properties": {"h": {"values": 3}, "n": {"values": 0, "stringOffsets": 3}},
+                    }
+                ]
+            }
+        },
     }
     data = glb(doc, bytes(48))
     s = sb.glb_split(data)
@@ -71,23 +93,35 @@ def test_glb_split_counts_stored_bytes_of_meshopt_and_external_views() -> None:
     assert s["json"] + s["texture"] + s["geometry"] == len(data)
 
 
-@pytest.mark.parametrize("data, needle", [
-    (b"glTF" + struct.pack("<II", 2, 99) + bytes(8), "header length"),
-    (b"GLTF" + bytes(30), "magic"),
-    (b"glTF" + struct.pack("<II", 2, 28) + struct.pack("<II", 100, sb.CHUNK_JSON) + bytes(8), "past the end"),
-])
+@pytest.mark.parametrize(
+    "data, needle",
+    [
+        (b"glTF" + struct.pack("<II", 2, 99) + bytes(8), "header length"),
+        (b"GLTF" + bytes(30), "magic"),
+        (b"glTF" + struct.pack("<II", 2, 28) + struct.pack("<II", 100, sb.CHUNK_JSON) + bytes(8), "past the end"),
+    ],
+)
 def test_glb_split_refuses_broken_files(data: bytes, needle: str) -> None:
     with pytest.raises(ValueError, match=needle):
         sb.glb_split(data)
 
 
 def test_root_content_uri_explicit_implicit_and_none() -> None:
-    assert sb.root_content_uri({"root": {"content": {"uri": "content/0/0/0.glb"}, "children": []}}) == \
-        "content/0/0/0.glb"
+    assert (
+        sb.root_content_uri({"root": {"content": {"uri": "content/0/0/0.glb"}, "children": []}}) == "content/0/0/0.glb"
+    )
     assert sb.root_content_uri({"root": {"contents": [{"uri": "a.glb"}, {"uri": "b.glb"}]}}) == "a.glb"
-    implicit = {"root": {"content": {"uri": "content/{level}/{x}/{y}.glb"},
-                         "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 4, "availableLevels": 6,
-                                            "subtrees": {"uri": "subtrees/{level}/{x}/{y}.subtree"}}}}
+    implicit = {
+        "root": {
+            "content": {"uri": "content/{level}/{x}/{y}.glb"},
+            "implicitTiling": {
+                "subdivisionScheme": "QUADTREE",
+                "subtreeLevels": 4,
+                "availableLevels": 6,
+                "subtrees": {"uri": "subtrees/{level}/{x}/{y}.subtree"},
+            },
+        }
+    }
     assert sb.root_content_uri(implicit) == "content/0/0/0.glb"
     assert sb.root_content_uri({"root": {"children": []}}) is None
 
@@ -98,8 +132,10 @@ def test_measure_dir_splits_files_and_finds_the_root(tmp_path: Path) -> None:
     (tmp_path / "content" / "0" / "0" / "0.glb").write_bytes(data)
     (tmp_path / "subtrees").mkdir()
     (tmp_path / "subtrees" / "0.0.0.subtree").write_bytes(bytes(100))
-    ts = {"asset": {"version": "1.1"}, "root": {"content": {"uri": "content/{level}/{x}/{y}.glb"},
-                                                 "implicitTiling": {}}}
+    ts = {
+        "asset": {"version": "1.1"},
+        "root": {"content": {"uri": "content/{level}/{x}/{y}.glb"}, "implicitTiling": {}},
+    }
     (tmp_path / "tileset.json").write_text(json.dumps(ts))
     m = sb.measure_dir(tmp_path)
     s = m["split"]
@@ -136,25 +172,63 @@ def test_cesium_camera_horizontal_fov() -> None:
 
 
 def _variant(bpb: float, lod1: float, root: int, seconds: float, tex: float | None) -> dict:
-    views = {"street": {"name": "street", "loaded": True, "texturesByteLength": tex, "geometryByteLength": 5e6,
-                        "batchTableByteLength": 1e5, "tilesWithContent": 9, "trianglesSelected": 1000},
-             "overview": {"name": "overview", "error": "tiles still loading after 9 ms"}}
-    split = {"bytes": 100, "json": 5, "texture": 20, "geometry": 75, "metadata": 3, "tileset_json": 9, "subtree": 0,
-             "glb_files": 2}
-    return {"all": {"bytes_per_building": bpb, "root_bytes": root, "seconds": seconds, "buildings": 100,
-                    "runs": 1, "split": split},
-            "lod1": {"bytes_per_building": lod1},
-            "client": {"views": views, "gpu": {"astc": True, "s3tc": True, "etc": False, "renderer": "x"}}}
+    views = {
+        "street": {
+            "name": "street",
+            "loaded": True,
+            "texturesByteLength": tex,
+            "geometryByteLength": 5e6,
+            "batchTableByteLength": 1e5,
+            "tilesWithContent": 9,
+            "trianglesSelected": 1000,
+        },
+        "overview": {"name": "overview", "error": "tiles still loading after 9 ms"},
+    }
+    split = {
+        "bytes": 100,
+        "json": 5,
+        "texture": 20,
+        "geometry": 75,
+        "metadata": 3,
+        "tileset_json": 9,
+        "subtree": 0,
+        "glb_files": 2,
+    }
+    return {
+        "all": {
+            "bytes_per_building": bpb,
+            "root_bytes": root,
+            "seconds": seconds,
+            "buildings": 100,
+            "runs": 1,
+            "split": split,
+        },
+        "lod1": {"bytes_per_building": lod1},
+        "client": {"views": views, "gpu": {"astc": True, "s3tc": True, "etc": False, "renderer": "x"}},
+    }
 
 
 def test_judge_and_section_when_the_streams_differ() -> None:
-    res = {"compact": _variant(2600, 300, 400_000, 12.0, 40e6),
-           "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6),
-           "pixels": {"street": {"mad": 1.25, "differing": 0.01, "compact": "/b/x/screenshots/compact/street.png",
-                                 "plain": "/b/x/screenshots/plain/street.png"},
-                      "overview": {"error": "a view failed: tiles still loading"}}}
-    assert sb.judge(res, headline=True) == {"all": True, "lod1": True, "root": True, "export": True,
-                                            "texture_memory": True}
+    res = {
+        "compact": _variant(2600, 300, 400_000, 12.0, 40e6),
+        "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6),
+        "pixels": {
+            "street": {
+                "mad": 1.25,
+                "differing": 0.01,
+                "compact": "/b/x/screenshots/compact/street.png",
+                "plain": "/b/x/screenshots/plain/street.png",
+            },
+            "overview": {"error": "a view failed: tiles still loading"},
+        },
+    }
+    assert sb.judge(res, headline=True) == {
+        "all": True,
+        "lod1": True,
+        "root": True,
+        "export": True,
+        "texture_memory": True,
+    }
     res["plain"]["all"]["bytes_per_building"] = 14_000.0
     res["compact"]["all"]["bytes_per_building"] = 2_750.0  # ≤ 0.2× plain but over 2,700 B
     assert sb.judge(res, headline=True)["all"] is False
@@ -184,10 +258,15 @@ def test_judge_and_section_when_the_streams_differ() -> None:
 
 
 def test_section_records_failures_without_crashing() -> None:
-    res = {"compact": {"all": {"error": "export exited 1"}, "lod1": {"error": "export exited 1"},
-                       "client": {"error": "not exported"}},
-           "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6),
-           "pixels": {"street": {"error": "a view failed"}, "overview": {"error": "a view failed"}}}
+    res = {
+        "compact": {
+            "all": {"error": "export exited 1"},
+            "lod1": {"error": "export exited 1"},
+            "client": {"error": "not exported"},
+        },
+        "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6),
+        "pixels": {"street": {"error": "a view failed"}, "overview": {"error": "a view failed"}},
+    }
     assert set(sb.judge(res, headline=True).values()) == {None}
     text = "\n".join(sb.section_lines([("x", res)]))
     assert "failed: export exited 1" in text and "failed: not exported" in text
@@ -201,8 +280,11 @@ def test_bench_report_has_the_stream_section() -> None:
     for st in bench.STAGES:
         res.stages[st].append(bench.Sample(1.0, 10.0, {"in": 5, "buildings": 5, "features": 5}))
     res.o2p.append(bench.Sample(0.5, 10.0))
-    res.stream = {"compact": _variant(2600, 300, 400_000, 12.0, 40e6),
-                  "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6), "pixels": {}}
+    res.stream = {
+        "compact": _variant(2600, 300, 400_000, 12.0, 40e6),
+        "plain": _variant(13_399, 1_764, 3_600_000, 10.0, 422e6),
+        "pixels": {},
+    }
     text = bench.render([res], {"cores": "2"}, 1, "python -m benchmarks.bench")
     assert "\n## Stream\n" in text and text.index("## Stream") < text.index("## How to read this")
     assert f"| {bench.HEADLINE} | compact | 2,600 | 0.19× | **pass** |" in text
@@ -236,12 +318,35 @@ def test_compare_shots_reads_pngs_and_records_failed_clients(tmp_path: Path) -> 
 def test_scale_section_states_the_tileset_sizes() -> None:
     from benchmarks import bench
 
-    lat = {"buildings": 1_000_000, "tiles": 8134, "p50_ms": 2.0, "p95_ms": 8.0, "max_ms": 20.0, "mean_features": 10,
-           "max_features": 50, "pass": True, "cameras": 200, "seed": 4,
-           "profile": {"slowest": {"camera": {"height": 100, "pitch": -20}, "features": 10, "planning_ms": 1.0,
-                                   "execution_ms": 2.0}, "p95": {"planning_ms": 1.0, "execution_ms": 2.0}}}
-    size = {"tiles": 8134, "levels": 10, "implicit_tileset_json_bytes": 1340, "explicit_tileset_json_bytes": 1_520_918,
-            "subtrees": 1, "subtree_bytes": 499_744}
+    lat = {
+        "buildings": 1_000_000,
+        "tiles": 8134,
+        "p50_ms": 2.0,
+        "p95_ms": 8.0,
+        "max_ms": 20.0,
+        "mean_features": 10,
+        "max_features": 50,
+        "pass": True,
+        "cameras": 200,
+        "seed": 4,
+        "profile": {
+            "slowest": {
+                "camera": {"height": 100, "pitch": -20},
+                "features": 10,
+                "planning_ms": 1.0,
+                "execution_ms": 2.0,
+            },
+            "p95": {"planning_ms": 1.0, "execution_ms": 2.0},
+        },
+    }
+    size = {
+        "tiles": 8134,
+        "levels": 10,
+        "implicit_tileset_json_bytes": 1340,
+        "explicit_tileset_json_bytes": 1_520_918,
+        "subtrees": 1,
+        "subtree_bytes": 499_744,
+    }
     text = "\n".join(bench._scale_section({"1m": {**lat, "tileset": size}}))
     assert "| ~1M | 8,134 | 10 | 1,340 B | 1,520,918 B | 1, 499,744 B | **pass** |" in text
     too_big = {**size, "implicit_tileset_json_bytes": 100_001}

@@ -86,8 +86,9 @@ def test_screen_boxes_of_a_cylinder_from_above_and_from_the_side() -> None:
     boxes, _ = vs.screen_boxes(side, enu(200, 0, 0)[None], enu(200, 0, 100)[None], np.array([10.0]), up)
     f = vs.focal_px(side)
     # from the side the disc is flat: the box is the axis, 2 × 50 m high, widened by the radius
-    assert boxes[0] == pytest.approx([960 - f * 10 / 200, 540 - f * 50 / 200, 960 + f * 10 / 200,
-                                      540 + f * 50 / 200], abs=0.05)
+    assert boxes[0] == pytest.approx(
+        [960 - f * 10 / 200, 540 - f * 50 / 200, 960 + f * 10 / 200, 540 + f * 50 / 200], abs=0.05
+    )
     assert vs.box_visible(side, boxes, 4.0).tolist() == [True]
     assert vs.box_visible(side, boxes + [3000, 0, 3000, 0], 4.0).tolist() == [False]
     assert vs.box_visible(side, boxes, 1e4).tolist() == [False]
@@ -103,8 +104,9 @@ def test_roi_disc_seen_from_above_is_a_circle() -> None:
     yy, xx = np.nonzero(mask)
     assert (xx.mean(), yy.mean()) == pytest.approx((width / 2 - 0.5, 54 - 0.5), abs=0.5)
     # the disc behind the camera is not seen
-    assert not vs.roi_disc_mask(Camera(LON, LAT, 500.0, 0.0, 30.0), width, GROUND, vs.geodetic_up(LON, LAT),
-                                100.0).any()
+    assert not vs.roi_disc_mask(
+        Camera(LON, LAT, 500.0, 0.0, 30.0), width, GROUND, vs.geodetic_up(LON, LAT), 100.0
+    ).any()
 
 
 def test_roi_distance_is_the_euclidean_distance_to_the_roi() -> None:
@@ -127,8 +129,18 @@ def test_frame_metrics_on_a_synthetic_scene() -> None:
     pts = np.array([enu(0, 0, 0), enu(300, 0, 0), enu(0, 300, 0), enu(9000, 0, 0)])
     geo = ecef_to_geodetic(pts)
     lon, lat = np.degrees(geo[:, 0]), np.degrees(geo[:, 1])
-    m = vs.frame_metrics(cam, lon, lat, geo[:, 2], np.array([10.0, 10.0, 200.0, 10.0]),
-                         np.array([10.0, 10.0, 10.0, 10.0]), GROUND, 100.0, grid_width=384, min_px=4.0)
+    m = vs.frame_metrics(
+        cam,
+        lon,
+        lat,
+        geo[:, 2],
+        np.array([10.0, 10.0, 200.0, 10.0]),
+        np.array([10.0, 10.0, 10.0, 10.0]),
+        GROUND,
+        100.0,
+        grid_width=384,
+        min_px=4.0,
+    )
     assert m.visible.tolist() == [True, True, True, False]
     assert np.isnan(m.interest[3]) and np.isnan(m.distance_n[3])
     assert m.roi_n[0] == 0.0 and m.roi_px[0] == 0.0

@@ -14,8 +14,15 @@ import pytest
 from core.pipeline import GRAPH
 
 REPO = Path(__file__).resolve().parents[2]
-DOCS = ["README.md", "ARCHITECTURE.md", "CONTRIBUTING.md", "benchmarks/README.md", "migrations/README.md",
-        "sql/README.md", *sorted(str(p.relative_to(REPO)) for p in (REPO / "docs" / "decisions").glob("*.md"))]
+DOCS = [
+    "README.md",
+    "ARCHITECTURE.md",
+    "CONTRIBUTING.md",
+    "benchmarks/README.md",
+    "migrations/README.md",
+    "sql/README.md",
+    *sorted(str(p.relative_to(REPO)) for p in (REPO / "docs" / "decisions").glob("*.md")),
+]
 #: Paths in backticks are checked when they start with one of these (build/, var/, data/ are made at run time).
 TRACKED_ROOTS = ("core/", "etl/", "exporter/", "sql/", "migrations/", "tests/", "benchmarks/", "scripts/", ".ci/")
 SCHEMAS = ("osm", "lod", "gen", "lm", "tex", "tiles", "meta", "api")
@@ -33,8 +40,9 @@ def make_targets(makefile: str) -> set[str]:
 
 
 def etl_commands() -> set[str]:
-    out = subprocess.run([sys.executable, "-m", "etl", "--help"], cwd=REPO, capture_output=True, text=True,
-                         check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "etl", "--help"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout
     m = re.search(r"\{([\w,-]+)\}", out)
     assert m, out
     return set(m.group(1).split(","))
@@ -52,9 +60,22 @@ def db_objects() -> set[str]:
 
 
 #: where a backticked name of code must be found: the sources, SQL, migrations, Makefile and scripts
-CODE_GLOBS = ("core/**/*.py", "etl/**/*.py", "exporter/**/*.py", "benchmarks/**/*.py", "tests/**/*.py",
-              "sql/**/*.sql", "migrations/*.sql", "Makefile", "scripts/*", "exporter/viewer/*", "tests/**/*.mjs",
-              "benchmarks/**/*.mjs", "pyproject.toml", "package.json")
+CODE_GLOBS = (
+    "core/**/*.py",
+    "etl/**/*.py",
+    "exporter/**/*.py",
+    "benchmarks/**/*.py",
+    "tests/**/*.py",
+    "sql/**/*.sql",
+    "migrations/*.sql",
+    "Makefile",
+    "scripts/*",
+    "exporter/viewer/*",
+    "tests/**/*.mjs",
+    "benchmarks/**/*.mjs",
+    "pyproject.toml",
+    "package.json",
+)
 #: a backticked word that names code: snake_case (a function, setting, column), CamelCase (a class), or a call
 IDENTIFIER = re.compile(r"^(?:[a-z][a-z0-9]*(?:_[a-z0-9]+)+|[A-Z][a-z0-9]+(?:[A-Z][a-z0-9]+)+|[A-Za-z_]\w*\(\))$")
 #: a dotted name of our Python: package.module[.name]
@@ -80,15 +101,15 @@ def dotted_problem(name: str) -> str | None:
         src = base.with_suffix(".py") if base.with_suffix(".py").is_file() else base / "__init__.py"
         if src.is_file():
             rest = parts[i:]
-            if rest and not re.search(rf"^\s*(?:def|class|async def)?\s*{re.escape(rest[0])}\b", src.read_text(),
-                                      re.M):
+            if rest and not re.search(rf"^\s*(?:def|class|async def)?\s*{re.escape(rest[0])}\b", src.read_text(), re.M):
                 return f"{name}: {'.'.join(parts[:i])} defines no {rest[0]}"
             return None
     return f"{name}: no such module"
 
 
-def problems(doc: str, text: str, *, targets: set[str], commands: set[str], objects: set[str],
-             words: set[str] | None = None) -> list[str]:
+def problems(
+    doc: str, text: str, *, targets: set[str], commands: set[str], objects: set[str], words: set[str] | None = None
+) -> list[str]:
     """What ``text`` (the document at repo path ``doc``) names that does not exist."""
     out: list[str] = []
     base = (REPO / doc).parent
@@ -134,16 +155,24 @@ def identifier_problems(doc: str, text: str, words: set[str]) -> list[str]:
                 out.append(f"{doc}: no such Python name: {why}")
         elif IDENTIFIER.match(word) and word.removesuffix("()") not in words:
             out.append(f"{doc}: no such name in the code: {word}")
-        elif word.startswith("CITYLOD_") and re.fullmatch(r"CITYLOD_[A-Z0-9_]+", word) and word not in words \
-                and word.removeprefix("CITYLOD_").lower() not in words:
+        elif (
+            word.startswith("CITYLOD_")
+            and re.fullmatch(r"CITYLOD_[A-Z0-9_]+", word)
+            and word not in words
+            and word.removeprefix("CITYLOD_").lower() not in words
+        ):
             out.append(f"{doc}: no such setting or variable: {word}")
     return out
 
 
 @pytest.fixture(scope="module")
 def known() -> dict[str, set[str]]:
-    return {"targets": make_targets((REPO / "Makefile").read_text()), "commands": etl_commands(),
-            "objects": db_objects(), "words": code_words()}
+    return {
+        "targets": make_targets((REPO / "Makefile").read_text()),
+        "commands": etl_commands(),
+        "objects": db_objects(),
+        "words": code_words(),
+    }
 
 
 @pytest.mark.parametrize("doc", DOCS)
@@ -161,8 +190,11 @@ def test_no_commit_hashes_in_the_docs_for_users_and_newcomers(doc: str) -> None:
 
 def test_every_test_file_is_linked_from_architecture() -> None:
     text = (REPO / "ARCHITECTURE.md").read_text()
-    missing = [p.relative_to(REPO).as_posix() for p in sorted((REPO / "tests").rglob("test_*.py"))
-               if p.relative_to(REPO).as_posix() not in text]
+    missing = [
+        p.relative_to(REPO).as_posix()
+        for p in sorted((REPO / "tests").rglob("test_*.py"))
+        if p.relative_to(REPO).as_posix() not in text
+    ]
     assert not missing, "test files ARCHITECTURE.md does not name:\n" + "\n".join(missing)
 
 
@@ -178,11 +210,13 @@ def test_every_stage_is_documented(known: dict[str, set[str]]) -> None:
 
 def test_the_checker_finds_what_is_missing(known: dict[str, set[str]]) -> None:
     # every rule on a made-up document, so a broken pattern cannot pass the real ones vacuously
-    doc = ("See [the stage](etl/stages/nowhere.py), `sql/api/no_such.sql` and `etl/lod/stage.py`; run "
-           "`make frobnicate` or `make lod`, `python -m etl nosuchstage`, `python -m benchmarks.nothing`, and "
-           "query `api.no_such_function` or `api.lod_for_view`. `unmake_omissions()` is gone, `build_batch` and "
-           "`core.db.connect` are not, `core.db.no_such` and `etl.nowhere` never were; `CITYLOD_LEVEL_HEIGHT_M` "
-           "and `CITYLOD_DEBUG` are read, `CITYLOD_NO_SUCH` is not.")
+    doc = (
+        "See [the stage](etl/stages/nowhere.py), `sql/api/no_such.sql` and `etl/lod/stage.py`; run "
+        "`make frobnicate` or `make lod`, `python -m etl nosuchstage`, `python -m benchmarks.nothing`, and "
+        "query `api.no_such_function` or `api.lod_for_view`. `unmake_omissions()` is gone, `build_batch` and "
+        "`core.db.connect` are not, `core.db.no_such` and `etl.nowhere` never were; `CITYLOD_LEVEL_HEIGHT_M` "
+        "and `CITYLOD_DEBUG` are read, `CITYLOD_NO_SUCH` is not."
+    )
     found = problems("README.md", doc, **known)
     assert found == [
         "README.md: link to a missing file: etl/stages/nowhere.py",
@@ -197,4 +231,6 @@ def test_the_checker_finds_what_is_missing(known: dict[str, set[str]]) -> None:
         "README.md: no such database object: api.no_such_function",
     ]
     assert COMMIT.findall("at 6c942bd and e0f9fe7, not at a1b2c3 or deadbeef or sql/0045_x or v1.2.3") == [
-        "6c942bd", "e0f9fe7"]
+        "6c942bd",
+        "e0f9fe7",
+    ]

@@ -49,10 +49,12 @@ def city_block(rng: np.random.Generator, half: float, height: float = 600.0) -> 
     colours = rng.integers(0, 65535, (len(pos), 4)).astype(np.uint16)
     fids = np.repeat(np.arange(n), 8)
     c = cube_primitive()
-    props = [type(c.properties[0])("osm_id", list(range(10**9, 10**9 + n)), "INT64", required=True),
-             type(c.properties[0])("name", [f"house {i}" if i % 3 else None for i in range(n)], None),
-             type(c.properties[0])("lod", [i % 4 for i in range(n)], "UINT8", required=True),
-             type(c.properties[0])("height", list(size[:, 1]), "FLOAT32", required=True)]
+    props = [
+        type(c.properties[0])("osm_id", list(range(10**9, 10**9 + n)), "INT64", required=True),
+        type(c.properties[0])("name", [f"house {i}" if i % 3 else None for i in range(n)], None),
+        type(c.properties[0])("lod", [i % 4 for i in range(n)], "UINT8", required=True),
+        type(c.properties[0])("height", list(size[:, 1]), "FLOAT32", required=True),
+    ]
     return Primitive(pos, nrm, colours, fids, idx, props, feature_count=n)
 
 
@@ -75,13 +77,23 @@ def triangles(gltf: dict, binary: bytes, prim: dict) -> set[tuple[tuple[float, .
     return {tuple(sorted(map(tuple, pos[t]))) for t in idx}
 
 
-@pytest.mark.parametrize(("half", "geometric_error", "leaf"), [(150.0, 0.0, True), (300.0, 0.0, True),
-                                                                 (900.0, 40.0, False)])
+@pytest.mark.parametrize(
+    ("half", "geometric_error", "leaf"), [(150.0, 0.0, True), (300.0, 0.0, True), (900.0, 40.0, False)]
+)
 def test_positions_within_the_bound_after_the_node_matrix(half, geometric_error, leaf) -> None:
     rng = np.random.default_rng(7)
     prim = city_block(rng, half)
-    rec = TileRecord(level=3, x=0, y=0, is_leaf=leaf, region=(0, 0, 0, 0, 0, 0), geometric_error=geometric_error,
-                     content_uri="t.glb", n_features=300, content_features=300)
+    rec = TileRecord(
+        level=3,
+        x=0,
+        y=0,
+        is_leaf=leaf,
+        region=(0, 0, 0, 0, 0, 0),
+        geometric_error=geometric_error,
+        content_uri="t.glb",
+        n_features=300,
+        content_features=300,
+    )
     bound = position_error_m(rec)
     assert bound == (LEAF_POSITION_ERROR_M if leaf else max(0.01, 0.01 * geometric_error))
     q = quantization([prim.positions], bound)
@@ -90,8 +102,10 @@ def test_positions_within_the_bound_after_the_node_matrix(half, geometric_error,
     glb = write_glb(prim, compact=True, quantization=q, node_matrix=node)
     gltf, binary = read_glb(glb)
     assert is_compact(glb) and set(gltf["extensionsRequired"]) == {"KHR_mesh_quantization", "KHR_meshopt_compression"}
-    assert gltf["buffers"][1] == {"byteLength": gltf["buffers"][1]["byteLength"],
-                                  "extensions": {"KHR_meshopt_compression": {"fallback": True}}}
+    assert gltf["buffers"][1] == {
+        "byteLength": gltf["buffers"][1]["byteLength"],
+        "extensions": {"KHR_meshopt_compression": {"fallback": True}},
+    }
     p = gltf["meshes"][0]["primitives"][0]
     assert gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5122  # SHORT
     # each stored vertex is one of the input's (reordered): match them by feature and nearest corner
@@ -106,14 +120,19 @@ def test_positions_within_the_bound_after_the_node_matrix(half, geometric_error,
     assert max(err) <= bound, (max(err), bound)
     assert max(err) > bound / 10  # the bound is used, not a much finer step
     # the mesh frame (the landmark metadata's) is the stored value times the node's scale
-    np.testing.assert_allclose(mesh_positions(gltf, binary, p["attributes"]["POSITION"]),
-                               accessor_array(gltf, binary, p["attributes"]["POSITION"]) * q.step)
+    np.testing.assert_allclose(
+        mesh_positions(gltf, binary, p["attributes"]["POSITION"]),
+        accessor_array(gltf, binary, p["attributes"]["POSITION"]) * q.step,
+    )
     # the property table and the colours read back exactly, normals within BYTE precision
     table = property_table(gltf, binary)
     for prop in prim.properties:
         want_v = [("" if v is None else v) for v in prop.values]
-        assert table[prop.name] == pytest.approx(want_v) if prop.component_type == "FLOAT32" else \
-            table[prop.name] == want_v
+        assert (
+            table[prop.name] == pytest.approx(want_v)
+            if prop.component_type == "FLOAT32"
+            else table[prop.name] == want_v
+        )
     assert check_glb(glb) == []
 
 
@@ -141,8 +160,9 @@ def test_too_large_a_tile_keeps_float_positions_compressed() -> None:
     gltf, binary = read_glb(glb)
     p = gltf["meshes"][0]["primitives"][0]
     assert gltf["accessors"][p["attributes"]["POSITION"]]["componentType"] == 5126 and "matrix" not in gltf["nodes"][0]
-    np.testing.assert_allclose(node_positions(gltf, binary, p["attributes"]["POSITION"]).min(axis=0),
-                               prim.positions.min(axis=0), atol=1e-3)
+    np.testing.assert_allclose(
+        node_positions(gltf, binary, p["attributes"]["POSITION"]).min(axis=0), prim.positions.min(axis=0), atol=1e-3
+    )
     assert len(glb) < len(write_glb(prim)) * 0.8
 
 
@@ -152,7 +172,7 @@ def test_a_wide_tile_keeps_one_mesh_of_exponential_float_positions_within_the_bo
     prim = city_block(np.random.default_rng(5), 1000.0)
     assert quantization([prim.positions], 0.01) is None
     q = plan_quantization([prim], 0.01)
-    assert q.exponent == -7 and q.step == 2.0 ** -7 and q.scale == 1.0  # 7.8 mm steps: 6.8 mm at worst
+    assert q.exponent == -7 and q.step == 2.0**-7 and q.scale == 1.0  # 7.8 mm steps: 6.8 mm at worst
     node = rigid(-0.7, (10.0, 20.0, 30.0))
     glb = write_glb(prim, compact=True, quantization=q, node_matrix=node)
     gltf, binary = read_glb(glb)
@@ -164,8 +184,10 @@ def test_a_wide_tile_keeps_one_mesh_of_exponential_float_positions_within_the_bo
     assert view["extensions"]["KHR_meshopt_compression"]["filter"] == "EXPONENTIAL"
     got, fid = feature_vertices(gltf, binary)
     want = apply(node, prim.positions)
-    worst = max(np.linalg.norm(got[fid == f][:, None] - want[prim.feature_ids == f][None], axis=2).min(axis=1).max()
-                for f in range(prim.feature_count))
+    worst = max(
+        np.linalg.norm(got[fid == f][:, None] - want[prim.feature_ids == f][None], axis=2).min(axis=1).max()
+        for f in range(prim.feature_count)
+    )
     assert 0.001 < worst <= 0.01
     # min/max are exact for the decoded values (what a loader without the filter would read from the fallback)
     stored = accessor_array(gltf, binary, p["attributes"]["POSITION"])
@@ -174,8 +196,10 @@ def test_a_wide_tile_keeps_one_mesh_of_exponential_float_positions_within_the_bo
     mesh, mfid = feature_vertices(gltf, binary, frame="mesh")
     for f in (0, 150, 299):
         tile = mesh[mfid == f] + np.asarray(q.origin)
-        assert np.linalg.norm(tile[:, None] - prim.positions[prim.feature_ids == f][None], axis=2).min(axis=1).max() \
+        assert (
+            np.linalg.norm(tile[:, None] - prim.positions[prim.feature_ids == f][None], axis=2).min(axis=1).max()
             <= 0.01
+        )
     assert check_glb(glb) == []
     (tmp_path / "wide.glb").write_bytes(glb)
     report = validate_glb(tmp_path)
@@ -185,19 +209,23 @@ def test_a_wide_tile_keeps_one_mesh_of_exponential_float_positions_within_the_bo
 def test_exponential_filter_round_trips_exactly() -> None:
     from exporter.meshopt import decode_exp, encode_exp
 
-    v = np.array([[0.0, -1.5, 65000.123], [-8388607 * 2.0 ** -7, 3.0, 1e-3]])
+    v = np.array([[0.0, -1.5, 65000.123], [-8388607 * 2.0**-7, 3.0, 1e-3]])
     got = np.frombuffer(decode_exp(encode_exp(v, -7).tobytes(), 2, 12), "<f4").reshape(2, 3)
-    np.testing.assert_array_equal(got, np.round(v / 2.0 ** -7) * 2.0 ** -7)
+    np.testing.assert_array_equal(got, np.round(v / 2.0**-7) * 2.0**-7)
     with pytest.raises(ValueError, match="24 bits"):
-        encode_exp(np.array([2.0 ** 17]), -7)
+        encode_exp(np.array([2.0**17]), -7)
 
 
 def test_compact_glbs_pass_the_khronos_validator(tmp_path) -> None:
     prim = city_block(np.random.default_rng(11), 100.0)
     c = cube_primitive()
     files = {
-        "block.glb": write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01),
-                               node_matrix=rigid(1.0, (5.0, 6.0, 7.0))),
+        "block.glb": write_glb(
+            prim,
+            compact=True,
+            quantization=quantization([prim.positions], 0.01),
+            node_matrix=rigid(1.0, (5.0, 6.0, 7.0)),
+        ),
         "cube.glb": write_glb(c, compact=True, quantization=quantization([c.positions], 0.01)),
         "float.glb": write_glb(prim, compact=True),
     }
@@ -236,11 +264,20 @@ def test_property_views_keep_their_exact_length() -> None:
     # would make it drop the table, and with it every custom shader's metadata
     c = cube_primitive()
     n = 9
-    props = [type(c.properties[0])("lod", [3] * n, "UINT8", required=True),
-             type(c.properties[0])("osm_id", list(range(n)), "INT64", required=True),
-             type(c.properties[0])("name", [f"n{i}" for i in range(n)], None)]
-    prim = Primitive(np.repeat(c.positions, 2, axis=0)[:16], np.repeat(c.normals, 2, axis=0)[:16],
-                     np.repeat(c.colors, 2, axis=0)[:16], np.arange(16) % n, np.arange(15, dtype=np.uint32), props, n)
+    props = [
+        type(c.properties[0])("lod", [3] * n, "UINT8", required=True),
+        type(c.properties[0])("osm_id", list(range(n)), "INT64", required=True),
+        type(c.properties[0])("name", [f"n{i}" for i in range(n)], None),
+    ]
+    prim = Primitive(
+        np.repeat(c.positions, 2, axis=0)[:16],
+        np.repeat(c.normals, 2, axis=0)[:16],
+        np.repeat(c.colors, 2, axis=0)[:16],
+        np.arange(16) % n,
+        np.arange(15, dtype=np.uint32),
+        props,
+        n,
+    )
     gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
     table = gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["properties"]
     assert gltf["bufferViews"][table["lod"]["values"]]["byteLength"] == n
@@ -249,8 +286,12 @@ def test_property_views_keep_their_exact_length() -> None:
 
 
 def _geometry_views(gltf: dict) -> set[int]:
-    return {gltf["accessors"][a]["bufferView"] for m in gltf["meshes"] for p in m["primitives"]
-            for a in [*p["attributes"].values(), p["indices"]]}
+    return {
+        gltf["accessors"][a]["bufferView"]
+        for m in gltf["meshes"]
+        for p in m["primitives"]
+        for a in [*p["attributes"].values(), p["indices"]]
+    }
 
 
 def test_primitives_share_one_view_per_attribute_and_read_back(tmp_path) -> None:
@@ -260,8 +301,15 @@ def test_primitives_share_one_view_per_attribute_and_read_back(tmp_path) -> None
     half = np.arange(prim.feature_count) < 150
     parts = [_features(prim, half), _features(prim, ~half)]
     q = quantization([prim.positions], 0.01)
-    empty = Primitive(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4), np.uint16), np.zeros(0, np.int64),
-                      np.zeros(0, np.uint32), prim.properties, prim.feature_count)
+    empty = Primitive(
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros((0, 4), np.uint16),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.uint32),
+        prim.properties,
+        prim.feature_count,
+    )
     glb = write_glb(empty, compact=True, quantization=q, textured=parts, images=[_ktx2_like(64, 32)] * 2)
     gltf, binary = read_glb(glb)
     prims = gltf["meshes"][0]["primitives"]
@@ -280,8 +328,15 @@ def _features(prim: Primitive, keep: np.ndarray) -> Primitive:
     tris = prim.indices.reshape(-1, 3)
     tris = tris[keep_v[tris[:, 0]]]
     uv = np.random.default_rng(1).uniform(0, 1, (int(keep_v.sum()), 2))
-    return Primitive(prim.positions[keep_v], prim.normals[keep_v], np.zeros((0, 4), np.uint8),
-                     prim.feature_ids[keep_v], new[tris].reshape(-1).astype(np.uint32), uvs=uv, image=0)
+    return Primitive(
+        prim.positions[keep_v],
+        prim.normals[keep_v],
+        np.zeros((0, 4), np.uint8),
+        prim.feature_ids[keep_v],
+        new[tris].reshape(-1).astype(np.uint32),
+        uvs=uv,
+        image=0,
+    )
 
 
 def _ktx2_like(width: int, height: int) -> Image:
@@ -295,13 +350,21 @@ def test_texcoords_are_quarter_texels_scaled_back_by_the_texture_transform(tmp_p
     prim = city_block(np.random.default_rng(2), 100.0)
     page = np.zeros((32, 64, 3), np.uint8)
     webp, mime = encode_image(page, "webp")
-    empty = Primitive(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4), np.uint16), np.zeros(0, np.int64),
-                      np.zeros(0, np.uint32), prim.properties, prim.feature_count)
+    empty = Primitive(
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros((0, 4), np.uint16),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.uint32),
+        prim.properties,
+        prim.feature_count,
+    )
     tp = _features(prim, np.ones(prim.feature_count, bool))
     for image in (Image(webp, mime), _ktx2_like(64, 32)):
         assert image_size(image) == (64, 32)
-        glb = write_glb(empty, compact=True, quantization=quantization([prim.positions], 0.01), textured=[tp],
-                        images=[image])
+        glb = write_glb(
+            empty, compact=True, quantization=quantization([prim.positions], 0.01), textured=[tp], images=[image]
+        )
         gltf, binary = read_glb(glb)
         p = gltf["meshes"][0]["primitives"][0]
         acc = gltf["accessors"][p["attributes"]["TEXCOORD_0"]]
@@ -320,8 +383,15 @@ def test_texcoords_are_quarter_texels_scaled_back_by_the_texture_transform(tmp_p
     report = validate_glb(tmp_path)
     assert report["errors"] == 0, report
     # an image whose size is unknown keeps normalized texcoords and no transform
-    gltf, _ = read_glb(write_glb(empty, compact=True, quantization=quantization([prim.positions], 0.01),
-                                 textured=[tp], images=[Image(b"not an image", "image/png")]))
+    gltf, _ = read_glb(
+        write_glb(
+            empty,
+            compact=True,
+            quantization=quantization([prim.positions], 0.01),
+            textured=[tp],
+            images=[Image(b"not an image", "image/png")],
+        )
+    )
     assert gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"]]["normalized"]
     assert "KHR_texture_transform" not in gltf["extensionsUsed"]
 
@@ -331,8 +401,10 @@ def test_the_ext_variant_decodes_to_the_same_views_with_codec_version_0() -> Non
     # the same decoded data, larger streams (random normals and colours here: 4 %; 11-29 % on real tiles)
     prim = city_block(np.random.default_rng(9), 100.0)
     q = quantization([prim.positions], 0.01)
-    khr, ext = (read_glb(write_glb(prim, compact=True, quantization=q, meshopt_extension=e))
-                for e in ("KHR_meshopt_compression", "EXT_meshopt_compression"))
+    khr, ext = (
+        read_glb(write_glb(prim, compact=True, quantization=q, meshopt_extension=e))
+        for e in ("KHR_meshopt_compression", "EXT_meshopt_compression")
+    )
     assert "EXT_meshopt_compression" in ext[0]["extensionsRequired"]
     assert "KHR_meshopt_compression" not in json.dumps(ext[0])
     assert len(khr[0]["bufferViews"]) == len(ext[0]["bufferViews"])
@@ -371,19 +443,25 @@ def test_compact_tables_share_equal_columns_and_drop_all_nodata_optional_ones() 
     c = cube_primitive()
     P = type(c.properties[0])
     n = 8
-    props = [P("lm_centre_x", [0.0] * n, "FLOAT32", "desc x", required=True),
-             P("lm_centre_y", [0.0] * n, "FLOAT32", "desc y", required=True),
-             P("lm_rank", [None] * n, "UINT32", "rank", no_data=0),
-             P("levels", [None, 2.0] * 4, "FLOAT32", "levels", no_data=-1.0)]
-    prim = Primitive(c.positions, c.normals, c.colors, np.arange(len(c.positions)) % n,
-                     np.asarray(c.indices, np.uint32), props, n)
+    props = [
+        P("lm_centre_x", [0.0] * n, "FLOAT32", "desc x", required=True),
+        P("lm_centre_y", [0.0] * n, "FLOAT32", "desc y", required=True),
+        P("lm_rank", [None] * n, "UINT32", "rank", no_data=0),
+        P("levels", [None, 2.0] * 4, "FLOAT32", "levels", no_data=-1.0),
+    ]
+    prim = Primitive(
+        c.positions, c.normals, c.colors, np.arange(len(c.positions)) % n, np.asarray(c.indices, np.uint32), props, n
+    )
     gltf, binary = read_glb(write_glb(prim, compact=True, quantization=quantization([prim.positions], 0.01)))
     meta = gltf["extensions"]["EXT_structural_metadata"]
     cols = meta["propertyTables"][0]["properties"]
     assert cols["lm_centre_x"]["values"] == cols["lm_centre_y"]["values"]  # the same bytes, one view
     assert "lm_rank" not in cols and "levels" in cols  # optional, all noData: omitted (the spec's reading)
     assert meta["schema"]["classes"]["building"]["properties"]["lm_rank"] == {
-        "type": "SCALAR", "componentType": "UINT32", "noData": 0}  # no descriptions: tileset.json has them
+        "type": "SCALAR",
+        "componentType": "UINT32",
+        "noData": 0,
+    }  # no descriptions: tileset.json has them
     table = property_table(gltf, binary)
     assert table["lm_centre_y"] == [0.0] * n and table["levels"] == [-1.0, 2.0] * 4 and "lm_rank" not in table
     assert property_table(gltf, binary, fill_no_data=True)["lm_rank"] == [0] * n
@@ -400,7 +478,10 @@ def test_the_tileset_schema_describes_what_compact_glbs_leave_out() -> None:
     cls = building_schema_class()
     assert list(cls["properties"]) == [p[0] for p in PROPERTIES]
     assert all(spec["description"] for spec in cls["properties"].values())
-    assert cls["properties"]["lm_level"] == {"description": dict((p[0], p[2]) for p in PROPERTIES)["lm_level"],
-                                             "type": "SCALAR",
-                                             "componentType": "UINT8", "noData": 255}
+    assert cls["properties"]["lm_level"] == {
+        "description": dict((p[0], p[2]) for p in PROPERTIES)["lm_level"],
+        "type": "SCALAR",
+        "componentType": "UINT8",
+        "noData": 255,
+    }
     assert "mesh frame" in cls["properties"]["lm_centre_x"]["description"]  # compact's words (COMPACT_DOCS)

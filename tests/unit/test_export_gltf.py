@@ -12,8 +12,9 @@ from tests.conftest import validate_glb
 
 def cube_primitive() -> Primitive:
     # two features: a unit cube's top (feature 0) and bottom (feature 1) as 2 triangles each
-    pos = np.array([[0, 1, 0], [1, 1, 0], [1, 1, -1], [0, 1, -1], [0, 0, 0], [1, 0, 0], [1, 0, -1], [0, 0, -1]],
-                   dtype=np.float32)
+    pos = np.array(
+        [[0, 1, 0], [1, 1, 0], [1, 1, -1], [0, 1, -1], [0, 0, 0], [1, 0, 0], [1, 0, -1], [0, 0, -1]], dtype=np.float32
+    )
     nrm = np.array([[0, 1, 0]] * 4 + [[0, -1, 0]] * 4, dtype=np.float32)
     col = np.full((8, 4), 200, dtype=np.uint8)
     fid = np.array([0, 0, 0, 0, 1, 1, 1, 1])
@@ -56,8 +57,15 @@ def test_large_primitive_uses_32_bit_indices() -> None:
     n = 70_000
     pos = np.zeros((n, 3), dtype=np.float32)
     pos[:, 0] = np.arange(n)
-    p = Primitive(pos, np.tile(np.float32([0, 1, 0]), (n, 1)), np.full((n, 4), 255, np.uint8), np.zeros(n),
-                  np.arange(n - n % 3, dtype=np.uint32), [Property("osm_id", [1], "INT64")], feature_count=1)
+    p = Primitive(
+        pos,
+        np.tile(np.float32([0, 1, 0]), (n, 1)),
+        np.full((n, 4), 255, np.uint8),
+        np.zeros(n),
+        np.arange(n - n % 3, dtype=np.uint32),
+        [Property("osm_id", [1], "INT64")],
+        feature_count=1,
+    )
     gltf, binary = read_glb(write_glb(p))
     idx = gltf["meshes"][0]["primitives"][0]["indices"]
     assert gltf["accessors"][idx]["componentType"] == 5125
@@ -132,9 +140,13 @@ def _string_offsets_view(g):
         (lambda g, b: _ext(g).update(propertyTable=4), "does not exist"),
         (lambda g, b: g["extensionsUsed"].remove("EXT_mesh_features"), "not in extensionsUsed"),
         (lambda g, b: g["bufferViews"][0].update(byteLength=10**7), "outside its buffer"),
-        (lambda g, b: b.__setitem__(slice(_string_offsets_view(g)["byteOffset"] + 4,
-                                          _string_offsets_view(g)["byteOffset"] + 8), (999).to_bytes(4, "little")),
-         "string offsets"),
+        (
+            lambda g, b: b.__setitem__(
+                slice(_string_offsets_view(g)["byteOffset"] + 4, _string_offsets_view(g)["byteOffset"] + 8),
+                (999).to_bytes(4, "little"),
+            ),
+            "string offsets",
+        ),
     ],
 )
 def test_metadata_checks_catch_each_rule(mutate, needle) -> None:
@@ -162,11 +174,24 @@ def textured_glb() -> bytes:
     page = np.zeros((8, 12, 3), np.uint8)
     page[:, :6] = (200, 40, 30)
     data, mime = encode_image(page, "webp")
-    top = Primitive(c.positions[:4], c.normals[:4], np.zeros((0, 4), np.uint8), c.feature_ids[:4],
-                    np.array([0, 1, 2, 0, 2, 3], np.uint32), uvs=np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1]],
-                                                                            np.float32), image=0)
-    plain = Primitive(c.positions[4:], c.normals[4:], c.colors[4:], c.feature_ids[4:],
-                      np.array([0, 2, 1, 0, 3, 2], np.uint32), c.properties, feature_count=2)
+    top = Primitive(
+        c.positions[:4],
+        c.normals[:4],
+        np.zeros((0, 4), np.uint8),
+        c.feature_ids[:4],
+        np.array([0, 1, 2, 0, 2, 3], np.uint32),
+        uvs=np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1]], np.float32),
+        image=0,
+    )
+    plain = Primitive(
+        c.positions[4:],
+        c.normals[4:],
+        c.colors[4:],
+        c.feature_ids[4:],
+        np.array([0, 2, 1, 0, 3, 2], np.uint32),
+        c.properties,
+        feature_count=2,
+    )
     return write_glb(plain, textured=[top], images=[Image(data, mime)])
 
 
@@ -182,8 +207,10 @@ def test_textured_glb_validates_with_one_material_per_page(tmp_path) -> None:
     # each primitive counts the features of its own vertices; together they draw the whole table
     assert [p["extensions"]["EXT_mesh_features"]["featureIds"][0]["featureCount"] for p in (plain, top)] == [1, 1]
     texture = gltf["textures"][gltf["materials"][top["material"]]["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
-    assert "source" not in texture and gltf["images"][texture["extensions"]["EXT_texture_webp"]["source"]][
-        "mimeType"] == "image/webp"
+    assert (
+        "source" not in texture
+        and gltf["images"][texture["extensions"]["EXT_texture_webp"]["source"]]["mimeType"] == "image/webp"
+    )
     assert gltf["samplers"] == [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]
     np.testing.assert_allclose(accessor_array(gltf, binary, top["attributes"]["TEXCOORD_0"])[2], [0.5, 1])
     assert check_glb(glb) == []

@@ -49,11 +49,31 @@ def tree(depth: int = 5, seed: int = 1) -> list[TileRecord]:
         for up in range(1, lv + 1):
             k = (lv - up, x >> up, y >> up)
             r, c = region.get(k), region[(lv, x, y)]
-            region[k] = c.copy() if r is None else [min(r[0], c[0]), min(r[1], c[1]), max(r[2], c[2]),
-                                                     max(r[3], c[3]), min(r[4], c[4]), max(r[5], c[5])]
+            region[k] = (
+                c.copy()
+                if r is None
+                else [
+                    min(r[0], c[0]),
+                    min(r[1], c[1]),
+                    max(r[2], c[2]),
+                    max(r[3], c[3]),
+                    min(r[4], c[4]),
+                    max(r[5], c[5]),
+                ]
+            )
     leaf = set(leaves)
-    return [TileRecord(lv, x, y, (lv, x, y) in leaf, tuple(r), 0.0 if (lv, x, y) in leaf else 400.0 / 2 ** lv,
-                       f"content/{lv}/{x}/{y}.glb") for (lv, x, y), r in sorted(region.items())]
+    return [
+        TileRecord(
+            lv,
+            x,
+            y,
+            (lv, x, y) in leaf,
+            tuple(r),
+            0.0 if (lv, x, y) in leaf else 400.0 / 2**lv,
+            f"content/{lv}/{x}/{y}.glb",
+        )
+        for (lv, x, y), r in sorted(region.items())
+    ]
 
 
 def walk(t: dict):
@@ -67,8 +87,10 @@ def shape(tileset: dict) -> dict:
     out = {}
     for t in walk(tileset["root"]):
         out[tuple(t["boundingVolume"]["region"])] = (
-            t["geometricError"], t.get("content", {}).get("uri"),
-            sorted(tuple(c["boundingVolume"]["region"]) for c in t.get("children", [])))
+            t["geometricError"],
+            t.get("content", {}).get("uri"),
+            sorted(tuple(c["boundingVolume"]["region"]) for c in t.get("children", [])),
+        )
     return out
 
 
@@ -123,16 +145,21 @@ def test_single_lod_content_only_at_leaves() -> None:
 
 def test_subtree_binary_layout() -> None:
     """Root and its child (1, 1, 0): bits 0 and 1 + morton(1, 0) = 2 set; child subtree (2, 3, 1) at morton 7."""
-    data = write_subtree((0, 0, 0), 2, np.array([[0, 0, 0], [1, 1, 0]]), np.array([True, False]),
-                         np.array([[2, 3, 1]]), [("geometric_error", np.array([9.0, 1.5]))])
+    data = write_subtree(
+        (0, 0, 0),
+        2,
+        np.array([[0, 0, 0], [1, 1, 0]]),
+        np.array([True, False]),
+        np.array([[2, 3, 1]]),
+        [("geometric_error", np.array([9.0, 1.5]))],
+    )
     magic, version, jlen, blen = struct.unpack_from("<4sIQQ", data)
     assert (magic, version) == (b"subt", 1) and jlen % 8 == 0 and blen % 8 == 0 and len(data) == 24 + jlen + blen
     sub = read_subtree(data)
     js = sub.json
     assert sub.view(js["tileAvailability"]["bitstream"]) == bytes([0b101])
     assert js["tileAvailability"]["availableCount"] == 2
-    assert js["contentAvailability"][0] == {"bitstream": js["contentAvailability"][0]["bitstream"],
-                                            "availableCount": 1}
+    assert js["contentAvailability"][0] == {"bitstream": js["contentAvailability"][0]["bitstream"], "availableCount": 1}
     assert sub.view(js["contentAvailability"][0]["bitstream"]) == bytes([0b1])
     assert sub.view(js["childSubtreeAvailability"]["bitstream"]) == bytes([0b10000000, 0])
     assert all(v["byteOffset"] % 8 == 0 for v in js["bufferViews"])
@@ -140,8 +167,7 @@ def test_subtree_binary_layout() -> None:
     assert table["count"] == 2
     assert np.frombuffer(sub.view(table["properties"]["geometric_error"]["values"]), "<f8").tolist() == [9.0, 1.5]
     # all set: constant, no bitstream
-    full = read_subtree(write_subtree((0, 0, 0), 1, np.array([[0, 0, 0]]), np.array([True]), np.zeros((0, 3), int),
-                                      []))
+    full = read_subtree(write_subtree((0, 0, 0), 1, np.array([[0, 0, 0]]), np.array([True]), np.zeros((0, 3), int), []))
     assert full.json["tileAvailability"] == {"constant": 1, "availableCount": 1}
     assert full.json["childSubtreeAvailability"] == {"constant": 0, "availableCount": 0}
     with pytest.raises(ValueError, match="outside"):
@@ -154,14 +180,27 @@ def test_subtree_levels_one_file_or_a_small_root_subtree() -> None:
     # a deep tree (13 levels, 1024 leaves): one file would hold 2.8 MB of tile availability; the first subtree a client
     # fetches stays within the budget, and the files are far fewer than the tiles
     leaves = np.array([[12, x, y] for x in range(0, 4096, 128) for y in range(0, 4096, 128)])
-    deep = np.unique(np.concatenate([np.c_[np.full(len(leaves), lv), leaves[:, 1:] >> (12 - lv)]
-                                     for lv in range(13)]), axis=0)
+    deep = np.unique(
+        np.concatenate([np.c_[np.full(len(leaves), lv), leaves[:, 1:] >> (12 - lv)] for lv in range(13)]), axis=0
+    )
     assert choose_subtree_levels(deep, 56, single_budget=4 << 20) == 13  # one file: 2.8 MB of bitstream alone
     s = choose_subtree_levels(deep, 56)  # over the 2 MB for one file
     assert s < 13
-    ts, files = build_implicit([TileRecord(int(lv), int(x), int(y), lv == 12, (0.1, 0.1, 0.2, 0.2, 0.0, 1.0),
-                                           0.0 if lv == 12 else 1.0, f"content/{lv}/{x}/{y}.glb")
-                                for lv, x, y in deep.tolist()], subtree_levels=s)
+    ts, files = build_implicit(
+        [
+            TileRecord(
+                int(lv),
+                int(x),
+                int(y),
+                lv == 12,
+                (0.1, 0.1, 0.2, 0.2, 0.0, 1.0),
+                0.0 if lv == 12 else 1.0,
+                f"content/{lv}/{x}/{y}.glb",
+            )
+            for lv, x, y in deep.tolist()
+        ],
+        subtree_levels=s,
+    )
     assert len(files["subtrees/0/0/0.subtree"]) <= 65_536 and 1 < len(files) < len(deep) / 4
 
 
@@ -188,24 +227,54 @@ def corrupt(data: bytes, fn) -> bytes:
     return struct.pack("<4sIQQ", b"subt", 1, len(text), len(sub.binary)) + text + sub.binary
 
 
-@pytest.mark.parametrize(("breaks", "needle"), [
-    (lambda f, t: f.pop("subtrees/2/1/1.subtree"), "No such file"),
-    (lambda f, t: f.update({"subtrees/0/0/0.subtree": b"subX" + f["subtrees/0/0/0.subtree"][4:]}), "magic"),
-    (lambda f, t: f.update({"subtrees/0/0/0.subtree": f["subtrees/0/0/0.subtree"][:-8]}), "header says"),
-    (lambda f, t: f.update({"subtrees/0/0/0.subtree": corrupt(
-        f["subtrees/0/0/0.subtree"], lambda js: js["tileAvailability"].update(availableCount=99))}), "availableCount"),
-    (lambda f, t: f.update({"subtrees/0/0/0.subtree": corrupt(
-        f["subtrees/0/0/0.subtree"], lambda js: js["propertyTables"][0].update(count=1))}), "count"),
-    (lambda f, t: f.update({"subtrees/0/0/0.subtree": corrupt(
-        f["subtrees/0/0/0.subtree"], lambda js: js["propertyTables"][0].update({"class": "nope"}))}), "schema"),
-    (lambda f, t: f.update({sparse(f): corrupt(
-        f[sparse(f)], lambda js: js["contentAvailability"].__setitem__(0, {"constant": 1}))}),
-     "content available on a tile that is not"),
-    (lambda f, t: t["root"]["implicitTiling"].update(subdivisionScheme="HEXTREE"), "subdivisionScheme"),
-    (lambda f, t: t["root"]["implicitTiling"].update(subtreeLevels=0), "subtreeLevels"),
-    (lambda f, t: t["root"]["content"].update(uri="content/tile.glb"), "template"),
-    (lambda f, t: t["root"]["implicitTiling"].update(availableLevels=2), "availableLevels"),
-])
+@pytest.mark.parametrize(
+    ("breaks", "needle"),
+    [
+        (lambda f, t: f.pop("subtrees/2/1/1.subtree"), "No such file"),
+        (lambda f, t: f.update({"subtrees/0/0/0.subtree": b"subX" + f["subtrees/0/0/0.subtree"][4:]}), "magic"),
+        (lambda f, t: f.update({"subtrees/0/0/0.subtree": f["subtrees/0/0/0.subtree"][:-8]}), "header says"),
+        (
+            lambda f, t: f.update(
+                {
+                    "subtrees/0/0/0.subtree": corrupt(
+                        f["subtrees/0/0/0.subtree"], lambda js: js["tileAvailability"].update(availableCount=99)
+                    )
+                }
+            ),
+            "availableCount",
+        ),
+        (
+            lambda f, t: f.update(
+                {
+                    "subtrees/0/0/0.subtree": corrupt(
+                        f["subtrees/0/0/0.subtree"], lambda js: js["propertyTables"][0].update(count=1)
+                    )
+                }
+            ),
+            "count",
+        ),
+        (
+            lambda f, t: f.update(
+                {
+                    "subtrees/0/0/0.subtree": corrupt(
+                        f["subtrees/0/0/0.subtree"], lambda js: js["propertyTables"][0].update({"class": "nope"})
+                    )
+                }
+            ),
+            "schema",
+        ),
+        (
+            lambda f, t: f.update(
+                {sparse(f): corrupt(f[sparse(f)], lambda js: js["contentAvailability"].__setitem__(0, {"constant": 1}))}
+            ),
+            "content available on a tile that is not",
+        ),
+        (lambda f, t: t["root"]["implicitTiling"].update(subdivisionScheme="HEXTREE"), "subdivisionScheme"),
+        (lambda f, t: t["root"]["implicitTiling"].update(subtreeLevels=0), "subtreeLevels"),
+        (lambda f, t: t["root"]["content"].update(uri="content/tile.glb"), "template"),
+        (lambda f, t: t["root"]["implicitTiling"].update(availableLevels=2), "availableLevels"),
+    ],
+)
 def test_checks_catch_broken_implicit_tilesets(tmp_path, breaks, needle) -> None:
     recs = tree()
     ts, files = build_implicit(recs, subtree_levels=2)
@@ -230,8 +299,11 @@ def test_traversal_of_implicit_equals_explicit() -> None:
     ts, files = build(recs, tiling="implicit")
     explicit, none = build(recs, tiling="explicit")
     assert none == {} and "implicitTiling" not in explicit["root"]
-    for cam in (Camera(25.0, 60.15, 40_000, 0, -90), Camera(24.95, 60.13, 2_000, 30, -45),
-                Camera(25.05, 60.18, 300, 200, -20)):
+    for cam in (
+        Camera(25.0, 60.15, 40_000, 0, -90),
+        Camera(24.95, 60.13, 2_000, 30, -45),
+        Camera(25.05, 60.18, 300, 200, -20),
+    ):
         want = [(d.uri, round(d.sse, 6)) for d in select(explicit, cam)]
         assert want
         assert [(d.uri, round(d.sse, 6)) for d in select(ts, cam, read=files.__getitem__)] == want
@@ -243,8 +315,15 @@ def test_traversal_of_implicit_equals_explicit() -> None:
 
 def test_content_must_follow_the_template() -> None:
     recs = tree()
-    recs[3] = TileRecord(recs[3].level, recs[3].x, recs[3].y, recs[3].is_leaf, recs[3].region,
-                         recs[3].geometric_error, "content/elsewhere.glb")
+    recs[3] = TileRecord(
+        recs[3].level,
+        recs[3].x,
+        recs[3].y,
+        recs[3].is_leaf,
+        recs[3].region,
+        recs[3].geometric_error,
+        "content/elsewhere.glb",
+    )
     with pytest.raises(ValueError, match="does not follow"):
         build_implicit(recs)
 

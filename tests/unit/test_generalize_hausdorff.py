@@ -191,8 +191,9 @@ def test_random_batch_against_brute_force() -> None:
         b_parts.append(b + origin)
         a_own.append(np.full(len(a), k))
         b_own.append(np.full(len(b), k))
-    got = hausdorff(np.concatenate(a_parts), np.concatenate(a_own), np.concatenate(b_parts), np.concatenate(b_own),
-                    n, spacing)
+    got = hausdorff(
+        np.concatenate(a_parts), np.concatenate(a_own), np.concatenate(b_parts), np.concatenate(b_own), n, spacing
+    )
     for k in range(n):
         a, b = a_parts[k] - UTM, b_parts[k] - UTM
         ref = max(directed_brute(a, b, fine), directed_brute(b, a, fine))  # within `fine` below the truth
@@ -215,8 +216,11 @@ def test_sector_bound_is_an_upper_bound() -> None:
         i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
         ok = i + j <= k
         u, v = i[ok] / k, j[ok] / k
-        pts = (t[:, None, 0] + u[None, :, None] * (t[:, None, 1] - t[:, None, 0])
-               + v[None, :, None] * (t[:, None, 2] - t[:, None, 0])).reshape(-1, 3)
+        pts = (
+            t[:, None, 0]
+            + u[None, :, None] * (t[:, None, 1] - t[:, None, 0])
+            + v[None, :, None] * (t[:, None, 2] - t[:, None, 0])
+        ).reshape(-1, 3)
         d = _dist_to(np.repeat(pts, len(b), axis=0), np.tile(np.arange(len(b)), len(pts)), tg)
         dense = d.reshape(len(pts), len(b)).min(axis=1).reshape(150, -1).max(axis=1)
         assert np.all(dense <= bound + 1e-9)
@@ -240,11 +244,13 @@ def test_outline_hausdorff_matches_geos_on_small_and_large_outlines() -> None:
         return shapely.Polygon(np.stack([UTM[0] + x0 + rad * np.cos(t), UTM[1] + rad * np.sin(t)], axis=1))
 
     a = np.array([wiggly(n, r, 5000.0 * k) for k, (n, r) in enumerate([(12, 20), (30, 50), (900, 400), (1500, 800)])])
-    b = np.array([shapely.simplify(g, 3.0) if k % 2 else wiggly(len(g.exterior.coords), 21, 5000.0 * k)
-                  for k, g in enumerate(a)])
+    b = np.array(
+        [shapely.simplify(g, 3.0) if k % 2 else wiggly(len(g.exterior.coords), 21, 5000.0 * k) for k, g in enumerate(a)]
+    )
     spacing = 2.0
-    n_pairs = shapely.get_num_coordinates(shapely.segmentize(shapely.boundary(a), spacing)) * \
-        shapely.get_num_coordinates(shapely.segmentize(shapely.boundary(b), spacing))
+    n_pairs = shapely.get_num_coordinates(
+        shapely.segmentize(shapely.boundary(a), spacing)
+    ) * shapely.get_num_coordinates(shapely.segmentize(shapely.boundary(b), spacing))
     assert (n_pairs <= _GEOS_PAIR_MAX).any() and (n_pairs > _GEOS_PAIR_MAX).any()  # both paths run
     got = outline_hausdorff(a, b, spacing)
 
@@ -259,8 +265,9 @@ def test_outline_hausdorff_matches_geos_on_small_and_large_outlines() -> None:
     # copies blocks measured in other batches than a full rebuild's); the big pairs take the segment tree
     big = np.flatnonzero(n_pairs > _GEOS_PAIR_MAX)
     for k in big:
-        alone = outline_hausdorff(a[k:k + 1], b[k:k + 1], spacing)[0]
+        alone = outline_hausdorff(a[k : k + 1], b[k : k + 1], spacing)[0]
         wide = shapely.box(UTM[0] - 90_000, UTM[1], UTM[0] - 87_000, UTM[1] + 3_000)
-        others = outline_hausdorff(np.array([wide, a[k], *a]), np.array([shapely.simplify(wide, 1.0), b[k], *b]),
-                                   spacing)
+        others = outline_hausdorff(
+            np.array([wide, a[k], *a]), np.array([shapely.simplify(wide, 1.0), b[k], *b]), spacing
+        )
         assert alone == got[k] == others[1] == others[2 + k], (alone, got[k], others[1], others[2 + k])

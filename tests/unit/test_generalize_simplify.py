@@ -103,8 +103,21 @@ def test_removal_errors_do_not_pile_up() -> None:
     # A wobbly top wall. Each removal measured only by the removed vertex's distance to its neighbours' chord
     # would straighten the whole wall to y ~ 10 and leave (4.6, 11.2) 1.23 m off; measured against every
     # original vertex removed between the neighbours, the simplification stops while all stay within 1 m.
-    wobbly = shapely.Polygon([(0, 0), (30, 0), (30, 10), (29.8, 9.8), (27.7, 9.6), (20.9, 9.5), (17.7, 10.1),
-                              (11.8, 10.4), (4.6, 11.2), (4.1, 10.8), (0, 10)])
+    wobbly = shapely.Polygon(
+        [
+            (0, 0),
+            (30, 0),
+            (30, 10),
+            (29.8, 9.8),
+            (27.7, 9.6),
+            (20.9, 9.5),
+            (17.7, 10.1),
+            (11.8, 10.4),
+            (4.6, 11.2),
+            (4.1, 10.8),
+            (0, 10),
+        ]
+    )
     r = run(wobbly)
     assert r.status[0] == "simplified" and r.n_vertices_out[0] < r.n_vertices_in[0]
     dist = shapely.distance(shapely.points(shapely.get_coordinates(utm(wobbly))), r.geoms[0].boundary)
@@ -130,16 +143,21 @@ def test_rings_never_go_below_three_vertices() -> None:
 L_STEP = shapely.Polygon([(0, 0), (14, 0), (14, -0.8), (30, -0.8), (30, 10), (10, 10), (10, 25), (0, 25)])
 NOTCH = shapely.Polygon([(0, 0), (20, 0), (20, 10), (10.5, 10), (10.5, 9.5), (9.5, 9.5), (9.5, 10), (0, 10)])
 BAY = shapely.Polygon([(0, 0), (9.5, 0), (9.5, -0.5), (10.5, -0.5), (10.5, 0), (20, 0), (20, 10), (0, 10)])
-STAIRS = shapely.Polygon([(0, 0), (10, 0), (10, 0.3), (10.3, 0.3), (10.3, 0.6), (10.6, 0.6), (10.6, 0.9), (20, 0.9),
-                          (20, 10), (0, 10)])
+STAIRS = shapely.Polygon(
+    [(0, 0), (10, 0), (10, 0.3), (10.3, 0.3), (10.3, 0.6), (10.6, 0.6), (10.6, 0.9), (20, 0.9), (20, 10), (0, 10)]
+)
 CHAMFER = shapely.Polygon([(0, 0), (20, 0), (20, 9.4), (19.4, 10), (0, 10)])
 RECT = shapely.box(0, 0, 20, 10)
 
 #: name: (shape, tolerance, expected result, expected Hausdorff = how far the feature moves)
 RULES = {
     # offset: the 14 m wall is shorter than the 16 m one, so it goes and the 16 m wall is extended to x = 0
-    "L with 0.8 m step": (L_STEP, 1.0, shapely.Polygon([(0, -0.8), (30, -0.8), (30, 10), (10, 10), (10, 25),
-                                                         (0, 25)]), 0.8),
+    "L with 0.8 m step": (
+        L_STEP,
+        1.0,
+        shapely.Polygon([(0, -0.8), (30, -0.8), (30, 10), (10, 10), (10, 25), (0, 25)]),
+        0.8,
+    ),
     # 1 m x 0.5 m notch; at 1.0 m its 1 m edge is not short (two one-edge runs), at 1.2 m it is one run of three
     "notch 1 x 0.5, tol 1.0": (NOTCH, 1.0, RECT, 0.5),
     "notch 1 x 0.5, tol 1.2": (NOTCH, 1.2, RECT, 0.5),
@@ -226,8 +244,15 @@ def test_invalid_result_keeps_the_original() -> None:
 
 
 def test_verdict_reasons() -> None:
-    result = np.array([shapely.MultiPolygon(), shapely.box(0, 0, 1, 1), utm(shapely.box(0, 0, 1, 1)),
-                       shapely.Polygon([(0, 0), (2, 2), (2, 0), (0, 2)])], dtype=object)
+    result = np.array(
+        [
+            shapely.MultiPolygon(),
+            shapely.box(0, 0, 1, 1),
+            utm(shapely.box(0, 0, 1, 1)),
+            shapely.Polygon([(0, 0), (2, 2), (2, 0), (0, 2)]),
+        ],
+        dtype=object,
+    )
     changed = np.array([True, True, False, True])
     area_in = np.array([5.0, 1.3, 1.0, 4.0])
     failed, why = _verdict(changed, result, area_in, shapely.area(result), 0.1)

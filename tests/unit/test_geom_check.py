@@ -19,8 +19,19 @@ def box(shift: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
 
 def roof_solid(shape: str) -> np.ndarray:
     poly = shapely.Polygon([(0, 0), (20, 0), (20, 8), (8, 8), (8, 20), (0, 20)])
-    arcs = np.array([[(0, 0), (4, 4)], [(20, 0), (16, 4)], [(20, 8), (16, 4)], [(8, 8), (4, 4)], [(8, 20), (4, 16)],
-                     [(0, 20), (4, 16)], [(16, 4), (4, 4)], [(4, 16), (4, 4)]], float)
+    arcs = np.array(
+        [
+            [(0, 0), (4, 4)],
+            [(20, 0), (16, 4)],
+            [(20, 8), (16, 4)],
+            [(8, 8), (4, 4)],
+            [(8, 20), (4, 16)],
+            [(0, 20), (4, 16)],
+            [(16, 4), (4, 4)],
+            [(4, 16), (4, 4)],
+        ],
+        float,
+    )
     surf, _ = roofs.roof_surface(poly, shape, arcs, 4.0, None, None, None, 100.0)
     return roofs.solid(surf, z_eave=6.0, z_bottom=0.0)[0]
 

@@ -18,9 +18,20 @@ from etl.geom.tags import (
 @pytest.mark.parametrize(
     ("raw", "metres"),
     [
-        ("12", 12.0), ("12 m", 12.0), ("12m", 12.0), ("12,5", 12.5), ("12.5", 12.5), (" 7 ", 7.0),
-        ("40'", 12.192), ("40 ft", 12.192), ("40 feet", 12.192), ("12'6\"", 3.81), ("120 cm", 1.2),
-        ("12 metres", 12.0), ("0", 0.0), ("1e2", 100.0),
+        ("12", 12.0),
+        ("12 m", 12.0),
+        ("12m", 12.0),
+        ("12,5", 12.5),
+        ("12.5", 12.5),
+        (" 7 ", 7.0),
+        ("40'", 12.192),
+        ("40 ft", 12.192),
+        ("40 feet", 12.192),
+        ("12'6\"", 3.81),
+        ("120 cm", 1.2),
+        ("12 metres", 12.0),
+        ("0", 0.0),
+        ("1e2", 100.0),
     ],
 )
 def test_length_units(raw: str, metres: float) -> None:
@@ -29,8 +40,16 @@ def test_length_units(raw: str, metres: float) -> None:
 
 @pytest.mark.parametrize(
     ("raw", "code"),
-    [("-3", "negative"), ("abc", "not_a_length"), ("1e9", "out_of_range"), ("12;15", "not_a_length"),
-     ("", "not_a_length"), ("12 storeys", "not_a_length"), ("1001", "out_of_range"), ("nan", "not_a_length")],
+    [
+        ("-3", "negative"),
+        ("abc", "not_a_length"),
+        ("1e9", "out_of_range"),
+        ("12;15", "not_a_length"),
+        ("", "not_a_length"),
+        ("12 storeys", "not_a_length"),
+        ("1001", "out_of_range"),
+        ("nan", "not_a_length"),
+    ],
 )
 def test_length_refused(raw: str, code: str) -> None:
     with pytest.raises(ParseError) as e:
@@ -81,11 +100,20 @@ def test_kind() -> None:
 
 
 def test_parse_building_tags_collects_issues_and_fallbacks() -> None:
-    t = parse_building_tags({
-        "building": "house", "height": "abc", "min_height": "2 m", "building:levels": "3",
-        "building:roof:shape": "Gabled", "roof:direction": "NNE", "building:colour": "brown",
-        "roof:colour": "nonsense", "building:material": "Brick", "name": "Villa",
-    })
+    t = parse_building_tags(
+        {
+            "building": "house",
+            "height": "abc",
+            "min_height": "2 m",
+            "building:levels": "3",
+            "building:roof:shape": "Gabled",
+            "roof:direction": "NNE",
+            "building:colour": "brown",
+            "roof:colour": "nonsense",
+            "building:material": "Brick",
+            "name": "Villa",
+        }
+    )
     assert t is not None
     assert (t.kind, t.building, t.name) == ("building", "house", "Villa")
     assert t.height is None and t.min_height == 2.0 and t.levels == 3.0

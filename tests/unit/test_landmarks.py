@@ -77,7 +77,7 @@ def test_radius_neighbours_matches_brute_force() -> None:
     d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
     for i in range(len(xy)):
         expected = np.flatnonzero((d[i] <= 25.0) & (np.arange(len(xy)) != i))
-        assert np.array_equal(np.sort(indices[indptr[i]:indptr[i + 1]]), expected)
+        assert np.array_equal(np.sort(indices[indptr[i] : indptr[i + 1]]), expected)
     indptr, indices = radius_neighbours(np.zeros((0, 2)), 5.0)
     assert indptr.tolist() == [0] and len(indices) == 0
 
@@ -94,7 +94,7 @@ def test_neighbour_sums_in_blocks_equal_the_csr_lists() -> None:
         count, sums = neighbour_sums(xy, 30.0, vals, block=block)
         assert np.array_equal(count, np.diff(indptr))
         assert np.allclose(sums, adj @ vals)
-    assert count[3] >= 1 and 7 in indices[indptr[3]:indptr[4]]
+    assert count[3] >= 1 and 7 in indices[indptr[3] : indptr[4]]
     h = vals[:, 0]
     assert np.allclose(relative_height(h, sums=(count, sums[:, 0])), relative_height(h, indptr, indices))
     desc = fill_descriptors(np.column_stack([vals, vals**2]))
@@ -124,8 +124,12 @@ def test_relative_height_without_neighbours_ignores_self_loops_and_floors_the_me
 
 
 def test_shape_descriptors_of_known_shapes() -> None:
-    d = shape_descriptors(area=np.array([np.pi, 2.0]), perimeter=np.array([2 * np.pi, 6.0]),
-                          mrr_area=np.array([4.0, 2.0]), n_vertices=np.array([64, 4]))
+    d = shape_descriptors(
+        area=np.array([np.pi, 2.0]),
+        perimeter=np.array([2 * np.pi, 6.0]),
+        mrr_area=np.array([4.0, 2.0]),
+        n_vertices=np.array([64, 4]),
+    )
     np.testing.assert_allclose(d[:, 0], [1.0, 4 * np.pi * 2 / 36])  # disc compactness 1
     np.testing.assert_allclose(d[:, 1], [np.pi / 4, 1.0])  # rectangle fills its rectangle
     np.testing.assert_allclose(d[:, 2], np.log([64, 4]))
@@ -163,23 +167,24 @@ def test_saliency_weights() -> None:
     a, b = rng.uniform(0, 50, 30), rng.uniform(0, 5, 30)
     np.testing.assert_allclose(saliency({"a": a, "b": b}, {"a": 1.0, "b": 0.0}), normalize(a))
     np.testing.assert_allclose(saliency({"a": a, "b": b}, {"a": 1.0}), normalize(a))  # unweighted: ignored
-    np.testing.assert_allclose(saliency({"a": a, "b": b}, {"a": 1.0, "b": 3.0}),
-                               (normalize(a) + 3 * normalize(b)) / 4)
+    np.testing.assert_allclose(saliency({"a": a, "b": b}, {"a": 1.0, "b": 3.0}), (normalize(a) + 3 * normalize(b)) / 4)
     out = saliency({"a": a, "b": b}, {"a": 2.0, "b": 5.0})
     assert out.min() >= 0 and out.max() <= 1
     # a zero-weight measure is not even looked at: its shape and NaNs do not matter
-    np.testing.assert_allclose(saliency({"a": a, "junk": np.full(3, np.nan)}, {"a": 1.0, "junk": 0.0}),
-                               normalize(a))
+    np.testing.assert_allclose(saliency({"a": a, "junk": np.full(3, np.nan)}, {"a": 1.0, "junk": 0.0}), normalize(a))
 
 
-@pytest.mark.parametrize(("weights", "message"), [
-    ({"height": 1.0, "heigth": 1.0}, "unknown measures \\['heigth'\\]"),
-    ({"height": -1.0}, ">= 0"),
-    ({"height": np.nan}, ">= 0"),
-    ({"height": 0.0}, "positive weight"),
-    ({}, "positive weight"),
-    ({"height": 1.0, "short": 1.0}, "one length"),
-])
+@pytest.mark.parametrize(
+    ("weights", "message"),
+    [
+        ({"height": 1.0, "heigth": 1.0}, "unknown measures \\['heigth'\\]"),
+        ({"height": -1.0}, ">= 0"),
+        ({"height": np.nan}, ">= 0"),
+        ({"height": 0.0}, "positive weight"),
+        ({}, "positive weight"),
+        ({"height": 1.0, "short": 1.0}, "one length"),
+    ],
+)
 def test_saliency_rejects_bad_weights(weights: dict[str, float], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         saliency({"height": np.arange(5.0), "short": np.arange(3.0)}, weights)
@@ -310,8 +315,9 @@ def test_hierarchy_rejects_bad_input() -> None:
 
 
 def test_exaggeration_intervals_start_where_the_landmark_gets_small() -> None:
-    from_m, top = exaggeration_intervals(np.array([60.0, 30.0, 30.0]), np.array([5, 3, 4]), 3,
-                                         min_screen_px=48, step=1.5, max_scale=3.0)
+    from_m, top = exaggeration_intervals(
+        np.array([60.0, 30.0, 30.0]), np.array([5, 3, 4]), 3, min_screen_px=48, step=1.5, max_scale=3.0
+    )
     # 60 m fill 48 px of 1080 px / 60° at 60 * 1080 / (2 tan 30° * 48) = 1169 m
     assert from_m[0] == pytest.approx(60 * 1080 / (2 * math.tan(math.radians(30)) * 48))
     assert from_m[1] == pytest.approx(from_m[0] / 2)

@@ -39,8 +39,16 @@ def graph() -> dict[str, set[str]]:
 
 def test_imports_point_down_the_layers() -> None:
     g = graph()
-    assert {"core.settings", "core.db", "core.pipeline", "core.workers", "core.changes", "exporter.export",
-            "etl.update.run", "tests.support.servers"} <= set(g)
+    assert {
+        "core.settings",
+        "core.db",
+        "core.pipeline",
+        "core.workers",
+        "core.changes",
+        "exporter.export",
+        "etl.update.run",
+        "tests.support.servers",
+    } <= set(g)
     upward = sorted(f"{a} -> {b}" for a, deps in g.items() for b in deps if layer(b) > layer(a))
     assert not upward, "imports against the layers:\n" + "\n".join(upward)
     # core imports no other package of ours, the exporter nothing of etl
@@ -56,8 +64,12 @@ def test_a_stage_imports_no_other_stage() -> None:
     # what two stages share lives in etl/geom or core; only the update (and the command line) drive the stages
     g = graph()
     assert len(STAGE_PACKAGES) == 6
-    across = sorted(f"{a} -> {b}" for a, deps in g.items() for b in deps
-                    if stage_package(a) and stage_package(b) and stage_package(a) != stage_package(b))
+    across = sorted(
+        f"{a} -> {b}"
+        for a, deps in g.items()
+        for b in deps
+        if stage_package(a) and stage_package(b) and stage_package(a) != stage_package(b)
+    )
     assert not across, "stages importing each other:\n" + "\n".join(across)
 
 
@@ -70,7 +82,7 @@ def cycles(g: dict[str, set[str]]) -> list[list[str]]:
         state[m] = 1
         for d in sorted(g[m]):
             if state.get(d) == 1:
-                found.append(stack[stack.index(d):] + [d])
+                found.append(stack[stack.index(d) :] + [d])
             elif d not in state:
                 visit(d, stack + [d])
         state[m] = 2
@@ -97,7 +109,9 @@ def test_the_checker_sees_a_cycle_and_an_upward_import(tmp_path) -> None:
     rel = tmp_path / "b.py"
     rel.write_text("def f():\n    from ..geom import check\n    from .. import fetch\n")
     assert module_imports("etl.textures.b", rel, {"etl.geom.check", "etl.fetch", "etl.geom", "etl"}) == {
-        "etl.geom.check", "etl.fetch"}
+        "etl.geom.check",
+        "etl.fetch",
+    }
     # the loop benchmarks/ had: bench -> report_textures -> view_bench -> bench
     loop = {"b.bench": {"b.report"}, "b.report": {"b.view", "b.bench"}, "b.view": {"b.bench"}, "core": set()}
     assert cycles(loop) == [["b.bench", "b.report", "b.bench"], ["b.bench", "b.report", "b.view", "b.bench"]]

@@ -9,8 +9,15 @@ S = Settings()
 
 
 def r(**kw):  # one building
-    cols = dict(height=[None], min_height=[None], levels=[None], min_level=[None], roof_levels=[None],
-                roof_height=[None], building_type=["yes"])
+    cols = dict(
+        height=[None],
+        min_height=[None],
+        levels=[None],
+        min_level=[None],
+        roof_levels=[None],
+        roof_height=[None],
+        building_type=["yes"],
+    )
     cols.update({k: [v] for k, v in kw.items()})
     return resolve(settings=S, **cols)
 
@@ -47,7 +54,15 @@ def test_contradictions() -> None:
 
 
 def test_vectorised() -> None:
-    h = resolve([10.0, None, None], [None, None, 3.0], [None, 5.0, None], [None] * 3, [None] * 3, [None] * 3,
-                ["yes", "yes", "shed"], S)
+    h = resolve(
+        [10.0, None, None],
+        [None, None, 3.0],
+        [None, 5.0, None],
+        [None] * 3,
+        [None] * 3,
+        [None] * 3,
+        ["yes", "yes", "shed"],
+        S,
+    )
     assert np.allclose(h.top, [10.0, 15.0, 6.0])  # shed: 1 level = 3 m, lifted above min_height 3 -> 6
     assert list(h.source) == ["height", "levels", "type_default"]

@@ -48,8 +48,9 @@ def test_make_targets_come_from_the_graph() -> None:
 
 def test_make_dry_runs_a_stage_after_the_stages_it_reads(tmp_path) -> None:
     # make -n on the real Makefile: the generated targets order the chain (nothing runs)
-    out = subprocess.run(["make", "-n", "-C", str(REPO), "generalize", "PY=echo"], capture_output=True, text=True,
-                         check=True).stdout
+    out = subprocess.run(
+        ["make", "-n", "-C", str(REPO), "generalize", "PY=echo"], capture_output=True, text=True, check=True
+    ).stdout
     # a clone without the demo extract fetches it first; that is a step, not a stage
     ran = [m.group(1) for m in re.finditer(r"^echo -m etl ([\w-]+)", out, re.M) if m.group(1) != "fetch-demo"]
     assert ran[-6:] == ["migrate", "ingest", "lod", "landmarks", "tiles", "generalize"], out

@@ -10,6 +10,7 @@ def _parts(inputs: dict[str, str], asked: list[list[str]]):
     def parts(units: list[str]) -> dict[str, tuple[object, ...]]:
         asked.append(list(units))
         return {u: (u, inputs[u]) for u in units}
+
     return parts
 
 

@@ -76,28 +76,36 @@ def test_files_media_types_head_and_cors(base: str) -> None:
     for path, media in (("/", "text/html"), ("/index.html", "text/html"), ("/viewer/viewer.js", "text/javascript")):
         status, headers, _ = get(base, path)
         assert (status, headers["content-type"].split(";")[0]) == (200, media), path
-    status, headers, body = get(base, "/tiles/tileset.json", "OPTIONS", Origin="https://elsewhere.example",
-                                **{"Access-Control-Request-Method": "GET"})
+    status, headers, body = get(
+        base,
+        "/tiles/tileset.json",
+        "OPTIONS",
+        Origin="https://elsewhere.example",
+        **{"Access-Control-Request-Method": "GET"},
+    )
     assert (status, body) == (204, b"")
     assert headers["access-control-allow-origin"] == "*" and "GET" in headers["access-control-allow-methods"]
 
 
-@pytest.mark.parametrize(("path", "status"), [
-    ("/tiles/content/", 404),  # no directory listing
-    ("/tiles/content/0/0/1.glb", 404),
-    ("/tiles/leak.txt", 404),  # symlink to a file outside the root
-    ("/tiles/leakdir/secret.txt", 404),  # through a symlinked directory
-    ("/tiles/../outside/secret.txt", 400),
-    ("/tiles/%2e%2e/outside/secret.txt", 400),
-    ("/tiles/..%2foutside%2fsecret.txt", 400),
-    ("/tiles/content%5c..%5c..%5coutside%5csecret.txt", 400),
-    ("/tiles/tileset.json%00", 400),
-    ("/tiles/%ff.json", 400),  # not UTF-8
-    ("/viewer/%2e%2e/%2e%2e/pyproject.toml", 400),
-    ("/viewer", 404),
-    ("/../pyproject.toml", 404),
-    ("/nowhere", 404),
-])
+@pytest.mark.parametrize(
+    ("path", "status"),
+    [
+        ("/tiles/content/", 404),  # no directory listing
+        ("/tiles/content/0/0/1.glb", 404),
+        ("/tiles/leak.txt", 404),  # symlink to a file outside the root
+        ("/tiles/leakdir/secret.txt", 404),  # through a symlinked directory
+        ("/tiles/../outside/secret.txt", 400),
+        ("/tiles/%2e%2e/outside/secret.txt", 400),
+        ("/tiles/..%2foutside%2fsecret.txt", 400),
+        ("/tiles/content%5c..%5c..%5coutside%5csecret.txt", 400),
+        ("/tiles/tileset.json%00", 400),
+        ("/tiles/%ff.json", 400),  # not UTF-8
+        ("/viewer/%2e%2e/%2e%2e/pyproject.toml", 400),
+        ("/viewer", 404),
+        ("/../pyproject.toml", 404),
+        ("/nowhere", 404),
+    ],
+)
 def test_refused(base: str, path: str, status: int) -> None:
     got, headers, body = get(base, path)
     assert got == status, (path, got, body[:200])

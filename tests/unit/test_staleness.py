@@ -30,8 +30,10 @@ def test_each_stage_is_its_module_closure_its_sql_and_its_settings() -> None:
     assert {"exporter/export.py", "exporter/gltf.py"} <= export.python.keys()
     for code in map(stage_code, GRAPH):
         # the command line and the bookkeeping are not a stage's code; the settings' values are compared instead
-        assert not {"etl/__main__.py", "etl/runs.py", "etl/staleness.py", "core/settings.py",
-                    "exporter/serve/app.py"} & code.python.keys()
+        assert (
+            not {"etl/__main__.py", "etl/runs.py", "etl/staleness.py", "core/settings.py", "exporter/serve/app.py"}
+            & code.python.keys()
+        )
         assert "pg_port" not in code.settings
     assert "sql/lod/outline_remainder.sql" in lod.sql
     # named in Python (api.buildings_for_tile) and through its SQL (tiles.lod2_features; the landmarks stage reaches
@@ -67,16 +69,18 @@ def _touched(before: dict[str, StageCode], root: Path) -> list[str]:
     return [s for s in GRAPH if stage_code(s, root) != before[s]]
 
 
-@pytest.mark.parametrize(("edit", "stages"), [
-    ("etl/textures/stage.py", ["textures"]),
-    ("core/wkb.py", ["lod", "generalize", "textures", "export"]),
-    ("etl/geom/facade.py", ["lod", "generalize", "textures"]),
-    ("exporter/gltf.py", ["export"]),
-    ("exporter/serve/app.py", []),
-    ("etl/__main__.py", []),
-])
-def test_a_python_edit_touches_exactly_the_stages_that_import_it(tmp_path: Path, edit: str,
-                                                                   stages: list[str]) -> None:
+@pytest.mark.parametrize(
+    ("edit", "stages"),
+    [
+        ("etl/textures/stage.py", ["textures"]),
+        ("core/wkb.py", ["lod", "generalize", "textures", "export"]),
+        ("etl/geom/facade.py", ["lod", "generalize", "textures"]),
+        ("exporter/gltf.py", ["export"]),
+        ("exporter/serve/app.py", []),
+        ("etl/__main__.py", []),
+    ],
+)
+def test_a_python_edit_touches_exactly_the_stages_that_import_it(tmp_path: Path, edit: str, stages: list[str]) -> None:
     root = _tree(tmp_path, "tree")
     before = {s: stage_code(s, root) for s in GRAPH}
     (root / edit).write_text((root / edit).read_text() + "\n# an edit\n")
@@ -96,11 +100,17 @@ def test_a_new_sql_reference_and_a_new_setting_are_seen(tmp_path: Path) -> None:
 
 
 def test_differences_name_what_changed() -> None:
-    rec = {"upstream": {"ingest": 1, "lod": 2}, "settings": {"level_height_m": 3.0}, "code": {"a.py": "x"},
-           "file": {"path": "/a.osm", "sha256": "s1"}}
+    rec = {
+        "upstream": {"ingest": 1, "lod": 2},
+        "settings": {"level_height_m": 3.0},
+        "code": {"a.py": "x"},
+        "file": {"path": "/a.osm", "sha256": "s1"},
+    }
     assert differences(rec, {**rec, "settings": {"level_height_m": 3}}) == []  # jsonb gives 3 for 3.0
     assert differences(rec, {**rec, "upstream": {"ingest": 5, "lod": None}}) == [
-        "upstream runs ingest 1 -> 5", "lod has no successful run"]
+        "upstream runs ingest 1 -> 5",
+        "lod has no successful run",
+    ]
     assert differences(rec, {**rec, "settings": {"level_height_m": 3.5}}) == ["settings level_height_m 3.0 -> 3.5"]
     assert differences(rec, {**rec, "code": {"a.py": "y", "b.sql": "z"}}) == ["code changed: a.py, b.sql"]
     assert differences(rec, {**rec, "file": {"path": "/a.osm", "sha256": "s2"}}) == ["file sha256 s1 -> s2"]

@@ -18,11 +18,14 @@ B = (D(24.95), D(60.12), D(25.00), D(60.20), 0.0, 30.0)
 
 
 def tileset(single_lod: bool = False) -> dict:
-    return build_tileset([
-        TileRecord(0, 0, 0, False, ROOT, 20.0, "content/0/0/0.glb"),
-        TileRecord(1, 0, 0, True, A, 0.0, "content/1/0/0.glb"),
-        TileRecord(1, 1, 0, True, B, 0.0, "content/1/1/0.glb"),
-    ], single_lod=single_lod)
+    return build_tileset(
+        [
+            TileRecord(0, 0, 0, False, ROOT, 20.0, "content/0/0/0.glb"),
+            TileRecord(1, 0, 0, True, A, 0.0, "content/1/0/0.glb"),
+            TileRecord(1, 1, 0, True, B, 0.0, "content/1/1/0.glb"),
+        ],
+        single_lod=single_lod,
+    )
 
 
 def test_region_box_bounds_the_region() -> None:

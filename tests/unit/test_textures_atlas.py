@@ -58,8 +58,9 @@ def test_layout_invariants(packer: str, page_size: int) -> None:
     np.testing.assert_array_equal(np.column_stack([lay.w, lay.h])[fits], s[fits])
     assert ((lay.w + 4 <= page_size) & (lay.h + 4 <= page_size)).all()
     f = (page_size - 4) / s[~fits].max(axis=1)  # aspect kept to the texel
-    np.testing.assert_array_equal(np.column_stack([lay.w, lay.h])[~fits],
-                                  np.maximum(np.floor(s[~fits] * f[:, None]), 1))
+    np.testing.assert_array_equal(
+        np.column_stack([lay.w, lay.h])[~fits], np.maximum(np.floor(s[~fits] * f[:, None]), 1)
+    )
     # inside the page, never overlapping (gutters included), each placed exactly once
     dims = lay.page_dims[lay.page]
     assert (lay.x - 2 >= 0).all() and (lay.y - 2 >= 0).all()
@@ -118,8 +119,10 @@ def gradient(w: int, h: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("packer", PACKERS)
 def test_pack_draws_each_texture_in_its_rectangle(packer: str) -> None:
     s = sizes(40, seed=3, big=False)
-    reqs = [TextureRequest(size=(int(w), int(h)), generator=lambda w, h, i=i: gradient(w, h, i), key=("wall", i))
-            for i, (w, h) in enumerate(s)]
+    reqs = [
+        TextureRequest(size=(int(w), int(h)), generator=lambda w, h, i=i: gradient(w, h, i), key=("wall", i))
+        for i, (w, h) in enumerate(s)
+    ]
     at = pack(reqs, page_size=256, packer=packer, padding=2)
     assert at.keys == [("wall", i) for i in range(len(s))]
     assert all(p.shape[0] <= 256 and p.shape[1] <= 256 and p.dtype == np.uint8 and p.shape[2] == 4 for p in at.pages)
@@ -131,8 +134,9 @@ def test_pack_draws_each_texture_in_its_rectangle(packer: str) -> None:
         assert (pg[y : y + h, x : x + w, 3] == 255).all()
         # gutter = the edge texels repeated (no neighbour colour bleeds in under bilinear filtering)
         np.testing.assert_array_equal(pg[y - 2 : y, x : x + w, :3], np.repeat(gradient(w, h, i)[:1], 2, axis=0))
-        np.testing.assert_array_equal(pg[y : y + h, x + w : x + w + 2, :3],
-                                      np.repeat(gradient(w, h, i)[:, -1:], 2, axis=1))
+        np.testing.assert_array_equal(
+            pg[y : y + h, x + w : x + w + 2, :3], np.repeat(gradient(w, h, i)[:, -1:], 2, axis=1)
+        )
         # the UV rectangle points at those texels
         u0, v0, u1, v1 = at.rects[i]
         assert (u0 * pg.shape[1], v0 * pg.shape[0]) == pytest.approx((x, y))
@@ -192,13 +196,14 @@ def test_downsample_halves_and_keeps_the_mean_colour() -> None:
     half = A.downsample(page, 2)
     assert half.shape == (64, 48, 4)
     assert (half[..., 3] == 255).all()
-    np.testing.assert_allclose(A.srgb_to_linear(half[..., :3]).mean(axis=(0, 1)),
-                               A.srgb_to_linear(page[..., :3]).mean(axis=(0, 1)), atol=0.01)
+    np.testing.assert_allclose(
+        A.srgb_to_linear(half[..., :3]).mean(axis=(0, 1)), A.srgb_to_linear(page[..., :3]).mean(axis=(0, 1)), atol=0.01
+    )
     chain = A.mipmaps(page)
-    assert [c.shape[:2] for c in chain] == [(128, 96), (64, 48), (32, 24), (16, 12), (8, 6), (4, 3), (2, 1),
-                                            (1, 1)]
-    np.testing.assert_allclose(A.srgb_to_linear(chain[-1][..., :3]).reshape(3),
-                               A.srgb_to_linear(page[..., :3]).mean(axis=(0, 1)), atol=0.02)
+    assert [c.shape[:2] for c in chain] == [(128, 96), (64, 48), (32, 24), (16, 12), (8, 6), (4, 3), (2, 1), (1, 1)]
+    np.testing.assert_allclose(
+        A.srgb_to_linear(chain[-1][..., :3]).reshape(3), A.srgb_to_linear(page[..., :3]).mean(axis=(0, 1)), atol=0.02
+    )
 
 
 @pytest.mark.parametrize("fmt", ["png", "webp", "jpeg"])

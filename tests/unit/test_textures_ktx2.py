@@ -38,9 +38,23 @@ def read_ktx2(data: bytes) -> dict:
         key, _, value = data[p + 4 : p + 4 + n].partition(b"\0")
         kv[key.decode()] = value
         p += 4 + n + (-n % 4)
-    return {"vk_format": vk_format, "type_size": type_size, "width": width, "height": height, "depth": depth,
-            "layers": layers, "faces": faces, "levels": levels, "scheme": scheme, "dfd": (dfd_off, dfd_len),
-            "sgd": (sgd_off, sgd_len), "level_index": lv, "color_model": model, "transfer": transfer, "kv": kv}
+    return {
+        "vk_format": vk_format,
+        "type_size": type_size,
+        "width": width,
+        "height": height,
+        "depth": depth,
+        "layers": layers,
+        "faces": faces,
+        "levels": levels,
+        "scheme": scheme,
+        "dfd": (dfd_off, dfd_len),
+        "sgd": (sgd_off, sgd_len),
+        "level_index": lv,
+        "color_model": model,
+        "transfer": transfer,
+        "kv": kv,
+    }
 
 
 def page(w: int, h: int, seed: int = 1) -> np.ndarray:
@@ -90,13 +104,17 @@ def _script(tmp_path: Path, body: str) -> str:
     return str(f)
 
 
-@pytest.mark.parametrize("body,timeout,needle", [
-    ("echo 'ERROR: broken' >&2; exit 3", 30.0, "basisu exit 3"),
-    ("exit 0", 30.0, "wrote no KTX2"),
-    ("exec sleep 20", 0.5, "more than 0.5 s"),
-])
-def test_an_encoder_that_fails_writes_nothing_or_hangs_is_an_encode_error(tmp_path: Path, monkeypatch, body: str,
-                                                                         timeout: float, needle: str) -> None:
+@pytest.mark.parametrize(
+    "body,timeout,needle",
+    [
+        ("echo 'ERROR: broken' >&2; exit 3", 30.0, "basisu exit 3"),
+        ("exit 0", 30.0, "wrote no KTX2"),
+        ("exec sleep 20", 0.5, "more than 0.5 s"),
+    ],
+)
+def test_an_encoder_that_fails_writes_nothing_or_hangs_is_an_encode_error(
+    tmp_path: Path, monkeypatch, body: str, timeout: float, needle: str
+) -> None:
     monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, body))
     with pytest.raises(K.EncodeError, match=needle) as e:
         K.encode(page(16, 16), timeout_s=timeout)
@@ -123,9 +141,11 @@ def test_a_process_that_hangs_is_killed_and_its_pages_tried_alone(tmp_path: Path
     # refused at its own; every process started is gone and no temporary directory is left behind
     starts, tmp = tmp_path / "starts", tmp_path / "tmp"
     tmp.mkdir()
-    wrapper = (f'echo $$ >> {starts}\n'
-               'for a; do case "$a" in *.tga) [ "$(wc -c < "$a")" -gt 5000 ] && exec sleep 60;; esac; done\n'
-               f'exec {K.binary()} "$@"')
+    wrapper = (
+        f"echo $$ >> {starts}\n"
+        'for a; do case "$a" in *.tga) [ "$(wc -c < "$a")" -gt 5000 ] && exec sleep 60;; esac; done\n'
+        f'exec {K.binary()} "$@"'
+    )
     monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp))
     small, big, other = page(16, 16), page(64, 64), page(32, 16, seed=5)
@@ -142,8 +162,10 @@ def test_start_many_returns_while_the_encoder_runs(tmp_path: Path, monkeypatch) 
     # the encoder behind a wrapper that waits for a flag this test sets only once start_many has returned: a
     # start_many that waited for its processes would see them give up after 20 s, leaving a mark
     flag, late = tmp_path / "go", tmp_path / "gave-up"
-    wrapper = (f'for i in $(seq 200); do [ -e {flag} ] && exec {K.binary()} "$@"; sleep 0.1; done\n'
-               f'touch {late}; echo "ERROR: never started" >&2; exit 3')
+    wrapper = (
+        f'for i in $(seq 200); do [ -e {flag} ] && exec {K.binary()} "$@"; sleep 0.1; done\n'
+        f'touch {late}; echo "ERROR: never started" >&2; exit 3'
+    )
     monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
     pages = [page(64, 64), page(16, 16), page(32, 32, seed=3)]
     pending = K.start_many(pages, jobs=2)
@@ -159,9 +181,11 @@ def test_a_page_the_encoder_refuses_is_the_only_one_lost(tmp_path: Path, monkeyp
     # process given the big page fails as a whole (jobs 1: the one for all pages; 2: the one for the first two),
     # each of its pages is encoded again on its own, and only the big one is refused
     real = K.binary()
-    wrapper = ('for a; do case "$a" in *.tga)\n'
-               '  [ "$(wc -c < "$a")" -gt 5000 ] && { echo "ERROR: too big" >&2; exit 4; };; esac; done\n'
-               f'exec {real} "$@"')
+    wrapper = (
+        'for a; do case "$a" in *.tga)\n'
+        '  [ "$(wc -c < "$a")" -gt 5000 ] && { echo "ERROR: too big" >&2; exit 4; };; esac; done\n'
+        f'exec {real} "$@"'
+    )
     monkeypatch.setenv(K.ENV_BINARY, _script(tmp_path, wrapper))
     small, big, other = page(16, 16), page(64, 64), page(32, 16, seed=5)
     out = K.encode_many([small, big, small, other], jobs=jobs)
@@ -198,11 +222,24 @@ def test_ktx2_glb_validates_through_khr_texture_basisu(tmp_path: Path) -> None:
     from tests.unit.test_export_gltf import cube_primitive
 
     c = cube_primitive()
-    top = Primitive(c.positions[:4], c.normals[:4], np.zeros((0, 4), np.uint8), c.feature_ids[:4],
-                    np.array([0, 1, 2, 0, 2, 3], np.uint32),
-                    uvs=np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1]], np.float32), image=0)
-    plain = Primitive(c.positions[4:], c.normals[4:], c.colors[4:], c.feature_ids[4:],
-                      np.array([0, 2, 1, 0, 3, 2], np.uint32), c.properties, feature_count=2)
+    top = Primitive(
+        c.positions[:4],
+        c.normals[:4],
+        np.zeros((0, 4), np.uint8),
+        c.feature_ids[:4],
+        np.array([0, 1, 2, 0, 2, 3], np.uint32),
+        uvs=np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1]], np.float32),
+        image=0,
+    )
+    plain = Primitive(
+        c.positions[4:],
+        c.normals[4:],
+        c.colors[4:],
+        c.feature_ids[4:],
+        np.array([0, 2, 1, 0, 3, 2], np.uint32),
+        c.properties,
+        feature_count=2,
+    )
     glb = write_glb(plain, textured=[top], images=[Image(K.encode(page(64, 32)), "image/ktx2")])
     gltf, _ = read_glb(glb)
     assert gltf["extensionsRequired"] == ["KHR_texture_basisu"] and "KHR_texture_basisu" in gltf["extensionsUsed"]

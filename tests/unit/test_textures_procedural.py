@@ -35,16 +35,19 @@ def facade_rects(w: dict[str, np.ndarray], n: int) -> list[tuple]:
         lo, hi = q[0, 0], q[0, 2]
         rel = lo[:2] - w["a"]
         s, off = (rel * d).sum(axis=1), (rel * nrm).sum(axis=1)
-        (wall,) = np.flatnonzero((np.abs(off - P.depth) < 1e-6) & (s > -1e-6) & (s < length + 1e-6)
-                                 & (w["owner"] == own))
+        (wall,) = np.flatnonzero(
+            (np.abs(off - P.depth) < 1e-6) & (s > -1e-6) & (s < length + 1e-6) & (w["owner"] == own)
+        )
         s1 = ((hi[:2] - w["a"][wall]) * d[wall]).sum()
         out.append((int(wall), round(s[wall], 6), round(s1, 6), round(lo[2], 6), round(hi[2], 6), int(kind)))
     return sorted(out)
 
 
 def opening_rects(op: T.Openings) -> list[tuple]:
-    return sorted((int(w), round(a, 6), round(b, 6), round(c, 6), round(d, 6), int(k))
-                  for w, a, b, c, d, k in zip(op.wall, op.s0, op.s1, op.z0, op.z1, op.kind, strict=True))
+    return sorted(
+        (int(w), round(a, 6), round(b, 6), round(c, 6), round(d, 6), int(k))
+        for w, a, b, c, d, k in zip(op.wall, op.s0, op.s1, op.z0, op.z1, op.kind, strict=True)
+    )
 
 
 @pytest.mark.parametrize("polys", [[RECT], [ELL], [COURT], [RECT, ELL]], ids=["rect", "L", "courtyard", "two"])
@@ -75,8 +78,10 @@ def test_texture_windows_fall_on_the_lod3_openings() -> None:
         img = T.facade_texture("#a0522d", "brick", 3, length, 9.0, texels_per_metre=rho, openings=op.of(i))
         assert img.shape == (270, round(length * rho), 3)
         mine = op.of(i)
-        want = sorted((round(s0 * rho), round((9 - z1) * rho), round(s1 * rho), round((9 - z0) * rho))
-                      for s0, s1, z0, z1 in zip(mine.s0, mine.s1, mine.z0, mine.z1, strict=True))
+        want = sorted(
+            (round(s0 * rho), round((9 - z1) * rho), round(s1 * rho), round((9 - z0) * rho))
+            for s0, s1, z0, z1 in zip(mine.s0, mine.s1, mine.z0, mine.z1, strict=True)
+        )
         got = opening_boxes(img)
         assert len(got) == len(want) == len(mine) > 0
         np.testing.assert_allclose(np.array(got), np.array(want), atol=1)
@@ -109,31 +114,39 @@ def test_tile_repeats_into_the_wall_layout() -> None:
 
 def test_deterministic_and_driven_by_the_inputs() -> None:
     a = T.facade_texture("#a0522d", "brick", 3, 12.0, 9.0, texels_per_metre=16, seed=5)
-    assert a.dtype == np.uint8 and a.tobytes() == T.facade_texture("#a0522d", "brick", 3, 12.0, 9.0,
-                                                                   texels_per_metre=16, seed=5).tobytes()
+    assert (
+        a.dtype == np.uint8
+        and a.tobytes() == T.facade_texture("#a0522d", "brick", 3, 12.0, 9.0, texels_per_metre=16, seed=5).tobytes()
+    )
     assert not np.array_equal(a, T.facade_texture("#4682b4", "brick", 3, 12.0, 9.0, texels_per_metre=16, seed=5))
     assert not np.array_equal(a, T.facade_texture("#a0522d", "brick", 3, 12.0, 9.0, texels_per_metre=16, seed=6))
     assert not np.array_equal(a, T.facade_texture("#a0522d", "stone", 3, 12.0, 9.0, texels_per_metre=16, seed=5))
     # building:levels sets the rows (a 12 m wall: 3 columns), as in facade.py
     assert len(T.wall_openings([[0, 0]], [[12, 0]], [0], 0, 12, 4, False, True)) == 12
     assert len(T.wall_openings([[0, 0]], [[12, 0]], [0], 0, 12, 3, False, True)) == 9
-    assert not np.array_equal(T.facade_texture(None, "brick", 4, 12.0, 12.0, texels_per_metre=8),
-                              T.facade_texture(None, "brick", 3, 12.0, 12.0, texels_per_metre=8))
+    assert not np.array_equal(
+        T.facade_texture(None, "brick", 4, 12.0, 12.0, texels_per_metre=8),
+        T.facade_texture(None, "brick", 3, 12.0, 12.0, texels_per_metre=8),
+    )
     r = T.roof_texture("#708090", "slate", 8.0, 5.0, texels_per_metre=20, seed=1)
     assert r.tobytes() == T.roof_texture("#708090", "slate", 8.0, 5.0, texels_per_metre=20, seed=1).tobytes()
 
 
 def test_same_pixels_in_another_process() -> None:
     # no salted hash() or unseeded randomness anywhere: a fresh interpreter with another hash seed agrees
-    code = ("import hashlib; from etl.textures import procedural as T; "
-            "print(hashlib.sha256(T.facade_texture('#a0522d', 'brick', 3, 12.0, 9.0, texels_per_metre=16).tobytes()"
-            " + T.roof_texture(None, 'roof_tiles', 6.0, 4.0, texels_per_metre=16).tobytes()).hexdigest())")
+    code = (
+        "import hashlib; from etl.textures import procedural as T; "
+        "print(hashlib.sha256(T.facade_texture('#a0522d', 'brick', 3, 12.0, 9.0, texels_per_metre=16).tobytes()"
+        " + T.roof_texture(None, 'roof_tiles', 6.0, 4.0, texels_per_metre=16).tobytes()).hexdigest())"
+    )
     env = dict(os.environ, PYTHONHASHSEED="12345")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, check=True)
     import hashlib
 
-    here = hashlib.sha256(T.facade_texture("#a0522d", "brick", 3, 12.0, 9.0, texels_per_metre=16).tobytes()
-                          + T.roof_texture(None, "roof_tiles", 6.0, 4.0, texels_per_metre=16).tobytes()).hexdigest()
+    here = hashlib.sha256(
+        T.facade_texture("#a0522d", "brick", 3, 12.0, 9.0, texels_per_metre=16).tobytes()
+        + T.roof_texture(None, "roof_tiles", 6.0, 4.0, texels_per_metre=16).tobytes()
+    ).hexdigest()
     assert out.stdout.strip() == here
 
 
@@ -147,8 +160,9 @@ def test_tags_pick_material_and_colour() -> None:
     assert T.parse_rgb("not a colour", (1, 2, 3)) == (1, 2, 3) and T.parse_rgb(None, (1, 2, 3)) == (1, 2, 3)
 
 
-@pytest.mark.parametrize("kind,material", [("wall", m) for m in T.WALL_MATERIALS]
-                         + [("roof", m) for m in T.ROOF_MATERIALS])
+@pytest.mark.parametrize(
+    "kind,material", [("wall", m) for m in T.WALL_MATERIALS] + [("roof", m) for m in T.ROOF_MATERIALS]
+)
 def test_tagged_colour_is_the_mean_colour(kind: str, material: str) -> None:
     colour = (150, 110, 90)
     img = T.material_texture(colour, material, 12.0, 9.0, texels_per_metre=24, kind=kind, seed=3)
@@ -157,8 +171,9 @@ def test_tagged_colour_is_the_mean_colour(kind: str, material: str) -> None:
     # untagged: the material's own colour
     own = (T.WALL_COLOURS if kind == "wall" else T.ROOF_COLOURS)[material]
     img = T.material_texture(None, material, 12.0, 9.0, texels_per_metre=24, kind=kind, seed=3)
-    np.testing.assert_allclose(srgb_to_linear(img).reshape(-1, 3).mean(axis=0), srgb_to_linear(np.array(own)),
-                               rtol=0.03, atol=0.002)
+    np.testing.assert_allclose(
+        srgb_to_linear(img).reshape(-1, 3).mean(axis=0), srgb_to_linear(np.array(own)), rtol=0.03, atol=0.002
+    )
 
 
 def test_patterns_are_metric_and_filtered() -> None:
@@ -195,13 +210,24 @@ def test_metric_wall_uvs() -> None:
         uv = T.wall_uvs(pts, np.tile(a, (4, 1)), np.tile(b, (4, 1)), np.full(4, 2.0))
         np.testing.assert_allclose(uv, [[0, 0], [length, 0], [length, 9], [0, 9]], atol=1e-6)
     # the same from extruded meshes, by planar charts: wall charts of 10 x 9 and 20 x 9 m, u from a, v from z0
-    ext = extrude(np.array([shapely.box(*OFF, *(OFF + [10, 6])), shapely.box(*(OFF + 30), *(OFF + [50, 36]))]),
-                  np.zeros(2), np.full(2, 9.0))
+    ext = extrude(
+        np.array([shapely.box(*OFF, *(OFF + [10, 6])), shapely.box(*(OFF + 30), *(OFF + [50, 36]))]),
+        np.zeros(2),
+        np.full(2, 9.0),
+    )
     owner = np.repeat(np.arange(2), ext.counts)
     wall = ext.semantics == SEM_WALL
     ch = T.planar_charts(ext.triangles[wall], owner[wall])
-    assert sorted(map(tuple, np.round(ch.size, 9).tolist())) == [(6, 9), (6, 9), (6, 9), (6, 9), (10, 9), (10, 9),
-                                                                 (20, 9), (20, 9)]
+    assert sorted(map(tuple, np.round(ch.size, 9).tolist())) == [
+        (6, 9),
+        (6, 9),
+        (6, 9),
+        (6, 9),
+        (10, 9),
+        (10, 9),
+        (20, 9),
+        (20, 9),
+    ]
     assert ch.uv.min() == pytest.approx(0) and (ch.uv[..., 1].max(axis=1) <= 9 + 1e-9).all()
     # u runs along a -> b: on the south wall (y = const, a -> b = +x) u grows with x
     south = np.flatnonzero(np.all(np.abs(ext.triangles[wall][:, :, 1] - OFF[1]) < 1e-9, axis=1))
@@ -212,10 +238,13 @@ def test_metric_wall_uvs() -> None:
 
 def test_roof_charts_follow_the_slope() -> None:
     # gabled roof 10 m along the ridge, 8 m across, ridge 3 m up: two 10 x 5 m faces (slope length 5)
-    p = {k: np.array(v, float) for k, v in dict(a=[0, 0, 0], b=[10, 0, 0], c=[10, 8, 0], d=[0, 8, 0],
-                                                  r0=[0, 4, 3], r1=[10, 4, 3]).items()}
-    tris = np.array([[p["a"], p["b"], p["r1"]], [p["a"], p["r1"], p["r0"]],
-                     [p["c"], p["d"], p["r0"]], [p["c"], p["r0"], p["r1"]]])
+    p = {
+        k: np.array(v, float)
+        for k, v in dict(a=[0, 0, 0], b=[10, 0, 0], c=[10, 8, 0], d=[0, 8, 0], r0=[0, 4, 3], r1=[10, 4, 3]).items()
+    }
+    tris = np.array(
+        [[p["a"], p["b"], p["r1"]], [p["a"], p["r1"], p["r0"]], [p["c"], p["d"], p["r0"]], [p["c"], p["r0"], p["r1"]]]
+    )
     ch = T.planar_charts(tris)
     assert ch.chart.tolist() in ([0, 0, 1, 1], [1, 1, 0, 0])
     np.testing.assert_allclose(ch.size, [[10, 5], [10, 5]], atol=1e-9)

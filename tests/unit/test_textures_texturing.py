@@ -32,8 +32,18 @@ def city(boxes=BOXES, lod: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     tri, feat, sem = ex.triangles, own, ex.semantics
     if lod == 3:
         w = ex.walls
-        f = facades(w.a, w.b, w.owner, np.zeros(len(w.a)), top[w.owner], np.array([b[5] for b in boxes])[w.owner],
-                    np.ones(len(w.a), bool), w.exterior, len(boxes), FacadeParams(style="panel"))
+        f = facades(
+            w.a,
+            w.b,
+            w.owner,
+            np.zeros(len(w.a)),
+            top[w.owner],
+            np.array([b[5] for b in boxes])[w.owner],
+            np.ones(len(w.a), bool),
+            w.exterior,
+            len(boxes),
+            FacadeParams(style="panel"),
+        )
         tri = np.concatenate([tri, f.triangles])
         feat = np.concatenate([feat, f.owner])
         sem = np.concatenate([sem, f.semantics])
@@ -41,8 +51,10 @@ def city(boxes=BOXES, lod: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def styles(boxes=BOXES, material: str = "brick", generic: bool = False) -> list[X.Style]:
-    return [X.Style.from_tags(UNSHIFTED + i, material, "#a0522d", "roof_tiles", "#80302a", b[5], generic)
-            for i, b in enumerate(boxes)]
+    return [
+        X.Style.from_tags(UNSHIFTED + i, material, "#a0522d", "roof_tiles", "#80302a", b[5], generic)
+        for i, b in enumerate(boxes)
+    ]
 
 
 def texel(tt: X.TileTexture, page: int, uv: np.ndarray) -> np.ndarray:
@@ -67,8 +79,10 @@ def test_every_corner_lands_in_its_chart_on_a_bounded_page(padding: int) -> None
         rects = tt.page_rects(p)
         on = tt.tri_page == p
         lo, hi = px[on].min(axis=1), px[on].max(axis=1)
-        inside = ((lo[:, None, :] >= rects[None, :, :2] - 1e-3)
-                  & (hi[:, None, :] <= rects[None, :, :2] + rects[None, :, 2:] + 1e-3)).all(axis=2)
+        inside = (
+            (lo[:, None, :] >= rects[None, :, :2] - 1e-3)
+            & (hi[:, None, :] <= rects[None, :, :2] + rects[None, :, 2:] + 1e-3)
+        ).all(axis=2)
         assert inside.any(axis=1).all()  # each triangle lies in one chart's box
         # utilization is the charts' share of the page
         h, w = tt.pages[p].shape[:2]
@@ -102,12 +116,18 @@ def test_batched_renderer_draws_what_facade_texture_draws() -> None:
     s = X.Style.from_tags(UNSHIFTED, "brick", "#a0522d", None, None, 3.0)
     ops = np.column_stack([op.s0, op.s1, op.z0, op.z1, op.kind])
     lay = A.layout([[int(length * rho), int(height * rho)]], 512, "shelf", 2)
-    req = X._requests(np.array([X.KIND_WALL], np.int8), np.array([0]), np.array([[length, height]]), [ops],
-                      X._insets(lay, np.array([X.KIND_WALL])), [s])
+    req = X._requests(
+        np.array([X.KIND_WALL], np.int8),
+        np.array([0]),
+        np.array([[length, height]]),
+        [ops],
+        X._insets(lay, np.array([X.KIND_WALL])),
+        [s],
+    )
     page = X._render_page(lay, 0, req, np.zeros((0, 3), np.uint8), {})
-    got = page[2:2 + want.shape[0], 2:2 + want.shape[1]]
+    got = page[2 : 2 + want.shape[0], 2 : 2 + want.shape[1]]
     assert np.abs(got.astype(int) - want).max() <= 1
-    assert (page[0, 2:2 + want.shape[1]] == page[2, 2:2 + want.shape[1]]).all()  # gutter repeats the edge
+    assert (page[0, 2 : 2 + want.shape[1]] == page[2, 2 : 2 + want.shape[1]]).all()  # gutter repeats the edge
 
 
 def test_deterministic() -> None:
@@ -129,8 +149,9 @@ def test_lod2_tile_copies_its_leaves_charts_with_their_windows() -> None:
     assert [p.tobytes() for p in lod2.pages] == [p.tobytes() for p in leaf.pages]
     # without the cache, the LOD3 panels passed as openings give the same walls
     panels = (sem3 == SEM_WINDOW) | (sem3 == SEM_DOOR)
-    alone = X.texture_tile(tri2, feat2, sem2, styles(), 4.0,
-                           opening_triangles=(tri3[panels], feat3[panels], sem3[panels]))
+    alone = X.texture_tile(
+        tri2, feat2, sem2, styles(), 4.0, opening_triangles=(tri3[panels], feat3[panels], sem3[panels])
+    )
     assert [p.tobytes() for p in alone.pages] == [p.tobytes() for p in leaf.pages]
     # a coarser parent downsamples the cached charts (OpenImageIO) instead of rendering them
     coarse = X.texture_tile(tri2, feat2, sem2, styles(), 2.0, X.Params(padding=1), cache=cache)
@@ -143,12 +164,22 @@ def test_generic_windows_for_simplified_solids_and_blocks() -> None:
     gen = X.texture_tile(tri, feat, sem, styles(generic=True), 4.0)
     assert plain.stats["openings"] == 0 and gen.stats["openings"] > 20
     # storeys from building:levels, windows from the wall length: facade.py's layout on every wall
-    walls = extrude(np.array([shapely.box(*(OFF + [x0, y0]), *(OFF + [x1, y1])) for x0, y0, x1, y1, _, _ in BOXES]),
-                    np.zeros(3), np.array([b[4] for b in BOXES])).walls
+    walls = extrude(
+        np.array([shapely.box(*(OFF + [x0, y0]), *(OFF + [x1, y1])) for x0, y0, x1, y1, _, _ in BOXES]),
+        np.zeros(3),
+        np.array([b[4] for b in BOXES]),
+    ).walls
     length = np.hypot(*(walls.b - walls.a).T)
-    want = T.wall_openings(np.zeros((len(length), 2)), np.column_stack([length, np.zeros(len(length))]),
-                           np.arange(len(length)), 0.0, np.array([b[4] for b in BOXES])[walls.owner],
-                           np.array([b[5] for b in BOXES], float)[walls.owner], False, True)
+    want = T.wall_openings(
+        np.zeros((len(length), 2)),
+        np.column_stack([length, np.zeros(len(length))]),
+        np.arange(len(length)),
+        0.0,
+        np.array([b[4] for b in BOXES])[walls.owner],
+        np.array([b[5] for b in BOXES], float)[walls.owner],
+        False,
+        True,
+    )
     assert gen.stats["openings"] == len(want)
 
 
@@ -167,8 +198,7 @@ def test_curved_roofs_get_an_xatlas_sheet() -> None:
     keep = sphere.triangles_center[:, 2] > 0
     dome = sphere.vertices[sphere.faces[keep]] + [*OFF, 10.0]
     tri = dome
-    tt = X.texture_tile(tri, np.zeros(len(tri), np.int64), np.full(len(tri), SEM_ROOF, np.uint8),
-                        styles()[:1], 8.0)
+    tt = X.texture_tile(tri, np.zeros(len(tri), np.int64), np.full(len(tri), SEM_ROOF, np.uint8), styles()[:1], 8.0)
     assert tt.stats["sheets"] == 1 and (tt.tri_page >= 0).all()
     # xatlas charts are near-isometric: UV areas in texels ~ surface area x rho^2
     px = tt.tri_uv * tt.layout.page_dims[tt.tri_page][:, None, :]

@@ -62,8 +62,10 @@ def test_thread_state_reads_the_kernels_letter() -> None:
 
 
 def test_many_atlases_never_hang() -> None:
-    procs = [subprocess.Popen([sys.executable, "-c", STRESS, str(ATLASES)], cwd=REPO, stdout=subprocess.PIPE,
-                              text=True) for _ in range(2)]
+    procs = [
+        subprocess.Popen([sys.executable, "-c", STRESS, str(ATLASES)], cwd=REPO, stdout=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
     try:
         for p in procs:
             out, _ = p.communicate(timeout=300)  # a hung Destroy never returns: TimeoutExpired fails the test

@@ -45,11 +45,18 @@ def test_states_and_the_change_between_them(tmp_path: Path) -> None:
     assert states(h, T[0], tmp_path / "a.osm") == 2
     assert contents(tmp_path / "a.osm") == {("n", 1, 1, 1.0), ("n", 2, 1, 1.0)}
     assert states(h, T[1], tmp_path / "b.osm") == 4
-    assert contents(tmp_path / "b.osm") == {("n", 1, 2, 1.5), ("n", 3, 1, 1.1), ("n", 4, 1, 1.2),
-                                             ("w", 10, 2, (1, 3), (("building", "yes"),))}
+    assert contents(tmp_path / "b.osm") == {
+        ("n", 1, 2, 1.5),
+        ("n", 3, 1, 1.1),
+        ("n", 4, 1, 1.2),
+        ("w", 10, 2, (1, 3), (("building", "yes"),)),
+    }
     made = changes(h, T[0], T[1], tmp_path / "c.osc")
-    assert made == {"create": {"node": 2, "way": 1, "relation": 0}, "modify": {"node": 1, "way": 0, "relation": 0},
-                    "delete": {"node": 1, "way": 0, "relation": 0}}
+    assert made == {
+        "create": {"node": 2, "way": 1, "relation": 0},
+        "modify": {"node": 1, "way": 0, "relation": 0},
+        "delete": {"node": 1, "way": 0, "relation": 0},
+    }
     # the change applied to the first state is the second one (libosmium, as `python -m etl update` applies it)
     apply_changes(tmp_path / "a.osm", [tmp_path / "c.osc"], tmp_path / "merged.osm.pbf")
     assert contents(tmp_path / "merged.osm.pbf") == contents(tmp_path / "b.osm")

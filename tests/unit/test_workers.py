@@ -66,8 +66,9 @@ def test_hung_and_crashed_items_are_lost_alone_in_order(capfd: pytest.CaptureFix
     assert not multiprocessing.active_children()
 
 
-def test_the_parent_kills_a_hung_worker_its_watchdog_did_not_end(monkeypatch: pytest.MonkeyPatch,
-                                                                   capfd: pytest.CaptureFixture[str]) -> None:
+def test_the_parent_kills_a_hung_worker_its_watchdog_did_not_end(
+    monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
     monkeypatch.setattr(W, "GRACE_S", 1.0)
     monkeypatch.setattr(W, "SLOW_S", 0.5)
     out = list(W.imap_isolated(behave, [("stubborn", 0), ("ok", 1)], workers=1, timeout=1.0))
@@ -95,8 +96,9 @@ def test_an_exception_in_the_items_code_is_raised_with_its_traceback() -> None:
 
 def test_a_worker_that_hangs_at_exit_is_killed(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(W, "EXIT_WAIT_S", 1.0)
-    out = list(W.imap_isolated(behave, [("ok", i) for i in range(5)], workers=2, timeout=30.0,
-                               initializer=hang_at_exit))
+    out = list(
+        W.imap_isolated(behave, [("ok", i) for i in range(5)], workers=2, timeout=30.0, initializer=hang_at_exit)
+    )
     assert out == [0, 2, 4, 6, 8]
     assert not multiprocessing.active_children()
 
@@ -155,8 +157,7 @@ def test_calls_within_a_shared_cluster_use_its_warm_workers_and_keep_their_own_l
     assert not apart[0] & apart[1], "each call outside a shared cluster starts workers of its own"
     with W.shared_cluster(2):
         calls = [set(W.imap_isolated(pid, range(6), workers=2, timeout=30.0)) for _ in range(3)]
-        one = list(W.imap_isolated(running, [(str(tmp_path / "run"), i) for i in range(4)], workers=1,
-                                   timeout=30.0))
+        one = list(W.imap_isolated(running, [(str(tmp_path / "run"), i) for i in range(4)], workers=1, timeout=30.0))
     # three calls, one cluster: its two worker processes ran every item (three own clusters: six processes)
     assert len(set.union(*calls)) <= 2 and os.getpid() not in set.union(*calls), calls
     assert max(one) == 1, "a call asking for one worker runs one item at a time on a cluster of two"
