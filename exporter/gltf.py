@@ -44,6 +44,7 @@ import json
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -127,6 +128,8 @@ class _Builder:
         self.pools: dict[tuple[str, int, str], list[bytes]] = {}
         self.pool_len: dict[tuple[str, int, str], int] = {}
         self.pooled: list[tuple[dict[str, object], tuple[str, int, str]]] = []
+        # compact: property-table columns with the same bytes share one view (column)
+        self.columns: dict[tuple[bytes, int], int] = {}
 
     def pool(self, key: tuple[str, int, str], data: bytes, accessor: dict[str, object]) -> None:
         """Append ``data`` to pool ``key``; ``accessor`` gets its bufferView and byteOffset at flush."""
@@ -152,6 +155,21 @@ class _Builder:
         for acc, key in self.pooled:
             acc["bufferView"] = views[key]
         self.pools, self.pool_len, self.pooled = {}, {}, []
+
+    def column(self, data: bytes, itemsize: int) -> int:
+        """The view of a property-table column of ``itemsize``-byte values."""
+        # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view): 4- and
+        # 8-byte values as themselves, narrower ones and string bytes in 4-byte groups when they fill them
+        # exactly. Never padded: CesiumJS counts a column's values by its view's length and drops the whole
+        # table (custom shaders lose their metadata) when that differs from the table's count.
+        stride = itemsize if itemsize % 4 == 0 else 4
+        if not self.compact:
+            return self.view(data)
+        # columns with the same bytes share one view (the landmark columns of tiles without landmarks, ...)
+        key = (data, stride)
+        if key not in self.columns:
+            self.columns[key] = self.view(data) if len(data) % stride else self.packed(data, stride)
+        return self.columns[key]
 
     def view(self, data: bytes, target: int | None = None) -> int:
         pad = (-len(self.bin)) % 8
@@ -199,18 +217,17 @@ class _Builder:
             v["byteStride"] = stride
         if target is not None:
             v["target"] = target
-        v["extensions"] = {
-            self.ext: {
-                "buffer": 0,
-                "byteOffset": src["byteOffset"],
-                "byteLength": src["byteLength"],
-                "byteStride": stride,
-                "count": count,
-                "mode": "TRIANGLES" if triangles else "ATTRIBUTES",
-            }
+        compression: dict[str, object] = {
+            "buffer": 0,
+            "byteOffset": src["byteOffset"],
+            "byteLength": src["byteLength"],
+            "byteStride": stride,
+            "count": count,
+            "mode": "TRIANGLES" if triangles else "ATTRIBUTES",
         }
         if filter_ != "NONE":
-            v["extensions"][self.ext]["filter"] = filter_  # type: ignore[index]
+            compression["filter"] = filter_
+        v["extensions"] = {self.ext: compression}
         self.fallback += count * stride
         self.views[at] = v
         return at
@@ -266,7 +283,7 @@ class _Builder:
         return len(self.accessors) - 1
 
 
-def _string_column(values: Sequence[object], no_data: str) -> tuple[bytes, bytes]:
+def _string_column(values: Sequence[object] | np.ndarray, no_data: str) -> tuple[bytes, bytes]:
     encoded = [(no_data if v is None else str(v)).encode("utf-8") for v in values]
     offsets = np.zeros(len(encoded) + 1, dtype="<u4")
     np.cumsum([len(e) for e in encoded], out=offsets[1:])
@@ -428,8 +445,8 @@ def _check_lengths(prim: Primitive) -> None:
     if (
         not (len(prim.normals) == len(prim.feature_ids) == n)
         or (len(prim.colors) != n and not textured)
-        or (textured and len(prim.uvs) != n)
-    ):  # type: ignore[arg-type]
+        or (prim.uvs is not None and len(prim.uvs) != n)
+    ):
         raise ValueError("vertex attribute arrays must have the same length")
     if len(prim.indices) % 3:
         raise ValueError("indices must describe whole triangles")
@@ -502,97 +519,13 @@ def write_glb(
     if quantization is not None and not compact:
         raise ValueError("quantization needs compact=True")
     b = _Builder(compact, meshopt_extension)
-    primitives: list[dict[str, object]] = []
-
-    def add(p: Primitive, material: int, count: int, uv_units: tuple[int, int] | None = None) -> None:
-        if not compact:
-            primitives.append(_primitive(b, p, material, count))
-            return
-        _check_lengths(p)
-        primitives.append(_compact_primitive(b, p, material, count, prim.feature_count, quantization, uv_units))
-
-    shared: dict[tuple[bytes, int], int] = {}
-
-    def table_view(data: bytes, itemsize: int) -> int:
-        # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view): 4- and
-        # 8-byte values as themselves, narrower ones and string bytes in 4-byte groups when they fill them
-        # exactly. Never padded: CesiumJS counts a column's values by its view's length and drops the whole
-        # table (custom shaders lose their metadata) when that differs from the table's count.
-        stride = itemsize if itemsize % 4 == 0 else 4
-        if not compact:
-            return b.view(data)
-        # columns with the same bytes share one view (the landmark columns of tiles without landmarks, ...)
-        key = (data, stride)
-        if key not in shared:
-            shared[key] = b.view(data) if len(data) % stride else b.packed(data, stride)
-        return shared[key]
-
-    materials: list[dict[str, object]] = []
-    if not textured or len(prim.indices):
-        materials.append(
-            {
-                "name": "building",
-                "pbrMetallicRoughness": {
-                    "baseColorFactor": [1, 1, 1, 1],
-                    "metallicFactor": 0.0,
-                    "roughnessFactor": 1.0,
-                },
-            }
-        )
-        # one primitive: every feature has vertices in it (featureCount = the table's); with textured ones
-        # next to it, featureCount counts the features of its own vertices (EXT_mesh_features)
-        count = prim.feature_count if not textured else len(np.unique(np.asarray(prim.feature_ids)))
-        add(prim, 0, count)
-    transformed = False
-    for tp in textured:
-        if tp.uvs is None or tp.image is None or not 0 <= tp.image < len(images):
-            raise ValueError("a textured primitive needs uvs and the index of one of the images")
-        units = _uv_units(tp.uvs, images[tp.image]) if compact else None
-        info: dict[str, object] = {"index": tp.image}
-        if units is not None:
-            info["extensions"] = {"KHR_texture_transform": {"scale": [1.0 / units[0], 1.0 / units[1]]}}
-            transformed = True
-        materials.append(
-            {
-                "name": f"atlas page {tp.image}",
-                "pbrMetallicRoughness": {"baseColorTexture": info, "metallicFactor": 0.0, "roughnessFactor": 1.0},
-            }
-        )
-        add(tp, len(materials) - 1, len(np.unique(np.asarray(tp.feature_ids))), units)
-
+    materials, primitives, transformed = _meshes(b, prim, textured, images, quantization)
     b.flush()
-    # compact: the descriptions are in tileset.json's schema (exporter/export.py), not repeated in every glb
-    specs = class_schema(prim.properties, class_name, class_description, descriptions=not compact)["properties"]
-    class_props: dict[str, object] = {}
-    table_props: dict[str, object] = {}
-    for p in prim.properties:
-        if len(p.values) != prim.feature_count:
-            raise ValueError(f"property {p.name} has {len(p.values)} values for {prim.feature_count} features")
-        spec = specs[p.name]
-        if p.component_type is None:
-            no_data = "" if p.no_data is None else str(p.no_data)
-            data, offsets = _string_column(p.values, no_data)
-            if not data and not p.required:
-                class_props[p.name] = spec  # every value is noData: the column may be omitted from the table
-                continue
-            # bufferViews must not be empty; a spare byte past the last offset is never read
-            table_props[p.name] = {
-                "values": table_view(data or b"\0", 1),
-                "stringOffsets": table_view(offsets, 4),
-                "stringOffsetType": "UINT32",
-            }
-        else:
-            dtype = np.dtype(SCALAR_DTYPES[p.component_type])
-            vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
-            if compact and "noData" in spec and np.all(vals == np.array(p.no_data, dtype)):
-                class_props[p.name] = spec  # optional and every value noData: omitted, like such strings
-                continue
-            table_props[p.name] = {"values": table_view(vals.tobytes(), dtype.itemsize)}
-        class_props[p.name] = spec
+    class_props, table_props = _table_columns(b, prim, class_name, class_description)
     # the images go last into the buffer (when there are textured primitives)
     image_views = [b.view(im.data) for im in images] if textured else []
 
-    gltf: dict[str, object] = {
+    gltf: dict[str, Any] = {
         "asset": {"version": "2.0", "generator": f"citylod {__version__}", "copyright": ATTRIBUTION},
         "extensionsUsed": ["EXT_mesh_features", "EXT_structural_metadata"],
         "scene": 0,
@@ -619,42 +552,149 @@ def write_glb(
         "buffers": [{"byteLength": len(b.bin)}],
     }
     if textured:
-        # WebP and KTX2 only through their extensions, required: the pages exist in no other format (no fallback)
-        image_ext = [IMAGE_EXTENSIONS.get(im.mime) for im in images]
-        gltf["images"] = [{"bufferView": v, "mimeType": im.mime} for v, im in zip(image_views, images, strict=True)]
-        # KTX2 pages carry their full mip chain; WebP pages get theirs from the client (CesiumJS generates them)
-        gltf["samplers"] = [
-            {"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE}
-        ]
-        gltf["textures"] = [
-            {"sampler": 0, "extensions": {e: {"source": i}}} if e else {"sampler": 0, "source": i}
-            for i, e in enumerate(image_ext)
-        ]
-        used = sorted({e for e in image_ext if e})
-        if used:
-            gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *used]  # type: ignore[misc]
-            gltf["extensionsRequired"] = used
+        _add_images(gltf, images, image_views)
     if compact:
-        ext = ["KHR_mesh_quantization"]  # always: normals are BYTE
-        if transformed:  # integer texcoords mean nothing without their scale
-            ext.append("KHR_texture_transform")
-        if b.fallback:  # some view is compressed (a tiny glb may have none worth it)
-            gltf["buffers"] = [
-                {"byteLength": len(b.bin)},
-                {"byteLength": b.fallback, "extensions": {meshopt_extension: {"fallback": True}}},
-            ]
-            ext.append(meshopt_extension)
-        gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *ext]  # type: ignore[misc]
-        gltf["extensionsRequired"] = [*gltf.get("extensionsRequired", []), *ext]  # type: ignore[misc]
+        _add_compact_extensions(gltf, b, transformed, meshopt_extension)
     return _pack(gltf, bytes(b.bin))
+
+
+def _meshes(
+    b: _Builder, prim: Primitive, textured: Sequence[Primitive], images: Sequence[Image], q: Quantization | None
+) -> tuple[list[dict[str, object]], list[dict[str, object]], bool]:
+    """(materials, primitives, whether some texcoords need KHR_texture_transform) of write_glb: the
+    vertex-coloured ``prim`` (left out when empty next to textured ones), then one per ``textured`` primitive
+    with its atlas page's material."""
+    primitives: list[dict[str, object]] = []
+    materials: list[dict[str, object]] = []
+    if not textured or len(prim.indices):
+        materials.append(
+            {
+                "name": "building",
+                "pbrMetallicRoughness": {
+                    "baseColorFactor": [1, 1, 1, 1],
+                    "metallicFactor": 0.0,
+                    "roughnessFactor": 1.0,
+                },
+            }
+        )
+        # one primitive: every feature has vertices in it (featureCount = the table's); with textured ones
+        # next to it, featureCount counts the features of its own vertices (EXT_mesh_features)
+        count = prim.feature_count if not textured else len(np.unique(np.asarray(prim.feature_ids)))
+        primitives.append(_any_primitive(b, prim, 0, count, prim.feature_count, q))
+    transformed = False
+    for tp in textured:
+        if tp.uvs is None or tp.image is None or not 0 <= tp.image < len(images):
+            raise ValueError("a textured primitive needs uvs and the index of one of the images")
+        units = _uv_units(tp.uvs, images[tp.image]) if b.compact else None
+        info: dict[str, object] = {"index": tp.image}
+        if units is not None:
+            info["extensions"] = {"KHR_texture_transform": {"scale": [1.0 / units[0], 1.0 / units[1]]}}
+            transformed = True
+        materials.append(
+            {
+                "name": f"atlas page {tp.image}",
+                "pbrMetallicRoughness": {"baseColorTexture": info, "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            }
+        )
+        count = len(np.unique(np.asarray(tp.feature_ids)))
+        primitives.append(_any_primitive(b, tp, len(materials) - 1, count, prim.feature_count, q, units))
+    return materials, primitives, transformed
+
+
+def _any_primitive(
+    b: _Builder,
+    p: Primitive,
+    material: int,
+    count: int,
+    table_count: int,
+    q: Quantization | None,
+    uv_units: tuple[int, int] | None = None,
+) -> dict[str, object]:
+    """The plain primitive, or with a compact builder the quantized one."""
+    if not b.compact:
+        return _primitive(b, p, material, count)
+    _check_lengths(p)
+    return _compact_primitive(b, p, material, count, table_count, q, uv_units)
+
+
+def _table_columns(
+    b: _Builder, prim: Primitive, class_name: str, class_description: str
+) -> tuple[dict[str, object], dict[str, object]]:
+    """(class properties, property-table columns) of ``prim``'s properties, the columns' views added to ``b``.
+    A column whose every value is noData is left out of the table (its class property stays): strings that
+    are not required, and in compact glbs optional scalars."""
+    compact = b.compact
+    # compact: the descriptions are in tileset.json's schema (exporter/export.py), not repeated in every glb
+    specs = class_schema(prim.properties, class_name, class_description, descriptions=not compact)["properties"]
+    class_props: dict[str, object] = {}
+    table_props: dict[str, object] = {}
+    for p in prim.properties:
+        if len(p.values) != prim.feature_count:
+            raise ValueError(f"property {p.name} has {len(p.values)} values for {prim.feature_count} features")
+        spec = specs[p.name]
+        if p.component_type is None:
+            no_data = "" if p.no_data is None else str(p.no_data)
+            data, offsets = _string_column(p.values, no_data)
+            if not data and not p.required:
+                class_props[p.name] = spec  # every value is noData: the column may be omitted from the table
+                continue
+            # bufferViews must not be empty; a spare byte past the last offset is never read
+            table_props[p.name] = {
+                "values": b.column(data or b"\0", 1),
+                "stringOffsets": b.column(offsets, 4),
+                "stringOffsetType": "UINT32",
+            }
+        else:
+            dtype = np.dtype(SCALAR_DTYPES[p.component_type])
+            vals = np.array([p.no_data if v is None else v for v in p.values], dtype=dtype)
+            if compact and "noData" in spec and np.all(vals == np.array(p.no_data, dtype)):
+                class_props[p.name] = spec  # optional and every value noData: omitted, like such strings
+                continue
+            table_props[p.name] = {"values": b.column(vals.tobytes(), dtype.itemsize)}
+        class_props[p.name] = spec
+    return class_props, table_props
+
+
+def _add_images(gltf: dict[str, Any], images: Sequence[Image], image_views: Sequence[int]) -> None:
+    """The atlas pages' images, their sampler and textures, and the image extensions they need."""
+    # WebP and KTX2 only through their extensions, required: the pages exist in no other format (no fallback)
+    image_ext = [IMAGE_EXTENSIONS.get(im.mime) for im in images]
+    gltf["images"] = [{"bufferView": v, "mimeType": im.mime} for v, im in zip(image_views, images, strict=True)]
+    # KTX2 pages carry their full mip chain; WebP pages get theirs from the client (CesiumJS generates them)
+    gltf["samplers"] = [
+        {"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR, "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE}
+    ]
+    gltf["textures"] = [
+        {"sampler": 0, "extensions": {e: {"source": i}}} if e else {"sampler": 0, "source": i}
+        for i, e in enumerate(image_ext)
+    ]
+    used = sorted({e for e in image_ext if e})
+    if used:
+        gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *used]
+        gltf["extensionsRequired"] = used
+
+
+def _add_compact_extensions(gltf: dict[str, Any], b: _Builder, transformed: bool, meshopt_extension: str) -> None:
+    """The extensions compact geometry needs (required), and the fallback buffer when some view is compressed."""
+    ext = ["KHR_mesh_quantization"]  # always: normals are BYTE
+    if transformed:  # integer texcoords mean nothing without their scale
+        ext.append("KHR_texture_transform")
+    if b.fallback:  # some view is compressed (a tiny glb may have none worth it)
+        gltf["buffers"] = [
+            {"byteLength": len(b.bin)},
+            {"byteLength": b.fallback, "extensions": {meshopt_extension: {"fallback": True}}},
+        ]
+        ext.append(meshopt_extension)
+    gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *ext]
+    gltf["extensionsRequired"] = [*gltf.get("extensionsRequired", []), *ext]
 
 
 def class_schema(
     properties: Sequence[Property], class_name: str = "building", class_description: str = "", descriptions: bool = True
-) -> dict[str, object]:
+) -> dict[str, Any]:
     """The EXT_structural_metadata / 3D Tiles 1.1 schema class of ``properties`` (their values unused): type,
     componentType, noData (optional ones), required, and with ``descriptions`` the words."""
-    cls: dict[str, object] = {"name": class_name.capitalize()}
+    cls: dict[str, Any] = {"name": class_name.capitalize()}
     if descriptions:
         cls["description"] = class_description
     props: dict[str, object] = {}
@@ -751,7 +791,7 @@ def _pack(gltf: dict[str, object], binary: bytes) -> bytes:
     )
 
 
-def read_glb(data: bytes) -> tuple[dict[str, object], bytes]:
+def read_glb(data: bytes) -> tuple[dict[str, Any], bytes]:
     """(JSON, BIN chunk) of a GLB; raises ValueError on a malformed container."""
     if len(data) < 20:
         raise ValueError("too short to be a GLB")
