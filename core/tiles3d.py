@@ -133,15 +133,8 @@ def _semantic_columns(tileset: dict[str, Any], sub: Subtree, count: int) -> dict
     return out
 
 
-def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
-    """The explicit tileset an implicit one stands for (a deep copy; an explicit tileset comes back as is).
-    Each expanded tile has boundingVolume, geometricError, content (where available), children, and
-    ``implicit``: [level, x, y]. Raises SubtreeError (a ValueError) for a malformed subtree, OSError when
-    ``read`` cannot read one."""
-    root = tileset.get("root", {})
-    if "implicitTiling" not in root:
-        return tileset
-    imp = root["implicitTiling"]
+def _implicit_tiling(imp: dict[str, Any]) -> tuple[int, int, str]:
+    """(subtreeLevels, availableLevels, subtree URI template) of a QUADTREE implicitTiling; SubtreeError else."""
     if imp.get("subdivisionScheme") != "QUADTREE":
         raise SubtreeError(f"subdivisionScheme {imp.get('subdivisionScheme')!r}: only QUADTREE is read here")
     levels, available = imp.get("subtreeLevels"), imp.get("availableLevels")
@@ -150,8 +143,49 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
     sub_uri = imp.get("subtrees", {}).get("uri")
     if not isinstance(sub_uri, str):
         raise SubtreeError("implicitTiling.subtrees.uri missing")
+    return levels, available, sub_uri
+
+
+def _uniform_region(root_region: list[float], key: tuple[int, int, int]) -> list[float]:
+    """Tile ``key``'s (level, x, y) part of the root region by uniform subdivision, the root's heights."""
+    rw, rs, re_, rn, rlo, rhi = root_region
+    n = 1 << key[0]
+    return [
+        rw + (re_ - rw) * key[1] / n,
+        rs + (rn - rs) * key[2] / n,
+        rw + (re_ - rw) * (key[1] + 1) / n,
+        rs + (rn - rs) * (key[2] + 1) / n,
+        rlo,
+        rhi,
+    ]
+
+
+def _link_children(tiles: dict[tuple[int, int, int], dict[str, Any]]) -> None:
+    """Every available tile below the root into its parent's children (in (level, x, y) order); SubtreeError
+    when the root or some tile's parent is not available."""
+    if (0, 0, 0) not in tiles:
+        raise SubtreeError("the root subtree does not make the root tile available")
+    for lv, x, y in sorted(tiles):
+        if lv == 0:
+            continue
+        parent = tiles.get((lv - 1, x >> 1, y >> 1))
+        if parent is None:
+            raise SubtreeError(f"tile {lv}/{x}/{y} is available but its parent is not")
+        parent.setdefault("children", []).append(tiles[(lv, x, y)])
+
+
+def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
+    """The explicit tileset an implicit one stands for (a deep copy; an explicit tileset comes back as is).
+    Each expanded tile has boundingVolume, geometricError, content (where available), children, and
+    ``implicit``: [level, x, y]. Raises SubtreeError (a ValueError) for a malformed subtree, OSError when
+    ``read`` cannot read one."""
+    root = tileset.get("root", {})
+    if "implicitTiling" not in root:
+        return tileset
+    levels, available, sub_uri = _implicit_tiling(root["implicitTiling"])
     content_uri = root.get("content", {}).get("uri")
     rw, rs, re_, rn, rlo, rhi = root["boundingVolume"]["region"]
+    root_region = [rw, rs, re_, rn, rlo, rhi]
     root_error = float(root["geometricError"])
     n_bits = ((1 << (2 * levels)) - 1) // 3
     tiles: dict[tuple[int, int, int], dict[str, Any]] = {}
@@ -176,14 +210,7 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
             region = (
                 meta["TILE_BOUNDING_REGION"][i].tolist()
                 if "TILE_BOUNDING_REGION" in meta
-                else [
-                    rw + (re_ - rw) * key[1] / n,
-                    rs + (rn - rs) * key[2] / n,
-                    rw + (re_ - rw) * (key[1] + 1) / n,
-                    rs + (rn - rs) * (key[2] + 1) / n,
-                    rlo,
-                    rhi,
-                ]
+                else _uniform_region(root_region, key)
             )
             error = float(meta["TILE_GEOMETRIC_ERROR"][i]) if "TILE_GEOMETRIC_ERROR" in meta else root_error / n
             t: dict[str, Any] = {"boundingVolume": {"region": region}, "geometricError": error, "implicit": list(key)}
@@ -195,15 +222,7 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
             load(lv + levels, (sx << levels) + int(cx[0]), (sy << levels) + int(cy[0]))
 
     load(0, 0, 0)
-    if (0, 0, 0) not in tiles:
-        raise SubtreeError("the root subtree does not make the root tile available")
-    for lv, x, y in sorted(tiles):
-        if lv == 0:
-            continue
-        parent = tiles.get((lv - 1, x >> 1, y >> 1))
-        if parent is None:
-            raise SubtreeError(f"tile {lv}/{x}/{y} is available but its parent is not")
-        parent.setdefault("children", []).append(tiles[(lv, x, y)])
+    _link_children(tiles)
     out = {k: v for k, v in tileset.items() if k != "root"}
     top = tiles[(0, 0, 0)]
     for k in ("refine", "transform"):
