@@ -91,7 +91,7 @@ def database_url(dbname: str | None = None, settings: Settings | None = None) ->
             return env
         from psycopg.conninfo import conninfo_to_dict, make_conninfo
 
-        return make_conninfo(**{**conninfo_to_dict(env), "dbname": dbname})
+        return make_conninfo("", **{**conninfo_to_dict(env), "dbname": dbname})
     return locate(settings).url(dbname or settings.pg_database)
 
 

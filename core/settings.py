@@ -13,6 +13,7 @@ import os
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -196,7 +197,7 @@ class Settings:
     @classmethod
     def from_env(cls, env: dict[str, str] | None = None) -> Settings:
         env = dict(os.environ if env is None else env)
-        kwargs: dict[str, object] = {}
+        kwargs: dict[str, Any] = {}  # each value of its field's type (its default's)
         for f in dataclasses.fields(cls):
             key = cls.env_name(f.name)
             if key not in env:
@@ -213,7 +214,7 @@ class Settings:
                 kwargs[f.name] = raw
             else:
                 raise ValueError(f"{key} cannot be set from the environment")
-        return cls(**kwargs)  # type: ignore[arg-type]
+        return cls(**kwargs)
 
     def as_dict(self) -> dict[str, object]:
         return dataclasses.asdict(self)

@@ -97,11 +97,13 @@ def publish(
                 have.add(sha)
                 new_files, new_bytes = new_files + 1, new_bytes + len(body)
         total = sum(p.stat().st_size for _, p, _ in listing)
-        (generation,) = conn.execute(
+        row = conn.execute(
             "INSERT INTO pub.generation (tileset, run_id, options, n_files, n_bytes, n_new_files, n_new_bytes) "
             "VALUES (%s, %s, %s, %s, %s, %s, %s) RETURNING generation",
             (name, run_id, Jsonb(options), len(listing), total, new_files, new_bytes),
-        ).fetchone()  # type: ignore[misc]
+        ).fetchone()
+        assert row is not None  # INSERT ... RETURNING: one row
+        (generation,) = row
         with (
             conn.cursor() as cur,
             cur.copy("COPY pub.file (generation, path, sha256, input_digest) FROM STDIN") as copy,

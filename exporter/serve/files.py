@@ -4,7 +4,7 @@ leave its root is refused by paths.safe_join."""
 
 from __future__ import annotations
 
-from pathlib import Path
+from pathlib import Path, PurePath
 
 from starlette.requests import Request
 from starlette.responses import FileResponse, PlainTextResponse, Response
@@ -54,7 +54,7 @@ NO_CACHE = "no-cache"
 CESIUM_CACHE = "public, max-age=3600"
 
 
-def media_type(path: Path) -> str:
+def media_type(path: PurePath) -> str:
     return MEDIA_TYPES.get(path.suffix.lower(), DEFAULT_MEDIA_TYPE)
 
 

@@ -72,8 +72,8 @@ def accepts_gzip(header: str | None) -> bool:
             q_gzip = q
         elif name == "*":
             q_star = q
-    q = q_gzip if q_gzip is not None else q_star
-    return q is not None and q > 0
+    chosen = q_gzip if q_gzip is not None else q_star
+    return chosen is not None and chosen > 0
 
 
 def etag_matches(header: str | None, etag: str) -> bool:

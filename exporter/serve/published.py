@@ -62,7 +62,9 @@ class PublishedSource:
 
     def _load(self, old: Listing | None) -> Listing:
         def read(conn: psycopg.Connection) -> Listing:
-            (generation,) = conn.execute(_LIVE, (self.name,)).fetchone()  # type: ignore[misc]
+            row = conn.execute(_LIVE, (self.name,)).fetchone()
+            assert row is not None  # an aggregate: one row (NULL when nothing is published)
+            (generation,) = row
             if generation is None:
                 raise NotReady(
                     f"no tileset named {self.name!r} is published in the database: export it first "

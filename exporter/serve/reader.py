@@ -65,7 +65,7 @@ def reader_url(url: str, environ: Mapping[str, str] | None = None) -> str:
         return environ[READER_URL_ENV]
     params = {k: v for k, v in conninfo_to_dict(url).items() if k != "password"}
     params["user"] = READER_ROLE
-    return make_conninfo(**params)
+    return make_conninfo("", **params)
 
 
 def one_line(e: BaseException) -> str:
@@ -79,7 +79,7 @@ def _conninfo(url: str) -> str:
     params["options"] = f"{params.get('options') or ''} {options}".strip()
     params.setdefault("connect_timeout", "5")
     params.setdefault("application_name", "citylod serve")
-    return make_conninfo(**params)
+    return make_conninfo("", **params)
 
 
 def _configure(conn: psycopg.Connection) -> None:
