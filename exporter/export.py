@@ -30,6 +30,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 import psycopg
@@ -205,11 +206,12 @@ def load_textures(
 
 def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[int, ContentArrays]]]:
     """The vertex-coloured part and one part per atlas page (a triangle's corners share their page)."""
-    assert arr.pages is not None
-    tri_page = arr.pages[arr.indices[0::3]] if len(arr.indices) else np.zeros(0, np.int16)
+    assert arr.pages is not None and arr.uvs is not None  # tile_arrays gives both or neither
+    pages, uvs = arr.pages, arr.uvs
+    tri_page = pages[arr.indices[0::3]] if len(arr.indices) else np.zeros(0, np.int16)
 
     def part(p: int) -> ContentArrays:
-        keep_v = arr.pages == p
+        keep_v = pages == p
         new = np.cumsum(keep_v) - 1
         tris = arr.indices.reshape(-1, 3)[tri_page == p]
         return replace(
@@ -219,8 +221,8 @@ def _split(arr: ContentArrays, n_pages: int) -> tuple[ContentArrays, list[tuple[
             colors=arr.colors[keep_v],
             feature_ids=arr.feature_ids[keep_v],
             indices=new[tris].reshape(-1).astype(np.uint32),
-            uvs=arr.uvs[keep_v],  # type: ignore[index]
-            pages=arr.pages[keep_v],
+            uvs=uvs[keep_v],
+            pages=pages[keep_v],
         )
 
     return part(-1), [(p, part(p)) for p in range(n_pages) if np.any(tri_page == p)]
@@ -278,7 +280,8 @@ def build_tile_glb(
         if tri_page.max(initial=-1) >= len(textures.images):
             raise RuntimeError("tex.feature_uv refers to a page the tile does not have")
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem, tri_page=tri_page, tri_uv=tri_uv)
-    plain, parts = arr, []
+    plain = arr
+    parts: list[tuple[int, ContentArrays]] = []
     if textures is not None and arr.pages is not None and np.any(arr.pages >= 0):
         plain, parts = _split(arr, len(textures.images))
     compact = stream.compact
@@ -316,12 +319,11 @@ def build_tile_glb(
         for k, (_, a) in enumerate(parts)
     ]
     images = [textures.images[p] for p, _ in parts] if textures is not None else []
-    doc = BUILDING_CLASS
     if compact:
         try:
             return write_glb(
                 prim,
-                *doc,
+                *BUILDING_CLASS,
                 textured=textured,
                 images=images,
                 node_matrix=node_matrix,
@@ -334,7 +336,7 @@ def build_tile_glb(
             print(f"  warning: tile {_tile_name(rec)} written plain: {e}", file=sys.stderr)
             # the landmark metadata back in the tile's frame, as plain tiles have it
             return build_tile_glb(rows_in, region, textures, replace(stream, geometry="plain"), rec, node_matrix)
-    glb = write_glb(prim, *doc, textured=textured, images=images, node_matrix=node_matrix)
+    glb = write_glb(prim, *BUILDING_CLASS, textured=textured, images=images, node_matrix=node_matrix)
     return glb, len(arr.indices) // 3
 
 
@@ -359,7 +361,7 @@ def position_error_m(rec: TileRecord | None) -> float:
 def is_compact(glb: bytes) -> bool:
     """True when a glb's geometry is compact (KHR_mesh_quantization required: every compact glb has BYTE normals)."""
     gltf, _ = read_glb(glb)
-    return "KHR_mesh_quantization" in gltf.get("extensionsRequired", [])  # type: ignore[operator]
+    return "KHR_mesh_quantization" in gltf.get("extensionsRequired", [])
 
 
 def _landmark_frame(
@@ -431,7 +433,7 @@ def tileset_files(
         ts["schema"] = {
             **schema,
             "classes": {
-                **schema.get("classes", {}),  # type: ignore[typeddict-item]
+                **schema.get("classes", {}),
                 BUILDING_CLASS[0]: building_schema_class(),
             },
         }
@@ -468,20 +470,27 @@ def tile_glb(
     return glb, len(rows), tri
 
 
-_WORKER: dict[str, object] = {}
+class _WorkerState(TypedDict, total=False):
+    """A Dask worker's connection and tile_glb's other arguments, set by _init_worker."""
+
+    conn: psycopg.Connection
+    args: tuple[float, int | None, StreamOptions, tuple[float, ...]]
+
+
+_WORKER: _WorkerState = {}
 
 
 def _init_worker(
     url: str, base_height: float, lod: int | None, stream: StreamOptions, root_region: tuple[float, ...]
 ) -> None:
-    _WORKER.update(conn=connect(url, autocommit=True), args=(base_height, lod, stream, root_region))
-    atexit.register(_WORKER["conn"].close)  # type: ignore[attr-defined]
+    _WORKER.update({"conn": connect(url, autocommit=True), "args": (base_height, lod, stream, root_region)})
+    atexit.register(_WORKER["conn"].close)
 
 
 def _tile_task(rec: TileRecord) -> tuple[bytes, int, int]:
     """One tile's glb as a Dask task, read through the worker's own connection (a module-level function, as
     core/workers.py needs); the bytes come back, so a worker on another machine writes nothing here."""
-    return tile_glb(_WORKER["conn"], rec, *_WORKER["args"])  # type: ignore[arg-type]
+    return tile_glb(_WORKER["conn"], rec, *_WORKER["args"])
 
 
 def _export_tiles(
@@ -545,6 +554,20 @@ def _export_tiles(
     return n_features, n_triangles, n_bytes, n_fallback
 
 
+def _textures_stale(conn: psycopg.Connection) -> object:
+    """api.textures_stale(): the tiles were generalized again after the textures stage ran."""
+    row = conn.execute("SELECT api.textures_stale()").fetchone()
+    assert row is not None  # a function call: one row
+    return row[0]
+
+
+def _content_features(r: TileRecord, lod: int | None) -> int:
+    """The features of a tile's glb: its own at one LOD, its generalized content's otherwise."""
+    n = r.n_features if lod else r.content_features
+    assert n is not None  # check_current refuses tiles without measured content
+    return n
+
+
 def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int | None) -> None:
     """Refuse tiles that no longer match the meshes (lod/tiles re-run) or that generalize has not finished."""
     if not records:
@@ -560,7 +583,7 @@ def check_current(conn: psycopg.Connection, records: list[TileRecord], lod: int 
     if any(r.geometric_error is None or r.content_features is None for r in records):
         raise RuntimeError("the tiles have no measured geometric errors: run the generalize stage (make generalize)")
     # textures are made from the generalized content: a later lod, tiles or generalize run may have changed it
-    if lod is None and conn.execute("SELECT api.textures_stale()").fetchone()[0]:  # type: ignore[index]
+    if lod is None and _textures_stale(conn):
         raise RuntimeError(
             "the textures are stale: the tiles were generalized again after the textures stage "
             "ran; run it again (make textures)"
@@ -718,7 +741,7 @@ def _export_tileset(
         files = tileset_files(conn, records, lod, stream)
     root_region = next(r.region for r in records if r.level == 0)
     tiles = [r for r in records if r.is_leaf or lod is None]
-    expected = sum(r.n_features if lod else r.content_features for r in tiles)  # type: ignore[misc]
+    expected = sum(_content_features(r, lod) for r in tiles)
     # a published tileset: the tiles whose input is what its live generation was built from are copied
     seed = recipe(code, lod, stream, root_region)
     glbs = plan_glbs(url, publish_as, seed, tiles, lod, stream, reached) if publish_as is not None and code else Glbs()
@@ -751,7 +774,7 @@ def _export_tileset(
         (partial / uri).write_bytes(data)
     n_bytes += sum(len(d) for d in files.values())
     (partial / PARTIAL_MARKER).unlink()
-    published: dict[str, object] = {}
+    published: dict[str, str | int] = {}
     if publish_as is not None:
         pub = publish(
             url,
@@ -782,7 +805,7 @@ def _export_tileset(
             f"({published['published_new_files']:,} new files, "
             f"{int(published['published_new_bytes']) / 1e6:.2f} MB new)",
             file=sys.stderr,
-        )  # type: ignore[call-overload]
+        )
     return {
         **balance.counts(),
         "lod": lod or "all",

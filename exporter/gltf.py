@@ -44,7 +44,7 @@ import json
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -351,7 +351,14 @@ def exponential_quantization(positions: Sequence[np.ndarray], error_m: float) ->
     return Quantization((float(origin[0]), float(origin[1]), float(origin[2])), 2.0**e, e)
 
 
-def plan_quantization(prims: Sequence[Primitive], error_m: float) -> Quantization:
+class Positioned(Protocol):
+    """Anything with vertex positions: a Primitive, or content arrays before they become one."""
+
+    @property
+    def positions(self) -> np.ndarray: ...
+
+
+def plan_quantization(prims: Sequence[Positioned], error_m: float) -> Quantization:
     """One quantization for a tile's meshes within ``error_m``: SHORT when int16 reaches its extent at that
     bound, else FLOAT through the EXPONENTIAL filter (one mesh either way: no chunks, so no extra primitives)."""
     positions = [np.asarray(p.positions) for p in prims]

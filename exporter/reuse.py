@@ -133,11 +133,7 @@ def glb_triangles(glb: bytes) -> int:
     """Triangles of a glb's meshes (index accessor counts / 3), as the export counts the ones it builds."""
     gltf, _ = read_glb(glb)
     acc = gltf.get("accessors", [])
-    return sum(
-        acc[p["indices"]]["count"] // 3  # type: ignore[index]
-        for m in gltf.get("meshes", [])
-        for p in m["primitives"]
-    )  # type: ignore[union-attr, attr-defined]
+    return sum(acc[p["indices"]]["count"] // 3 for m in gltf.get("meshes", []) for p in m["primitives"])
 
 
 def copy_unchanged(url: str, reuse: dict[str, bytes], old: Path, new: Path) -> tuple[int, int]:

@@ -177,12 +177,14 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", sing
 
     def tile(key: tuple[int, int, int]) -> Tile:
         r = by_key[key]
+        assert r.geometric_error is not None  # _checked refuses a tile without one
         t: Tile = {
             "boundingVolume": {"region": [float(v) for v in r.region]},
             "geometricError": float(r.geometric_error),
-        }  # type: ignore[arg-type]
+        }
         if r.is_leaf or not single_lod:
-            t["content"] = {"uri": r.content_uri}  # type: ignore[typeddict-item]
+            assert r.content_uri is not None  # _checked refuses such a tile without content
+            t["content"] = {"uri": r.content_uri}
         if children[key]:
             t["children"] = [tile(k) for k in children[key]]
         return t
@@ -244,9 +246,10 @@ def build_implicit(
             [("region", region[mine]), ("geometric_error", error[mine])],
         )
     root_rec = by_key[(0, 0, 0)]
+    assert root_rec.geometric_error is not None  # _checked refuses a tile without one
     root: Tile = {
         "boundingVolume": {"region": [float(v) for v in root_rec.region]},
-        "geometricError": float(root_rec.geometric_error),  # type: ignore[arg-type]
+        "geometricError": float(root_rec.geometric_error),
         "refine": "ADD" if single_lod else "REPLACE",
         "transform": column_major(leaf_frame(root_rec.region)),
         "content": {"uri": CONTENT_TEMPLATE},
