@@ -249,36 +249,8 @@ def build_tile_glb(
     wall = np.array([hex_rgba(r["building_colour"], DEFAULT_WALL) for r in rows], dtype=np.uint8).reshape(-1, 4)
     roof = np.array([hex_rgba(r["roof_colour"], DEFAULT_ROOF) for r in rows], dtype=np.uint8).reshape(-1, 4)
     lon, lat = region_centre(region)
-    # a row without semantics falls back to colouring by orientation, alone, not the whole tile
-    sem = np.concatenate(
-        [np.zeros(0, np.uint8)]
-        + [
-            np.full(len(t), SEM_UNKNOWN, np.uint8)
-            if r["semantics"] is None
-            else np.frombuffer(bytes(r["semantics"]), dtype=np.uint8)
-            for r, t in zip(rows, tris, strict=True)
-        ]
-    )
-    if len(sem) != len(triangles):
-        raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
-    tri_page = tri_uv = None
-    if textures is not None:
-        tri_page = np.full(len(triangles), -1, np.int16)
-        tri_uv = np.zeros((len(triangles), 3, 2), np.float32)
-        off = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        for i, r in enumerate(rows):
-            got = textures.uvs.get((r["feature_kind"], int(r["building_id"])))
-            if got is None:
-                continue  # not textured (tex.failure): vertex colours
-            if len(got[0]) != counts[i]:
-                raise RuntimeError(
-                    f"the textures are stale: {r['feature_kind']} {r['building_id']} has {counts[i]} triangles, "
-                    f"its UVs {len(got[0])}; run the textures stage again (make textures)"
-                )
-            tri_page[off[i] : off[i + 1]] = got[0]
-            tri_uv[off[i] : off[i + 1]] = got[1]
-        if tri_page.max(initial=-1) >= len(textures.images):
-            raise RuntimeError("tex.feature_uv refers to a page the tile does not have")
+    sem = _semantics(rows, tris, len(triangles))
+    tri_page, tri_uv = _triangle_uvs(rows, counts, len(triangles), textures) if textures is not None else (None, None)
     arr = tile_arrays(triangles, feature, wall, roof, lon, lat, semantics=sem, tri_page=tri_page, tri_uv=tri_uv)
     plain = arr
     parts: list[tuple[int, ContentArrays]] = []
@@ -289,20 +261,13 @@ def build_tile_glb(
     # the landmark metadata is in the mesh's frame, the one a custom shader sees: less the quantization origin
     origin = np.broadcast_to(np.asarray(q.origin), (len(rows), 3)) if q is not None else None
     rows = [{**r, **x} for r, x in zip(rows, _landmark_frame(rows, lon, lat, origin), strict=True)]
-    props = []
-    for name, ctype, doc, required, no_data in PROPERTIES:
-        doc = COMPACT_DOCS.get(name, doc) if compact else doc
-        values = [r[name] for r in rows]
-        if name in ("osm_type", "building_osm_type"):
-            values = [OSM_TYPE[v] for v in values]
-        props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
     prim = Primitive(
         positions=plain.positions,
         normals=plain.normals,
         colors=plain.colors,
         feature_ids=plain.feature_ids,
         indices=plain.indices,
-        properties=props,
+        properties=_properties(rows, compact),
         feature_count=len(rows),
     )
     # only the pages some triangle uses, renumbered (a page whose triangles were all degenerate goes)
@@ -338,6 +303,58 @@ def build_tile_glb(
             return build_tile_glb(rows_in, region, textures, replace(stream, geometry="plain"), rec, node_matrix)
     glb = write_glb(prim, *BUILDING_CLASS, textured=textured, images=images, node_matrix=node_matrix)
     return glb, len(arr.indices) // 3
+
+
+def _semantics(rows: list[dict], tris: list[np.ndarray], n_triangles: int) -> np.ndarray:
+    """One semantic byte per triangle of the rows' meshes."""
+    # a row without semantics falls back to colouring by orientation, alone, not the whole tile
+    sem = np.concatenate(
+        [np.zeros(0, np.uint8)]
+        + [
+            np.full(len(t), SEM_UNKNOWN, np.uint8)
+            if r["semantics"] is None
+            else np.frombuffer(bytes(r["semantics"]), dtype=np.uint8)
+            for r, t in zip(rows, tris, strict=True)
+        ]
+    )
+    if len(sem) != n_triangles:
+        raise RuntimeError("lod.building_mesh.semantics does not have one byte per triangle")
+    return sem
+
+
+def _triangle_uvs(
+    rows: list[dict], counts: np.ndarray, n_triangles: int, textures: TileTextures
+) -> tuple[np.ndarray, np.ndarray]:
+    """(atlas page per triangle, -1 for vertex colours; UVs per triangle corner) of the rows' meshes."""
+    tri_page = np.full(n_triangles, -1, np.int16)
+    tri_uv = np.zeros((n_triangles, 3, 2), np.float32)
+    off = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    for i, r in enumerate(rows):
+        got = textures.uvs.get((r["feature_kind"], int(r["building_id"])))
+        if got is None:
+            continue  # not textured (tex.failure): vertex colours
+        if len(got[0]) != counts[i]:
+            raise RuntimeError(
+                f"the textures are stale: {r['feature_kind']} {r['building_id']} has {counts[i]} triangles, "
+                f"its UVs {len(got[0])}; run the textures stage again (make textures)"
+            )
+        tri_page[off[i] : off[i + 1]] = got[0]
+        tri_uv[off[i] : off[i + 1]] = got[1]
+    if tri_page.max(initial=-1) >= len(textures.images):
+        raise RuntimeError("tex.feature_uv refers to a page the tile does not have")
+    return tri_page, tri_uv
+
+
+def _properties(rows: list[dict], compact: bool) -> list[Property]:
+    """The property-table columns of the rows (compact glbs with the short descriptions)."""
+    props = []
+    for name, ctype, doc, required, no_data in PROPERTIES:
+        doc = COMPACT_DOCS.get(name, doc) if compact else doc
+        values = [r[name] for r in rows]
+        if name in ("osm_type", "building_osm_type"):
+            values = [OSM_TYPE[v] for v in values]
+        props.append(Property(name, values, ctype, doc, no_data=no_data, required=required))
+    return props
 
 
 def _tile_name(rec: TileRecord | None) -> str:
@@ -716,6 +733,32 @@ def export_tileset(
         return _export_tileset(url, out, settings, lod, stream, publish_as, run_id, code, reached)
 
 
+def _check_replaceable(out: Path, partial: Path) -> None:
+    """OutputDirectoryError unless the output and partial directories are empty or hold a citylod tileset."""
+    for p in (out, partial):
+        if not replaceable(p):
+            raise OutputDirectoryError(
+                f"refusing to overwrite {p}: it is not empty and holds no tileset written by citylod; "
+                "choose a new or empty directory"
+            )
+
+
+def _start_partial(partial: Path) -> None:
+    """A new, empty partial directory, marked as such until the export completes it."""
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True)
+    (partial / PARTIAL_MARKER).touch()
+
+
+def _write_files(partial: Path, files: dict[str, bytes]) -> int:
+    """Write tileset.json and the subtrees under ``partial``; their bytes."""
+    for uri, data in files.items():
+        (partial / uri).parent.mkdir(parents=True, exist_ok=True)
+        (partial / uri).write_bytes(data)
+    return sum(len(d) for d in files.values())
+
+
 def _export_tileset(
     url: str,
     out: Path,
@@ -729,12 +772,7 @@ def _export_tileset(
 ) -> dict[str, object]:
     t0 = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
-    for p in (out, partial):
-        if not replaceable(p):
-            raise OutputDirectoryError(
-                f"refusing to overwrite {p}: it is not empty and holds no tileset written by citylod; "
-                "choose a new or empty directory"
-            )
+    _check_replaceable(out, partial)
     with connect(url) as conn:
         records = load_records(conn)
         check_current(conn, records, lod)
@@ -746,10 +784,7 @@ def _export_tileset(
     seed = recipe(code, lod, stream, root_region)
     glbs = plan_glbs(url, publish_as, seed, tiles, lod, stream, reached) if publish_as is not None and code else Glbs()
     same = glbs.copy
-    if partial.exists():
-        shutil.rmtree(partial)
-    partial.mkdir(parents=True)
-    (partial / PARTIAL_MARKER).touch()
+    _start_partial(partial)
     progress = Progress("export", "features", total=expected)
     n_features, n_triangles, n_bytes, n_fallback = _export_tiles(
         url,
@@ -769,22 +804,12 @@ def _export_tileset(
         n_triangles, n_bytes = n_triangles + t, n_bytes + b
     # every feature of the exported tiles is in a glb (counted as written); before the tileset replaces the old
     balance = Balance("features", int(expected), {"written": int(n_features)})
-    for uri, data in files.items():  # tileset.json and the subtrees
-        (partial / uri).parent.mkdir(parents=True, exist_ok=True)
-        (partial / uri).write_bytes(data)
-    n_bytes += sum(len(d) for d in files.values())
+    n_bytes += _write_files(partial, files)
     (partial / PARTIAL_MARKER).unlink()
     published: dict[str, str | int] = {}
     if publish_as is not None:
-        pub = publish(
-            url,
-            publish_as,
-            partial,
-            {"lod": lod, **stream.as_dict(), "recipe": seed},
-            run_id,
-            settings.publish_keep,
-            glbs.keys,
-        )
+        options: dict[str, object] = {"lod": lod, **stream.as_dict(), "recipe": seed}
+        pub = publish(url, publish_as, partial, options, run_id, settings.publish_keep, glbs.keys)
         published = {"published_as": publish_as, **pub.as_dict()}
     swap_in(partial, out)
     seconds = time.perf_counter() - t0
