@@ -84,12 +84,33 @@ def decimate(
     if target_reduction == 0.0 or not sel.any():
         return Decimated(tri, own, done, error, status)
 
-    # --- weld, owner-relative ---------------------------------------------------------------------------------
     src, src_owner = tri[sel], own[sel]
     origin = np.zeros((n, 3))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     origin[eligible] = tri[starts[eligible], 0]
-    rel = src - origin[src_owner][:, None, :]
+    points, v_owner, faces = _weld_owner_relative(src - origin[src_owner][:, None, :], src_owner)
+    if not len(faces):
+        return Decimated(tri, own, done, error, status)
+    simplified = _simplify_batch(points, v_owner, faces, target_reduction)
+    if simplified is None:
+        # not seen on real data; should it happen, the batch keeps its originals rather than stopping the run
+        status[eligible] = "kept: decimation mixed meshes"
+        return Decimated(tri, own, done, error, status)
+    dec = simplified[0] + origin[simplified[1]][:, None, :]
+    f_owner = simplified[1]
+    done = _check(src, src_owner, dec, f_owner, counts, eligible, n, status, error, max_error, spacing)
+
+    # originals where not decimated, results where decimated, in owner order
+    keep, take = ~done[own], done[f_owner]
+    out_tri = np.concatenate([tri[keep], dec[take]])
+    out_own = np.concatenate([own[keep], f_owner[take]])
+    o = np.argsort(out_own, kind="stable")
+    return Decimated(out_tri[o], out_own[o], done, error, status)
+
+
+def _weld_owner_relative(rel: np.ndarray, src_owner: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points, their owners, int32 faces) of owner-relative triangles welded within each owner on the
+    ``_WELD`` grid; faces welding collapses to a line or a point are dropped."""
     pts = rel.reshape(-1, 3)
     p_owner = np.repeat(src_owner, 3)
     vid, first = weld(np.rint(pts / _WELD).astype(np.int64), p_owner)
@@ -97,11 +118,14 @@ def decimate(
     v_owner = p_owner[first]
     faces = vid.reshape(-1, 3)
     solid = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
-    faces = faces[solid].astype(np.int32)
-    if not len(faces):
-        return Decimated(tri, own, done, error, status)
+    return points, v_owner, faces[solid].astype(np.int32)
 
-    # --- one simplification for the whole batch ---------------------------------------------------------------
+
+def _simplify_batch(
+    points: np.ndarray, v_owner: np.ndarray, faces: np.ndarray, target_reduction: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """One simplification for the whole batch: (owner-relative triangles grouped by owner, their owners), or
+    None when an output face would join two owners' vertices."""
     out_pts, out_faces, collapses = fast_simplification.simplify(
         points, faces, target_reduction=target_reduction, return_collapses=True
     )
@@ -123,17 +147,29 @@ def decimate(
     else:
         out_owner_v = np.full(len(out_pts), -1, dtype=np.int64)
     f_owner = out_owner_v[out_faces]
-    mixed = np.any(f_owner[:, 0] < 0) | np.any(f_owner != f_owner[:, :1])
-    if mixed:
-        # not seen on real data; should it happen, the batch keeps its originals rather than stopping the run
-        status[eligible] = "kept: decimation mixed meshes"
-        return Decimated(tri, own, done, error, status)
+    if np.any(f_owner[:, 0] < 0) | np.any(f_owner != f_owner[:, :1]):
+        return None
     f_vid, f_owner = _tidy(out_pts, out_owner_v, out_faces, f_owner[:, 0])
     f_order = np.argsort(f_owner, kind="stable")
-    f_owner = f_owner[f_order]
-    dec = out_pts[f_vid[f_order]] + origin[f_owner][:, None, :]
+    return out_pts[f_vid[f_order]], f_owner[f_order]
 
-    # --- checks -----------------------------------------------------------------------------------------------
+
+def _check(
+    src: np.ndarray,
+    src_owner: np.ndarray,
+    dec: np.ndarray,
+    f_owner: np.ndarray,
+    counts: np.ndarray,
+    eligible: np.ndarray,
+    n: int,
+    status: np.ndarray,
+    error: np.ndarray,
+    max_error: float,
+    spacing: float,
+) -> np.ndarray:
+    """Which owners' decimated meshes are kept (closed, outward, smaller, within max_error); fills status and
+    error in place."""
+    done = np.zeros(n, dtype=bool)
     dec_counts = np.bincount(f_owner, minlength=n)
     shut = closure(dec, np.concatenate([[0], np.cumsum(dec_counts)]).astype(np.int64))
     smaller = eligible & (dec_counts < counts)
@@ -151,13 +187,7 @@ def decimate(
         error[over] = 0.0
         done = measure & ~over
         status[done] = "decimated"
-
-    # --- originals where not decimated, results where decimated, in owner order -------------------------------
-    keep, take = ~done[own], done[f_owner]
-    out_tri = np.concatenate([tri[keep], dec[take]])
-    out_own = np.concatenate([own[keep], f_owner[take]])
-    o = np.argsort(out_own, kind="stable")
-    return Decimated(out_tri[o], out_own[o], done, error, status)
+    return done
 
 
 def _tidy(

@@ -214,6 +214,35 @@ def _proxies(tri: np.ndarray, owner: np.ndarray, n: int) -> tuple[np.ndarray, np
     return np.concatenate(centres), parent, reach
 
 
+def _rays(
+    pid: np.ndarray, vert: np.ndarray, axis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct edges leaving every vertex w of B (triangles ``pid`` of vertices ``vert``), sorted by angle
+    around w's axis: (w, the other end x, angle, unit direction in the plane normal to the axis, up to two
+    triangles on the edge (-1 padded), and the plane's two axes e1, e2 per vertex)."""
+    # every edge leaving w, once per triangle using it: (w, x, triangle), sorted by angle around w
+    w = np.concatenate([pid[:, 0], pid[:, 1], pid[:, 2], pid[:, 0], pid[:, 1], pid[:, 2]])
+    x = np.concatenate([pid[:, 1], pid[:, 2], pid[:, 0], pid[:, 2], pid[:, 0], pid[:, 1]])
+    u = np.tile(np.arange(len(pid)), 6)
+    e1 = np.cross(axis, np.where(np.abs(axis[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    e2 = np.cross(axis, e1)
+    q = vert[x] - vert[w]
+    ang = np.arctan2(np.einsum("ij,ij->i", q, e2[w]), np.einsum("ij,ij->i", q, e1[w]))
+    order = np.lexsort((x, ang, w))
+    w, x, u, ang = w[order], x[order], u[order], ang[order]
+    ray = np.r_[True, (w[1:] != w[:-1]) | (x[1:] != x[:-1])]
+    # rays (distinct edges leaving w) with up to two triangles each (a manifold edge has exactly two)
+    r_w, r_x, r_ang = w[ray], x[ray], ang[ray]
+    r_dir = np.cos(r_ang)[:, None] * e1[r_w] + np.sin(r_ang)[:, None] * e2[r_w]
+    r_tri = np.full((len(r_w), 2), -1, dtype=np.int64)
+    r_tri[:, 0] = u[ray]
+    again = np.flatnonzero(~ray)
+    again = again[ray[again - 1]]  # a ray's second row
+    r_tri[np.cumsum(ray)[again] - 1, 1] = u[again]
+    return r_w, r_x, r_ang, r_dir, r_tri, e1, e2
+
+
 class _Fans:
     """Around every vertex w of B (vertices welded by exact coordinates, per owner): an axis (the area-weighted
     normal) and the sectors between the edges leaving w, in angular order around the axis, each at most a half
@@ -232,29 +261,10 @@ class _Fans:
             [np.bincount(corner, weights=np.repeat(normal[:, j], 3), minlength=nvert) for j in range(3)]
         )
         with np.errstate(divide="ignore", invalid="ignore"):
-            axis /= np.linalg.norm(axis, axis=1)[:, None]
+            axis = axis / np.linalg.norm(axis, axis=1)[:, None]
             unit = normal / np.linalg.norm(normal, axis=1)[:, None]
         self.axis = axis  # NaN where the normals cancel: no sectors there
-        # every edge leaving w, once per triangle using it: (w, x, triangle), sorted by angle around w
-        w = np.concatenate([pid[:, 0], pid[:, 1], pid[:, 2], pid[:, 0], pid[:, 1], pid[:, 2]])
-        x = np.concatenate([pid[:, 1], pid[:, 2], pid[:, 0], pid[:, 2], pid[:, 0], pid[:, 1]])
-        u = np.tile(np.arange(len(dst)), 6)
-        e1 = np.cross(axis, np.where(np.abs(axis[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-        e1 /= np.linalg.norm(e1, axis=1)[:, None]
-        e2 = np.cross(axis, e1)
-        q = vert[x] - vert[w]
-        ang = np.arctan2(np.einsum("ij,ij->i", q, e2[w]), np.einsum("ij,ij->i", q, e1[w]))
-        order = np.lexsort((x, ang, w))
-        w, x, u, ang = w[order], x[order], u[order], ang[order]
-        ray = np.r_[True, (w[1:] != w[:-1]) | (x[1:] != x[:-1])]
-        # rays (distinct edges leaving w) with up to two triangles each (a manifold edge has exactly two)
-        r_w, r_x, r_ang = w[ray], x[ray], ang[ray]
-        r_dir = np.cos(r_ang)[:, None] * e1[r_w] + np.sin(r_ang)[:, None] * e2[r_w]
-        r_tri = np.full((len(r_w), 2), -1, dtype=np.int64)
-        r_tri[:, 0] = u[ray]
-        again = np.flatnonzero(~ray)
-        again = again[ray[again - 1]]  # a ray's second row
-        r_tri[np.cumsum(ray)[again] - 1, 1] = u[again]
+        r_w, r_x, r_ang, r_dir, r_tri, e1, e2 = _rays(pid, vert, axis)
         # sectors: from each ray to the next one around the same vertex (cyclically)
         first = np.r_[True, r_w[1:] != r_w[:-1]]
         last = np.r_[r_w[1:] != r_w[:-1], True]
@@ -321,12 +331,12 @@ class _Fans:
         rel, nv = _clip(rel, nv, h2)
         poly = rel + at[:, None, :]
         best = np.full(len(pt), np.inf)
-        two = (self.beyond[ps] >= 0) & (nv > 0)
+        cut_twice = (self.beyond[ps] >= 0) & (nv > 0)
         for c in range(self.cand.shape[1]):
             u = self.cand[ps, c]
-            use = np.flatnonzero((u >= 0) & (nv > 0) & ~two)
+            use = np.flatnonzero((u >= 0) & (nv > 0) & ~cut_twice)
             best[use] = np.minimum(best[use], _farthest(poly[use], nv[use], u[use], tg))
-        two = np.flatnonzero(two)
+        two = np.flatnonzero(cut_twice)
         if len(two):
             h, s2 = self.cut[ps[two]], ps[two]
             off = np.einsum("ij,ij->i", h, self.cut_at[s2] - at[two])

@@ -249,21 +249,57 @@ def _split_error(
     return cost[best], (0.5 * (lft + rgt)) % n
 
 
+@dataclass(frozen=True)
+class _Ops:
+    """Candidate replacements of runs of short edges, one row each, with their run's ring."""
+
+    run: np.ndarray  # the run replaced
+    rank: np.ndarray  # preference among one run's candidates, lowest first
+    first: np.ndarray  # int64 offset in the ring of the first vertex removed (from the run's first vertex)
+    m: np.ndarray  # int64 vertices removed
+    new: np.ndarray  # (k, 2) the vertex made, NaN where none is
+    ring: np.ndarray
+    cnt: np.ndarray  # vertices in the ring
+    start: np.ndarray  # its first row
+
+    @property
+    def made(self) -> np.ndarray:
+        return ~np.isnan(self.new[:, 0])
+
+
 def _sester_brenner_pass(st: _Rings, todo: np.ndarray) -> np.ndarray:
     """Replace every non-overlapping run of short edges in the rings flagged in ``todo``, all at once. Returns
     the rings worth another pass: those that changed or had a replacement wait for an overlapping one."""
     n_rings = len(st.tol)
     again = np.zeros(n_rings, dtype=bool)
     lay = _layout(st.ring, n_rings)
+    runs = _short_runs(st, lay, todo)
+    if runs is None:
+        return again
+    ops = _candidates(st.xy, lay, *runs)
+    if ops is None:
+        return again
+    good, err, split = _feasible(st, ops)
+    if not len(good):
+        return again
+    take = _non_overlapping(ops, good, err, len(st.xy))
+    again[ops.ring[good]] = True
+    _apply(st, lay, ops, take, split)
+    return again
+
+
+def _short_runs(st: _Rings, lay: _Layout, todo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The maximal runs of short edges of the rings in ``todo``: (ring, local index of the run's first vertex,
+    short edges in the run), or None when there are none."""
+    n_rings = len(st.tol)
     xy = st.xy
     edge = xy[lay.nxt] - xy  # edge i runs from vertex i to the next
     short = (np.hypot(edge[:, 0], edge[:, 1]) < st.tol[st.ring]) & todo[st.ring]
     n_short = np.bincount(st.ring, weights=short, minlength=n_rings)
     short &= (n_short < lay.cnt)[st.ring]  # a ring of short edges only has no long edges to extend
     if not short.any():
-        return again
-
-    # Maximal runs of short edges: rotate each ring to start at a long edge so that no run wraps around.
+        return None
+    # Rotate each ring to start at a long edge so that no run wraps around.
     has_run = np.bincount(st.ring[short], minlength=n_rings) > 0
     sel = np.flatnonzero(has_run[st.ring])
     longs = sel[~short[sel]]
@@ -277,7 +313,11 @@ def _sester_brenner_pass(st: _Rings, todo: np.ndarray) -> np.ndarray:
     begin = so & ~np.roll(so, 1)  # the first row of every ring is long, so the roll never joins two rings
     run_first = eo[begin]
     k = np.bincount((np.cumsum(begin) - 1)[so], minlength=len(run_first))  # short edges per run
-    r, s = st.ring[run_first], lay.local[run_first]
+    return st.ring[run_first], lay.local[run_first], k
+
+
+def _candidates(xy: np.ndarray, lay: _Layout, r: np.ndarray, s: np.ndarray, k: np.ndarray) -> _Ops | None:
+    """Every geometrically possible replacement of every run (corner, one line, step either way), or None."""
     cnt, start = lay.cnt[r], lay.start[r]
 
     def at(j: np.ndarray | int) -> np.ndarray:  # row of the vertex j places after the run's first vertex
@@ -309,15 +349,25 @@ def _sester_brenner_pass(st: _Rings, todo: np.ndarray) -> np.ndarray:
     ops.append((nr[ok], np.where(la >= lb, 2, 1)[ok], s[ok] - 1, k[ok] + 2, z0[ok] + t[ok, None] * dz[ok]))
     run, rank, first, m, new = (np.concatenate(c) for c in zip(*ops, strict=True))
     if not len(run):
-        return again
-    m = m.astype(np.int64)
-    first = first.astype(np.int64)
-    orr, ocnt, ostart = r[run], cnt[run], start[run]
-    made = ~np.isnan(new[:, 0])
+        return None
+    return _Ops(run, rank, first.astype(np.int64), m.astype(np.int64), new, r[run], cnt[run], start[run])
 
-    # No pinned vertex may go.
+
+def _feasible(st: _Rings, ops: _Ops) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the preferred feasible candidate per run, every candidate's error, its split on the original outline):
+    no pinned vertex goes, and the outline moves by at most the tolerance."""
+    xy, first, m, orr, ocnt, ostart, made, new = (
+        st.xy,
+        ops.first,
+        ops.m,
+        ops.ring,
+        ops.cnt,
+        ops.start,
+        ops.made,
+        ops.new,
+    )
     g, j = _expand(m)
-    pinned = np.bincount(g, weights=st.pin[ostart[g] + (first[g] + j) % ocnt[g]], minlength=len(run)) > 0
+    pinned = np.bincount(g, weights=st.pin[ostart[g] + (first[g] + j) % ocnt[g]], minlength=len(ops.run)) > 0
     # The outline may move by at most the tolerance, measured against the original vertices.
     g1, g2 = ostart + (first - 1) % ocnt, ostart + (first + m) % ocnt
     lo, hi = st.opos[g1], st.opos[g2]
@@ -328,37 +378,42 @@ def _sester_brenner_pass(st: _Rings, todo: np.ndarray) -> np.ndarray:
     for pt in (y, 0.5 * (xy[g1[made]] + y), 0.5 * (y + xy[g2[made]])):
         err[made] = np.maximum(err[made], _point_to_orig(st, mr, mlo, mhi, pt))
     good = np.flatnonzero(~pinned & (err <= st.tol[orr] + _EPS))
-    if not len(good):
-        return again
-    good = good[np.lexsort((rank[good], run[good]))]
-    good = good[np.unique(run[good], return_index=True)[1]]  # the preferred feasible replacement per run
+    if len(good):
+        good = good[np.lexsort((ops.rank[good], ops.run[good]))]
+        good = good[np.unique(ops.run[good], return_index=True)[1]]  # the preferred feasible one per run
+    return good, err, split
 
-    # Overlapping replacements (sharing a vertex of their windows, anchors included): smallest change wins.
+
+def _non_overlapping(ops: _Ops, good: np.ndarray, err: np.ndarray, n_rows: int) -> np.ndarray:
+    """Of overlapping replacements (sharing a vertex of their windows, anchors included) the smallest change
+    wins."""
+    m = ops.m[good]
     prio = np.empty(len(good), np.int64)
     prio[np.lexsort((good, err[good]))] = np.arange(len(good))
-    g, j = _expand(m[good] + 2)
-    win = ostart[good][g] + (first[good][g] - 1 + j) % ocnt[good][g]
-    best = np.full(len(xy), len(good))
+    g, j = _expand(m + 2)
+    win = ops.start[good][g] + (ops.first[good][g] - 1 + j) % ops.cnt[good][g]
+    best = np.full(n_rows, len(good))
     np.minimum.at(best, win, prio[g])
-    take = good[np.logical_and.reduceat(best[win] == prio[g], np.cumsum(m[good] + 2) - (m[good] + 2))]
-    again[orr[good]] = True
+    return good[np.logical_and.reduceat(best[win] == prio[g], np.cumsum(m + 2) - (m + 2))]
 
-    # Apply: drop the removed rows, insert each made vertex right after its first anchor.
-    g, j = _expand(m[take])
+
+def _apply(st: _Rings, lay: _Layout, ops: _Ops, take: np.ndarray, split: np.ndarray) -> None:
+    """Drop the removed rows, insert each made vertex right after its first anchor."""
+    xy = st.xy
+    g, j = _expand(ops.m[take])
     keep = np.ones(len(xy), dtype=bool)
-    keep[ostart[take][g] + (first[take][g] + j) % ocnt[take][g]] = False
-    tk = take[made[take]]
-    pos = split[tk]
-    key = np.concatenate([lay.local[keep].astype(float), lay.local[g1[tk]] + 0.5])
-    ring = np.concatenate([st.ring[keep], orr[tk]])
+    keep[ops.start[take][g] + (ops.first[take][g] + j) % ops.cnt[take][g]] = False
+    tk = take[ops.made[take]]
+    g1 = ops.start[tk] + (ops.first[tk] - 1) % ops.cnt[tk]
+    key = np.concatenate([lay.local[keep].astype(float), lay.local[g1] + 0.5])
+    ring = np.concatenate([st.ring[keep], ops.ring[tk]])
     o = np.lexsort((key, ring))
-    st.xy = np.concatenate([xy[keep], new[tk]])[o]
+    st.xy = np.concatenate([xy[keep], ops.new[tk]])[o]
     st.ring = ring[o]
     st.orig = np.concatenate([st.orig[keep], np.full(len(tk), -1)])[o]
-    st.opos = np.concatenate([st.opos[keep], pos])[o]
+    st.opos = np.concatenate([st.opos[keep], split[tk]])[o]
     st.pin = np.concatenate([st.pin[keep], np.zeros(len(tk), dtype=bool)])[o]
     _drop_duplicates(st)
-    return again
 
 
 def _drop_duplicates(st: _Rings) -> None:
@@ -447,6 +502,22 @@ def _verdict(
     return empty | invalid | area, why
 
 
+@dataclass(frozen=True)
+class _Footprints:
+    """The input taken apart: cleaned MultiPolygons, their polygons, rings and vertices (closing ones left out)."""
+
+    original: np.ndarray  # per footprint: repeated points removed, exteriors counter-clockwise (the fallback)
+    poly_owner: np.ndarray  # per polygon: its footprint
+    ring_poly: np.ndarray  # per ring: its polygon
+    ring_owner: np.ndarray  # per ring: its footprint
+    ring_cnt: np.ndarray  # per ring: its vertices
+    coords: np.ndarray  # (v, 2) every ring's vertices
+    coord_ring: np.ndarray  # per vertex: its ring
+    n_in: np.ndarray  # per footprint: its vertices
+    area_in: np.ndarray
+    valid_in: np.ndarray
+
+
 def simplify_footprints(
     geoms: np.ndarray, tolerance: float | np.ndarray, *, max_area_change: float = 0.1, fixed: np.ndarray | None = None
 ) -> Simplified:
@@ -469,7 +540,50 @@ def simplify_footprints(
         if fixed.shape != (n,):
             raise ValueError("fixed needs one entry (geometry or None) per footprint")
 
-    # Input: repeated points removed, exteriors counter-clockwise, as MultiPolygons (also the fallback).
+    fp = _decompose(geoms)
+    work = ~missing & fp.valid_in & (tol > 0)
+    st, used, poly_origin, n_dropped = _working_rings(fp, tol, work, fixed)
+    todo = np.ones(len(used), dtype=bool)
+    for _ in range(MAX_PASSES):
+        todo = _sester_brenner_pass(st, todo)
+        if not todo.any():
+            break
+    _remove_unimportant(st)
+    result, n_out, changed = _rebuild(fp, st, used, poly_origin, work, n_dropped)
+
+    area_out = shapely.area(result)
+    failed, why = _verdict(changed, result, fp.area_in, area_out, max_area_change)
+    original = fp.original
+    result[failed], area_out[failed], n_out[failed] = original[failed], fp.area_in[failed], fp.n_in[failed]
+    status = np.full(n, "unchanged", dtype=object)
+    ok = changed & ~failed
+    status[ok] = "simplified"
+    status[failed] = "kept_original: " + why[failed]
+    notes = ok & (n_dropped > 0)
+    dropped_txt = n_dropped[notes].astype(str).astype(object)
+    status[notes] = status[notes] + "; dropped " + dropped_txt + " holes below tolerance²"
+    bad_in = np.flatnonzero(~missing & ~fp.valid_in)
+    status[bad_in] = "kept_original: invalid input: " + shapely.is_valid_reason(original[bad_in]).astype(object)
+
+    hausdorff = np.zeros(n)
+    if ok.any():
+        hausdorff[ok] = shapely.hausdorff_distance(
+            shapely.boundary(original[ok]), shapely.boundary(result[ok]), densify=0.25
+        )
+    return Simplified(
+        geoms=result,
+        n_vertices_in=fp.n_in,
+        n_vertices_out=n_out,
+        area_in=fp.area_in,
+        area_out=area_out,
+        hausdorff=hausdorff,
+        status=status,
+    )
+
+
+def _decompose(geoms: np.ndarray) -> _Footprints:
+    """Repeated points removed, exteriors counter-clockwise, as MultiPolygons, and taken apart into rings."""
+    n = len(geoms)
     clean = shapely.orient_polygons(shapely.remove_repeated_points(geoms), exterior_cw=False)
     polys, poly_owner = shapely.get_parts(clean, return_index=True)
     solid = ~shapely.is_empty(polys)
@@ -479,22 +593,42 @@ def simplify_footprints(
     shapely.multipolygons(polys, indices=poly_owner, out=original)
     rings, ring_poly = shapely.get_rings(polys, return_index=True)
     coords, coord_ring = shapely.get_coordinates(rings, return_index=True)
-    n_rings = len(rings)
-    ring_cnt = np.bincount(coord_ring, minlength=n_rings) - 1  # closing vertex not counted
+    ring_cnt = np.bincount(coord_ring, minlength=len(rings)) - 1  # closing vertex not counted
     not_closing = np.ones(len(coords), dtype=bool)
     not_closing[np.cumsum(ring_cnt + 1) - 1] = False
     coords, coord_ring = coords[not_closing], coord_ring[not_closing]
     ring_owner = poly_owner[ring_poly]
-    n_in = np.bincount(ring_owner, weights=ring_cnt, minlength=n).astype(np.int64)
-    area_in = shapely.area(original)
-    valid_in = shapely.is_valid(original)
-    work = ~missing & valid_in & (tol > 0)
+    return _Footprints(
+        original=original,
+        poly_owner=poly_owner,
+        ring_poly=ring_poly,
+        ring_owner=ring_owner,
+        ring_cnt=ring_cnt,
+        coords=coords,
+        coord_ring=coord_ring,
+        n_in=np.bincount(ring_owner, weights=ring_cnt, minlength=n).astype(np.int64),
+        area_in=shapely.area(original),
+        valid_in=shapely.is_valid(original),
+    )
 
-    # Rings to simplify, relative to their polygon's first vertex; holes below tolerance² go.
+
+def _working_rings(
+    fp: _Footprints, tol: np.ndarray, work: np.ndarray, fixed: np.ndarray | None
+) -> tuple[_Rings, np.ndarray, np.ndarray, np.ndarray]:
+    """(the rings to simplify, relative to their polygon's first vertex; which input rings they are; each
+    polygon's origin; holes dropped per footprint). Holes below tolerance² go."""
+    n, n_rings = len(work), len(fp.ring_cnt)
+    coords, coord_ring, ring_cnt, ring_poly, ring_owner = (
+        fp.coords,
+        fp.coord_ring,
+        fp.ring_cnt,
+        fp.ring_poly,
+        fp.ring_owner,
+    )
     ring_first = np.cumsum(ring_cnt) - ring_cnt
     is_hole = np.ones(n_rings, dtype=bool)
     is_hole[np.unique(ring_poly, return_index=True)[1]] = False  # a polygon's first ring is its exterior
-    poly_origin = np.zeros((len(polys), 2))
+    poly_origin = np.zeros((len(fp.poly_owner), 2))
     poly_origin[ring_poly[~is_hole]] = coords[ring_first[~is_hole]]
     rel = coords - poly_origin[ring_poly[coord_ring]]
     nxt_rel = rel[
@@ -532,59 +666,34 @@ def simplify_footprints(
         orig_off=orig_off,
         orig_n=orig_n,
     )
+    return st, used, poly_origin, n_dropped
 
-    todo = np.ones(len(used), dtype=bool)
-    for _ in range(MAX_PASSES):
-        todo = _sester_brenner_pass(st, todo)
-        if not todo.any():
-            break
-    _remove_unimportant(st)
 
-    # Rings back to absolute coordinates: original vertices exactly as they came, made ones shifted back.
+def _rebuild(
+    fp: _Footprints, st: _Rings, used: np.ndarray, poly_origin: np.ndarray, work: np.ndarray, n_dropped: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(footprints with the simplified rings, vertices per footprint, which changed). Rings go back to absolute
+    coordinates: original vertices exactly as they came, made ones shifted back."""
+    n = len(work)
+    ring_owner = fp.ring_owner
+    orig_n = fp.ring_cnt[used]
     out_cnt = np.bincount(st.ring, minlength=len(used))
     made = np.bincount(st.ring, weights=st.orig < 0, minlength=len(used)) > 0
     ring_changed = (out_cnt != orig_n) | made
     changed = work & ((np.bincount(ring_owner[used], weights=ring_changed, minlength=n) > 0) | (n_dropped > 0))
     absxy = np.where(
-        (st.orig >= 0)[:, None], coords[np.maximum(st.orig, 0)], st.xy + poly_origin[ring_poly[used]][st.ring]
+        (st.orig >= 0)[:, None], fp.coords[np.maximum(st.orig, 0)], st.xy + poly_origin[fp.ring_poly[used]][st.ring]
     )
-    result = original.copy()
+    result = fp.original.copy()
     rebuild = changed[ring_owner[used]]  # every kept ring of a changed footprint
     if rebuild.any():
         rr = np.flatnonzero(rebuild)
         rows = rebuild[st.ring]
         new_rings = shapely.linearrings(absxy[rows], indices=np.searchsorted(rr, st.ring[rows]))
-        rpoly = ring_poly[used[rr]]
+        rpoly = fp.ring_poly[used[rr]]
         upoly, pidx = np.unique(rpoly, return_inverse=True)
         new_polys = shapely.polygons(new_rings, indices=pidx)
-        shapely.multipolygons(new_polys, indices=poly_owner[upoly], out=result)
-    area_out = shapely.area(result)
-    n_out = n_in.copy()
+        shapely.multipolygons(new_polys, indices=fp.poly_owner[upoly], out=result)
+    n_out = fp.n_in.copy()
     n_out[changed] = np.bincount(ring_owner[used], weights=out_cnt, minlength=n).astype(np.int64)[changed]
-
-    failed, why = _verdict(changed, result, area_in, area_out, max_area_change)
-    result[failed], area_out[failed], n_out[failed] = original[failed], area_in[failed], n_in[failed]
-    status = np.full(n, "unchanged", dtype=object)
-    ok = changed & ~failed
-    status[ok] = "simplified"
-    status[failed] = "kept_original: " + why[failed]
-    notes = ok & (n_dropped > 0)
-    dropped_txt = n_dropped[notes].astype(str).astype(object)
-    status[notes] = status[notes] + "; dropped " + dropped_txt + " holes below tolerance²"
-    bad_in = np.flatnonzero(~missing & ~valid_in)
-    status[bad_in] = "kept_original: invalid input: " + shapely.is_valid_reason(original[bad_in]).astype(object)
-
-    hausdorff = np.zeros(n)
-    if ok.any():
-        hausdorff[ok] = shapely.hausdorff_distance(
-            shapely.boundary(original[ok]), shapely.boundary(result[ok]), densify=0.25
-        )
-    return Simplified(
-        geoms=result,
-        n_vertices_in=n_in,
-        n_vertices_out=n_out,
-        area_in=area_in,
-        area_out=area_out,
-        hausdorff=hausdorff,
-        status=status,
-    )
+    return result, n_out, changed

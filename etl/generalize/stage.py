@@ -61,7 +61,7 @@ import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, LiteralString
 
 import numpy as np
 import psycopg
@@ -82,7 +82,7 @@ from core.workers import Lost, imap_isolated, worker_count
 from etl.generalize.decimate import decimate
 from etl.generalize.hausdorff import hausdorff, outline_hausdorff
 from etl.generalize.simplify import PIN_DISTANCE, simplify_footprints
-from etl.geom.extrude import extrude
+from etl.geom.extrude import Extrusion, extrude
 from etl.geom.facade import FacadeParams
 
 BATCH = 2000  # rows per fetch of the blocks' cursors
@@ -148,7 +148,7 @@ def _triangles(wkbs: list[bytes], owners: list[int]) -> tuple[np.ndarray, np.nda
     return (np.concatenate(tris) if tris else np.zeros((0, 3, 3)), np.repeat(np.asarray(owners, np.int64), counts))
 
 
-def _solids(footprints: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> tuple[object, np.ndarray]:
+def _solids(footprints: np.ndarray, bottom: np.ndarray, top: np.ndarray) -> tuple[Extrusion, np.ndarray]:
     """Extrude; a footprint whose caps cannot be triangulated falls back to its minimum rotated rectangle."""
     ex = extrude(footprints, bottom, top)
     bad = ~ex.ok
@@ -305,7 +305,7 @@ def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, m
     stats = {"features": len(rows), "decimated": 0, "triangles_in": 0, "triangles_out": 0, "max_error_m": 0.0}
     step = np.array([OPENING_DEPTH if r["openings"] else 0.0 for r in rows])
     big = [k for k, r in enumerate(rows) if r["mesh"] is not None]
-    done: dict[int, tuple[bytes, bytes, int, float, str]] = {}
+    done: dict[int, tuple[bytes | None, bytes | None, int, float, str]] = {}
     if big:
         tri, own = _triangles([rows[k]["mesh"] for k in big], list(range(len(big))))
         d = decimate(tri, own, len(big), reduction, min_triangles=min_triangles, max_error=tol, spacing=tol / 4)
@@ -314,11 +314,11 @@ def decimation_batch(rows: list[dict[str, Any]], tol: float, reduction: float, m
         wkbs = encode_triangles_batch(d.triangles, offsets, srid)
         for j, k in enumerate(big):
             if not d.decimated[j]:
-                done[k] = (None, None, 0, 0.0, str(d.status[j]))  # type: ignore[assignment]
+                done[k] = (None, None, 0, 0.0, str(d.status[j]))
                 continue
             # a decimated surface has no per-triangle semantics of its own
-            sem = _facing(d.triangles[offsets[j] : offsets[j + 1]])
-            done[k] = (wkbs[j], sem, int(counts[j]), float(d.error[j]), "decimated")
+            facing = _facing(d.triangles[offsets[j] : offsets[j + 1]])
+            done[k] = (wkbs[j], facing, int(counts[j]), float(d.error[j]), "decimated")
             stats["decimated"] += 1
             stats["max_error_m"] = max(stats["max_error_m"], float(d.error[j]))
     out = _Out(stats=stats)
@@ -392,7 +392,7 @@ class _Units:
         return 2 if self.step == "footprints" else 3
 
 
-def _unit_rows(src: psycopg.Cursor, size: int) -> Iterator[tuple[Unit, list[dict[str, Any]]]]:
+def _unit_rows(src: psycopg.Cursor[dict[str, Any]], size: int) -> Iterator[tuple[Unit, list[dict[str, Any]]]]:
     """The rows of a cursor ordered by batch unit (gen.batch_units), one unit at a time."""
     rows = itertools.chain.from_iterable(iter(lambda: src.fetchmany(size), []))
     for unit, group in itertools.groupby(rows, key=lambda r: (r["unit_level"], r["unit_x"], r["unit_y"])):
@@ -456,7 +456,7 @@ def _plan(
 
 
 def _todo_rows(
-    src: psycopg.Cursor, todo: dict[Unit, str], ids: dict[Unit, list[int]], key: str, size: int
+    src: psycopg.Cursor[dict[str, Any]], todo: dict[Unit, str], ids: dict[Unit, list[int]], key: str, size: int
 ) -> Iterator[tuple[Unit, str, list[dict[str, Any]]]]:
     """(unit, its fingerprint, its rows) of the units to compute, from a cursor over their input; checked against
     the ids their digests were made from."""
@@ -564,7 +564,7 @@ def _footprints(
                     f"kept_original: generalize {out.reason} (its batch of {len(rows)} buildings: {out.detail})",
                 )
                 stats["lost"] += len(rows)
-                print_ = None  # type: ignore[assignment]  # never kept: computed again next time
+                print_ = None  # never kept: computed again next time
             _copy(cur, out, replace=kept is not None)
             _add(stats, out.stats)
             units.records.append((units.step, *unit, print_, len(rows), Jsonb(out.stats)))
@@ -640,7 +640,7 @@ def _decimation(
                 out = decimation_batch(lost, *args)
                 out.meshes = [(*m[:-1], detail) for m in out.meshes]
                 stats["lost"] += len(rows)
-                print_ = None  # type: ignore[assignment]
+                print_ = None
             _copy(cur, out, replace=kept is not None)
             _add(stats, out.stats)
             units.records.append((units.step, *unit, print_, len(rows), Jsonb(out.stats)))
@@ -722,8 +722,11 @@ def _block_tiles(cur: psycopg.Cursor, reuse: _BlockReuse, tiles: list[Unit]) -> 
 
 def _keep_blocks(reuse: _BlockReuse, tiles: list[Unit], stats: dict[str, float]) -> None:
     """The figures the last run counted for the blocks of the kept tiles, which stay in gen.block as made."""
+    if not tiles:
+        return
+    assert reuse.kept is not None  # only an update keeps tiles
     for t in tiles:
-        print_, n, figures = reuse.kept[("blocks", t)]  # type: ignore[index]
+        print_, n, figures = reuse.kept[("blocks", t)]
         _add(stats, figures)
         reuse.units.kept.append((t, (print_, n, figures)))
         reuse.units.records.append(("blocks", *t, print_, n, Jsonb(figures)))
@@ -826,19 +829,7 @@ def _blocks(
         _keep_blocks(reuse, keep, stats)
         reuse.made += make
         lvs, xs, ys = ([t[i] for t in make] for i in range(3))
-        # the blocks of the tiles made again: a cluster made of the same inputs keeps its block, not made again
-        skip = (
-            None
-            if reuse.kept is None or not make
-            else [
-                d
-                for (d,) in cur.execute(
-                    "SELECT input_digest FROM gen.block WHERE input_digest IS NOT NULL "
-                    "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
-                    (lvs, xs, ys),
-                )
-            ]
-        )
+        skip = _kept_clusters(cur, reuse, make)
         if coarse is None:
             src.execute(
                 "SELECT * FROM gen.block_clusters(%s::int2[], %s::int4[], %s::int4[], %s, %s::text[])",
@@ -856,55 +847,84 @@ def _blocks(
             itertools.chain.from_iterable(iter(lambda: src.fetchmany(BATCH), [])),
             key=lambda r: (int(r["level"]), int(r["x"]), int(r["y"])),
         ):
-            everything = list(tile_rows)
-            rows = [r for r in everything if r["merged"] is not None]
-            same = [r["input_digest"] for r in everything if r["merged"] is None]  # in skip: kept
-            if reuse.kept is not None:
-                # the tile's other blocks go, and any stale one (of a tile not reached yet) whose id a new block
-                # takes: its smallest member moved here
-                cur.execute(
-                    "DELETE FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
-                    "AND (input_digest IS NULL OR NOT input_digest = ANY(%s))",
-                    (*tile, same),
-                )
-                cur.execute("DELETE FROM gen.block WHERE block_id = ANY(%s)", (block_ids(rows),))
-            errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
-            reuse.written += len(rows)
-            if same:
-                # as made: omitted for its band alone, its own error (not the omission on tile error's)
-                got = cur.execute(
-                    "SELECT omitted, error_m, n_members FROM gen.block_as_made WHERE (level, x, y) = "
-                    "(%s, %s, %s) AND input_digest = ANY(%s)",
-                    (*tile, same),
-                ).fetchall()
-                if len(got) != len(same):
-                    raise RuntimeError(f"tile {tile}: {len(same)} kept blocks, {len(got)} found")
-                omits += [bool(o) for o, _, _ in got]
-                errs += [float(np.float32(e)) for _, e, _ in got]  # a real read as text: its float32 again
-                n_members += sum(int(k) for _, _, k in got)
-                reuse.blocks_kept += len(got)
-            figures = {
-                "blocks": len(omits),
-                "omitted": sum(omits),
-                "members": n_members,
-                "max_error_m": max(errs, default=0.0),
-            }
+            figures = _block_tile(cur, tile, list(tile_rows), settings, srid, reuse)
             _add(stats, figures)
-            reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), len(omits), Jsonb(figures)))
+            reuse.units.records.append(("blocks", *tile, reuse.digests.get(tile), figures["blocks"], Jsonb(figures)))
             made.add(tile)
-            progress.update(len(omits))
-        # tiles that made no block (every building below a landmark) have their row too, and none of their old
-        # blocks
-        empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
-        gone = [t for t in make if t not in made]
-        reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty)) for t in gone]
-        if gone and reuse.kept is not None:
-            cur.execute(
-                "DELETE FROM gen.block WHERE (level, x, y) IN "
-                "(SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
-                ([t[0] for t in gone], [t[1] for t in gone], [t[2] for t in gone]),
-            )
+            progress.update(int(figures["blocks"]))
+        _no_blocks(cur, reuse, [t for t in make if t not in made])
     return stats
+
+
+def _kept_clusters(cur: psycopg.Cursor, reuse: _BlockReuse, make: list[Unit]) -> list[str] | None:
+    """In an update, the input digests of the blocks of the tiles made again: a cluster made of the same inputs
+    keeps its block, not made again."""
+    if reuse.kept is None or not make:
+        return None
+    return [
+        d
+        for (d,) in cur.execute(
+            "SELECT input_digest FROM gen.block WHERE input_digest IS NOT NULL "
+            "AND (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+            ([t[0] for t in make], [t[1] for t in make], [t[2] for t in make]),
+        )
+    ]
+
+
+def _block_tile(
+    cur: psycopg.Cursor,
+    tile: Unit,
+    everything: list[dict[str, Any]],
+    settings: Settings,
+    srid: int,
+    reuse: _BlockReuse,
+) -> dict[str, float]:
+    """One tile's blocks made (its clusters with a merged outline) or kept (those in the skip list), and the
+    tile's figures."""
+    rows = [r for r in everything if r["merged"] is not None]
+    same = [r["input_digest"] for r in everything if r["merged"] is None]  # in skip: kept
+    if reuse.kept is not None:
+        # the tile's other blocks go, and any stale one (of a tile not reached yet) whose id a new block
+        # takes: its smallest member moved here
+        cur.execute(
+            "DELETE FROM gen.block WHERE (level, x, y) = (%s, %s, %s) "
+            "AND (input_digest IS NULL OR NOT input_digest = ANY(%s))",
+            (*tile, same),
+        )
+        cur.execute("DELETE FROM gen.block WHERE block_id = ANY(%s)", (block_ids(rows),))
+    errs, omits, n_members = _make_blocks(cur, rows, settings, srid)
+    reuse.written += len(rows)
+    if same:
+        # as made: omitted for its band alone, its own error (not the omission on tile error's)
+        got = cur.execute(
+            "SELECT omitted, error_m, n_members FROM gen.block_as_made WHERE (level, x, y) = "
+            "(%s, %s, %s) AND input_digest = ANY(%s)",
+            (*tile, same),
+        ).fetchall()
+        if len(got) != len(same):
+            raise RuntimeError(f"tile {tile}: {len(same)} kept blocks, {len(got)} found")
+        omits += [bool(o) for o, _, _ in got]
+        errs += [float(np.float32(e)) for _, e, _ in got]  # a real read as text: its float32 again
+        n_members += sum(int(k) for _, _, k in got)
+        reuse.blocks_kept += len(got)
+    return {
+        "blocks": len(omits),
+        "omitted": sum(omits),
+        "members": n_members,
+        "max_error_m": max(errs, default=0.0),
+    }
+
+
+def _no_blocks(cur: psycopg.Cursor, reuse: _BlockReuse, gone: list[Unit]) -> None:
+    """Tiles that made no block (every building below a landmark) have their row too, and none of their old
+    blocks."""
+    empty = {"blocks": 0, "omitted": 0, "members": 0, "max_error_m": 0.0}
+    reuse.units.records += [("blocks", *t, reuse.digests.get(t), 0, Jsonb(empty)) for t in gone]
+    if gone and reuse.kept is not None:
+        cur.execute(
+            "DELETE FROM gen.block WHERE (level, x, y) IN (SELECT * FROM unnest(%s::int2[], %s::int4[], %s::int4[]))",
+            ([t[0] for t in gone], [t[1] for t in gone], [t[2] for t in gone]),
+        )
 
 
 def coarse_blocks(
@@ -913,7 +933,7 @@ def coarse_blocks(
     srid: int,
     reuse: _BlockReuse | None = None,
     max_level: int | None = None,
-) -> dict[str, float]:
+) -> dict[str, dict[int, int]]:
     """The coarser bands (gen_level < 0; only tiles at levels <= ``max_level`` if given), finest band and
     deepest level first: each tile is built from its children's content (the top tiles share band -4, so a
     band runs level by level). Returns the blocks and the omitted ones of each band ({"coarse_blocks": {g: n},
@@ -930,7 +950,7 @@ def coarse_blocks(
         st = _blocks(conn, settings, srid, Progress("generalize", f"blocks {g} (level {lv})"), reuse, (g, lv))
         out[g] = out.get(g, 0) + int(st["blocks"])
         omitted[g] = omitted.get(g, 0) + int(st["omitted"])
-    return {"coarse_blocks": out, "coarse_omitted": omitted}  # type: ignore[dict-item]
+    return {"coarse_blocks": out, "coarse_omitted": omitted}
 
 
 def store_boxes(cur: psycopg.Cursor) -> None:
@@ -960,43 +980,87 @@ def _kept(conn: psycopg.Connection) -> Kept:
     }
 
 
+def _scalar(conn: psycopg.Connection | psycopg.Cursor, query: LiteralString, params: tuple[Any, ...] = ()) -> Any:
+    """The first column of the one row ``query`` returns."""
+    row = conn.execute(query, params).fetchone()
+    assert row is not None
+    return row[0]
+
+
+def _clear(cur: psycopg.Cursor, kept: Kept | None) -> None:
+    """What the run writes again: every row in a full run; in an update the blocks of tiles no longer in a block
+    band (the rest is replaced batch by batch). Not TRUNCATE: its lock would make every reader of these tables
+    wait for the stage (seconds to minutes), and a reader's older snapshot would find them empty; deleted rows
+    stay theirs until the commit."""
+    if kept is None:
+        cur.execute("DELETE FROM gen.block; DELETE FROM gen.building_mesh; DELETE FROM gen.footprint")
+    else:
+        # an update writes only what changed: the buildings each step has are noted here (_drop_unseen)
+        cur.execute("CREATE TEMP TABLE _gen_seen (building_id bigint) ON COMMIT DROP")
+        # The other tiles' omissions on tile error stay as the last run left them: what reads a block until the
+        # hierarchy decides them again reads it as made (gen.block_as_made), and tiles.omit_within_error writes
+        # the blocks whose omission changed (an update wrote every such block twice, back as made and omitted
+        # again)
+        cur.execute(
+            "DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
+            "AND (t.gen_level IS NULL OR t.gen_level > 1)"
+        )
+    cur.execute("DELETE FROM gen.unit_input")
+
+
+def _hierarchy(
+    conn: psycopg.Connection, cur: psycopg.Cursor, settings: Settings, since: set[Unit] | None, own: Changes
+) -> tuple[list[Unit], int]:
+    """The tile hierarchy finished (every tile, or those ``since`` and this run's changes reach) with the
+    omissions within tile error and the tiles' boxes: (the tiles measured again, blocks omitted on error)."""
+    scope: list[Unit] = []
+    if since is None:
+        cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
+    else:
+        scope = sorted(since | reach(conn, own))
+        cur.execute(
+            "CALL tiles.finish_hierarchy(%(base)s, %(levels)s, %(xs)s, %(ys)s)",
+            {"base": settings.base_height_m, **tile_arrays(scope)},
+        )
+    omitted = int(_scalar(cur, "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error"))
+    store_boxes(cur)
+    return scope, omitted
+
+
+def _balance(cur: psycopg.Cursor, n_groups: int) -> Balance:
+    """Every building (an outline with its parts) has its generalized footprint and solid; before commit."""
+    row = cur.execute(
+        """SELECT count(*) FILTER (WHERE f.status LIKE 'simplified%%'),
+                  count(*) FILTER (WHERE f.status NOT LIKE 'simplified%%')
+           FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id AND m.gen_level = 2
+        """
+    ).fetchone()
+    assert row is not None
+    return Balance("buildings", n_groups, {"simplified": row[0], "left as mapped": row[1]})
+
+
 def run(ctx: Context) -> Result:
     """Generalize every tile; in an update, the rows of the batches and block tiles whose input did not change
     stay as they are, and only the others are computed and written again; when it knows what changed since the
     last run (``ctx.changed``), the hierarchy of the tiles that reaches alone is measured again, with those this
     run changed."""
-    conn, url, settings, keep, code = ctx.conn, ctx.url, ctx.settings, ctx.update, ctx.code
+    conn, url, settings, keep = ctx.conn, ctx.url, ctx.settings, ctx.update
     t0 = time.perf_counter()
     since = reach(conn, ctx.changed) if keep and ctx.changed is not None else None
     srid = working_srid(conn)
-    if not conn.execute("SELECT EXISTS (SELECT 1 FROM tiles.tile)").fetchone()[0]:  # type: ignore[index]
+    if not _scalar(conn, "SELECT EXISTS (SELECT 1 FROM tiles.tile)"):
         raise RuntimeError("no tiles: run the tiles stage first (make tiles)")
-    tol = {g: float(conn.execute("SELECT gen.tolerance(%s)", (g,)).fetchone()[0]) for g in range(5)}  # type: ignore[index]
+    tol = {g: float(_scalar(conn, "SELECT gen.tolerance(%s)", (g,))) for g in range(5)}
     seconds: dict[str, float] = {}
-    n_groups = conn.execute("SELECT count(DISTINCT group_id) FROM tiles.building_tile").fetchone()[0]  # type: ignore[index]
+    n_groups = int(_scalar(conn, "SELECT count(DISTINCT group_id) FROM tiles.building_tile"))
     if settings.gen_batch_features < 1:
         raise ValueError("gen_batch_features must be at least 1")
-    seed = _seed(settings, code, srid, tol)
+    seed = _seed(settings, ctx.code, srid, tol)
     kept = _kept(conn) if keep else None
     with connect(url) as reader, conn.transaction(), conn.cursor() as cur:
         # the inputs are read whole: plan for all rows, not the fast-start plans cursors get by default
         reader.execute("SET cursor_tuple_fraction = 1.0")
-        # not TRUNCATE: its lock would make every reader of these tables wait for the stage (seconds to minutes),
-        # and a reader's older snapshot would find them empty; deleted rows stay theirs until the commit
-        if kept is None:
-            cur.execute("DELETE FROM gen.block; DELETE FROM gen.building_mesh; DELETE FROM gen.footprint")
-        else:
-            # an update writes only what changed: the buildings each step has are noted here (_drop_unseen)
-            cur.execute("CREATE TEMP TABLE _gen_seen (building_id bigint) ON COMMIT DROP")
-            # the blocks of tiles no longer in a block band. The others' omissions on tile error stay as the last
-            # run left them: what reads a block until the hierarchy decides them again reads it as made
-            # (gen.block_as_made), and tiles.omit_within_error writes the blocks whose omission
-            # changed (an update wrote every such block twice, back as made and omitted again)
-            cur.execute(
-                "DELETE FROM gen.block k USING tiles.tile t WHERE (t.level, t.x, t.y) = (k.level, k.x, k.y) "
-                "AND (t.gen_level IS NULL OR t.gen_level > 1)"
-            )
-        cur.execute("DELETE FROM gen.unit_input")
+        _clear(cur, kept)
         step = time.perf_counter()
         # the decimation's digests computed meanwhile
         with thread_map(url, _decimation_digests, [settings], 1) as dec_digests:
@@ -1015,7 +1079,7 @@ def run(ctx: Context) -> Result:
         analyze(cur, "gen.footprint", n_fp if keep else None)
         analyze(cur, "gen.building_mesh", n_fp + n_dec if keep else None)
         reuse = _BlockReuse(block_digests(conn, seed), kept, seed=seed)
-        blk = _blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse)
+        blk: dict[str, object] = {**_blocks(conn, settings, srid, Progress("generalize", "blocks"), reuse)}
         blk.update(coarse_blocks(conn, settings, srid, reuse))
         with cur.copy("COPY gen.unit_input (step, level, x, y, fingerprint, n_rows, stats) FROM STDIN") as copy:
             for row in fp_units.records + dec_units.records + reuse.units.records:
@@ -1023,29 +1087,10 @@ def run(ctx: Context) -> Result:
         seconds["blocks"] = time.perf_counter() - step
         step = time.perf_counter()
         own = Changes(fp_units.computed + dec_units.computed, reuse.made)
-        scope: list[Unit] = []
-        if since is None:
-            cur.execute("CALL tiles.finish_hierarchy(%s)", (settings.base_height_m,))  # omits within tile error too
-        else:
-            scope = sorted(since | reach(conn, own))
-            cur.execute(
-                "CALL tiles.finish_hierarchy(%(base)s, %(levels)s, %(xs)s, %(ys)s)",
-                {"base": settings.base_height_m, **tile_arrays(scope)},
-            )
-        blk["omitted_within_tile_error"] = cur.execute(
-            "SELECT count(*) FROM gen.block_as_made WHERE omitted_on_error"
-        ).fetchone()[0]  # type: ignore[index]
-        store_boxes(cur)
+        scope, blk["omitted_within_tile_error"] = _hierarchy(conn, cur, settings, since, own)
         seconds["hierarchy"] = time.perf_counter() - step
         bands = conn.cursor(row_factory=dict_row).execute("SELECT * FROM tiles.band_summary()").fetchall()
-        # every building (an outline with its parts) has its generalized footprint and solid; before commit
-        simplified, as_mapped = cur.execute(
-            """SELECT count(*) FILTER (WHERE f.status LIKE 'simplified%%'),
-                      count(*) FILTER (WHERE f.status NOT LIKE 'simplified%%')
-               FROM gen.footprint f JOIN gen.building_mesh m ON m.building_id = f.building_id AND m.gen_level = 2
-            """
-        ).fetchone()  # type: ignore[misc]
-        balance = Balance("buildings", int(n_groups), {"simplified": simplified, "left as mapped": as_mapped})
+        balance = _balance(cur, n_groups)
         # gen.footprint and gen.building_mesh were analyzed once written, before the blocks
         analyze(cur, "gen.block", reuse.written if keep else None)
     wall = time.perf_counter() - t0
@@ -1074,18 +1119,16 @@ def run(ctx: Context) -> Result:
         "seconds_by_step": {k: round(v, 3) for k, v in seconds.items()},
         "hierarchy_tiles": None if since is None else len(scope),  # measured again (None: every tile)
     }
+    kept_note = (
+        f"; footprint batches kept {len(fp_units.kept):,} of {len(fp_units.records):,}, decimation "
+        f"{len(dec_units.kept):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.kept):,} of "
+        f"{len(reuse.units.records):,} (and {reuse.blocks_kept:,} blocks of the others)"
+    )
     summary(
         "generalize",
         balance,
         f"footprint vertices {fp['vertices_in']:,} -> {fp['vertices_out']:,}, {dec['decimated']:,} LOD2 meshes "
-        f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings"
-        + (
-            f"; footprint batches kept {len(fp_units.kept):,} of {len(fp_units.records):,}, decimation "
-            f"{len(dec_units.kept):,} of {len(dec_units.records):,}, block tiles {len(reuse.units.kept):,} of "
-            f"{len(reuse.units.records):,} (and {reuse.blocks_kept:,} blocks of the others)"
-            if keep
-            else ""
-        ),
+        f"decimated, {blk['blocks']:,} blocks of {blk['members']:,} buildings" + (kept_note if keep else ""),
         wall,
         n_groups,
     )
