@@ -113,8 +113,8 @@ demo: ## everything on Helsinki: install, database, every stage not yet current 
 
 # --- quality ---------------------------------------------------------------------------------------------------
 # make test needs no data but what it fetches (Helsinki) or writes (tests/fixtures): the same tests everywhere.
-test: setup-test data/Helsinki.osm.pbf ## every test but the extract tier (ruff, unit, real PostGIS, validators, CesiumJS)
-	$(PY) -m ruff check core etl exporter tests benchmarks
+test: setup-test data/Helsinki.osm.pbf ## every test but the extract tier (lint, unit, real PostGIS, validators, CesiumJS)
+	$(MAKE) lint
 	$(PY) -m pytest tests -m "not extracts"
 
 test-extracts: setup-test data/Helsinki.osm.pbf ## the tests on the shared OSM extracts (../shared/data/osm or CITYLOD_SHARED_DATA)
@@ -123,8 +123,11 @@ test-extracts: setup-test data/Helsinki.osm.pbf ## the tests on the shared OSM e
 test-unit: $(SETUP_REPORTS) $(SETUP_NODE) ## only the pure tests (no database, no browser; the glTF-Validator is an npm tool)
 	$(PY) -m pytest tests -m "not db"
 
-lint: $(SETUP_PY) ## ruff
-	$(PY) -m ruff check core etl exporter tests benchmarks
+LINTED = core etl exporter tests benchmarks scripts
+lint: $(SETUP_PY) ## ruff (rules, size and complexity), ruff format --check, mypy over core, etl and exporter
+	$(PY) -m ruff check $(LINTED)
+	$(PY) -m ruff format --check $(LINTED)
+	$(PY) -m mypy core etl exporter
 
 bench: setup ## measure stages on ../shared/data/osm, side by side with osm2pgsql, the server, the soak; writes BENCHMARKS.md [SCALE_STAGES=json of bench-scale]
 	scripts/install-system.sh bench

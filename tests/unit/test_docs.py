@@ -111,20 +111,7 @@ def problems(
     doc: str, text: str, *, targets: set[str], commands: set[str], objects: set[str], words: set[str] | None = None
 ) -> list[str]:
     """What ``text`` (the document at repo path ``doc``) names that does not exist."""
-    out: list[str] = []
-    base = (REPO / doc).parent
-    for target in re.findall(r"\]\(([^)\s]+)\)", text):  # markdown links
-        if re.match(r"[a-z]+:", target) or target.startswith("#"):
-            continue
-        path = target.split("#")[0]
-        if path and not (base / path).exists():
-            out.append(f"{doc}: link to a missing file: {target}")
-    for token in re.findall(r"`([^`\n]+)`", text):
-        for word in token.split():
-            word = word.rstrip(".,;:)")
-            placeholder = re.search(r"[<>*…{}$|\[]", word)
-            if word.startswith(TRACKED_ROOTS) and not placeholder and not (REPO / word.split("#")[0]).exists():
-                out.append(f"{doc}: missing path: {word}")
+    out = path_problems(doc, text)
     code = "\n".join(re.findall(r"```.*?\n(.*?)```", text, re.S) + re.findall(r"`([^`\n]+)`", text))
     for target in re.findall(r"(?<![\w-])make ([a-z][\w-]*)", code):  # commands, not the verb in prose
         if target not in targets:
@@ -141,6 +128,25 @@ def problems(
     for name in re.findall(pattern, text):
         if name.rpartition(".")[2] not in FILE_SUFFIXES and name not in objects:
             out.append(f"{doc}: no such database object: {name}")
+    return out
+
+
+def path_problems(doc: str, text: str) -> list[str]:
+    """The links and backticked paths of ``text`` (the document at repo path ``doc``) to files that are not there."""
+    out: list[str] = []
+    base = (REPO / doc).parent
+    for target in re.findall(r"\]\(([^)\s]+)\)", text):  # markdown links
+        if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            continue
+        path = target.split("#")[0]
+        if path and not (base / path).exists():
+            out.append(f"{doc}: link to a missing file: {target}")
+    for token in re.findall(r"`([^`\n]+)`", text):
+        for word in token.split():
+            word = word.rstrip(".,;:)")
+            placeholder = re.search(r"[<>*…{}$|\[]", word)
+            if word.startswith(TRACKED_ROOTS) and not placeholder and not (REPO / word.split("#")[0]).exists():
+                out.append(f"{doc}: missing path: {word}")
     return out
 
 
