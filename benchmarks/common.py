@@ -21,8 +21,8 @@ from psycopg import sql
 from psycopg.conninfo import conninfo_to_dict
 
 from core.settings import REPO
+from tests.support.data import SHARED_OSM  # noqa: F401  (the benchmarks' import of it)
 
-SHARED_OSM = Path(os.environ.get("CITYLOD_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm"
 HEADLINE = "liechtenstein_2022-07-24"
 
 OUT_ROOT = REPO / "build" / "bench"

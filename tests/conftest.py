@@ -36,11 +36,11 @@ from psycopg import sql
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from benchmarks.common import SHARED_OSM  # noqa: E402
 from core import cluster  # noqa: E402
 from etl.fetch import DEMO_OSM  # noqa: E402
 from etl.migrate import migrate_and_reload  # noqa: E402
 from tests.fixtures.osm_fixtures import SPINE, write_all  # noqa: E402
+from tests.support.data import SHARED_OSM  # noqa: E402
 
 #: The shared test extracts (../shared/data/osm next to the clone; CITYLOD_SHARED_DATA overrides ../shared/data).
 #: No package registry has them, so only tests marked ``extracts`` may read them, through ``extract(name)``.

@@ -9,7 +9,6 @@ import numpy as np
 import psycopg
 import pytest
 
-from benchmarks.tileset_size import measure
 from core.geodesy import Y_UP_TO_Z_UP
 from core.settings import Settings
 from core.tiles3d import content_uris, expand
@@ -71,16 +70,6 @@ def parse_with_3d_tiles_tools(tiles) -> dict:
     )
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def test_tileset_size_benchmark_measures_what_export_writes(city) -> None:
-    """benchmarks/tileset_size.py (tile records -> bytes, no glb) gives the sizes of the files the export wrote."""
-    c = city("helsinki")
-    got = measure(c.url)
-    subtrees = list(c.tiles.rglob("*.subtree"))
-    assert got["implicit_tileset_json_bytes"] == (c.tiles / "tileset.json").stat().st_size
-    assert (got["subtrees"], got["subtree_bytes"]) == (len(subtrees), sum(p.stat().st_size for p in subtrees))
-    assert got["subtree_tiles"] == got["tiles"] and got["explicit_tileset_json_bytes"] > 0
 
 
 def test_implicit_and_explicit_tilings_share_every_glb(city, conn_of, tmp_path) -> None:

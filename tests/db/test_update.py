@@ -15,7 +15,6 @@ from pathlib import Path
 import psycopg
 import pytest
 
-from benchmarks.update_bench import TABLES, Reader, table_rows
 from core import changes
 from core.db import analyze
 from core.settings import Settings
@@ -24,6 +23,7 @@ from etl.ingest import stage as ingest
 from etl.update import osc as update
 from etl.update.osc import ChangeFileError, apply_changes, count_change, state_path
 from tests.conftest import City, run_etl
+from tests.support.equivalence import TABLES, Reader, table_rows
 
 
 def square(way: int, node: int, south: float, west: float, north: float, east: float, tags: str) -> str:

@@ -19,11 +19,11 @@ import osmium
 import psycopg
 import pytest
 
-from benchmarks.update_bench import differences, tileset_differences
 from core.settings import REPO
 from etl.update.osc import apply_changes
 from tests.conftest import helsinki, run_etl
 from tests.db.test_update import PIPELINE
+from tests.support.equivalence import differences, tileset_differences
 from tests.support.history import changes, fetch_history, read_history, split, states
 
 BEFORE = dt.datetime(2018, 11, 1, tzinfo=dt.UTC)

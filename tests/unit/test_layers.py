@@ -115,3 +115,16 @@ def test_the_checker_sees_a_cycle_and_an_upward_import(tmp_path) -> None:
     # the loop benchmarks/ had: bench -> report_textures -> view_bench -> bench
     loop = {"b.bench": {"b.report"}, "b.report": {"b.view", "b.bench"}, "b.view": {"b.bench"}, "core": set()}
     assert cycles(loop) == [["b.bench", "b.report", "b.bench"], ["b.bench", "b.report", "b.view", "b.bench"]]
+
+
+def test_no_product_test_imports_benchmarks() -> None:
+    # tests of the benchmark code itself are test_bench_*.py; the product's tests share tests/support instead
+    tests = {
+        ".".join(p.relative_to(REPO).with_suffix("").parts): p
+        for p in sorted((REPO / "tests").rglob("*.py"))
+        if not p.name.startswith("test_bench_")
+    }
+    bench = set(project_modules(REPO, ("benchmarks",)))
+    assert len(tests) > 50 and "benchmarks.update_bench" in bench
+    importing = sorted(f"{m} -> {b}" for m, p in tests.items() for b in module_imports(m, p, bench))
+    assert not importing, "product tests importing benchmarks/:\n" + "\n".join(importing)
