@@ -62,6 +62,7 @@ from benchmarks.common import (
 from core import cluster
 from core.settings import REPO, Settings
 from etl.fetch import DEMO_OSM
+from exporter import volumes
 
 # Liechtenstein first: it is the benchmark extract the headline figures quote.
 DEFAULT_EXTRACTS = (
@@ -182,6 +183,7 @@ class ExtractResult:
     textures: dict[str, Any] | None = None  # report_textures.measure
     stream: dict[str, Any] | None = None  # stream_bench.measure
     fidelity: dict[str, Any] | None = None  # fidelity_bench.measure
+    volumes: dict[str, Any] | None = None  # exporter.volumes.measure of the exported tileset
 
     @property
     def name(self) -> str:
@@ -267,6 +269,10 @@ def bench_extract(
         rows = conn.execute("SELECT kind, count(*) FROM buildings GROUP BY kind").fetchall()
     res.o2p_rows = {k: int(n) for k, n in rows}
 
+    with psycopg.connect(url) as conn:
+        res.volumes = volumes.measure(conn, json.loads((OUT_ROOT / res.name / "tileset.json").read_text()))
+    b = res.volumes["buildings"]
+    log(f"{res.name} implicit volumes: {b['beyond_half_extent']} of {b['n']} buildings beyond their half-extent")
     res.views = view_bench.triangles_per_view(url)
     log(
         f"{res.name} triangles per view: overview {res.views['overview']['triangles']:,} vs all LOD3 "
@@ -489,6 +495,54 @@ def _views_section(results: list[ExtractResult]) -> list[str]:
         return []
     header = ["extract", "all buildings at LOD3", "overview camera", "fewer (target ≥ 5×)", "street camera"]
     return ["", "## Triangles per view", "", VIEW_NOTE, "", *markdown_table(header, rows, "lrrrr")]
+
+
+VOLUMES_NOTE = (
+    "What a 3D Tiles client that ignores the subtrees' metadata (3DTilesRendererJS, loaders.gl) computes from the "
+    "implicit root alone (exporter/volumes.py, over the exported tileset.json and the database): each tile's volume "
+    "the root region halved per level, its error the root's / 2^level. A building (with its parts, every LOD) or "
+    "block outside its tile's volume is culled while in view; one that straddles a cell edge may stick out by its "
+    "own half-extent (target: none beyond it). Errors below the measured: tiles whose computed error is below "
+    "their own (target 0)."
+)
+
+
+def _volumes_section(results: list[ExtractResult]) -> list[str]:
+    rows = []
+    for r in results:
+        v = r.volumes
+        if not v:
+            continue
+        b, k = v["buildings"], v["blocks"]
+        rows.append(
+            [
+                r.name,
+                f"{b['n']:,}",
+                f"{b['outside']:,}",
+                f"{b['beyond_half_extent']:,} {pass_mark(b['beyond_half_extent'] == 0)}",
+                f"{b['worst_m']:.0f}",
+                f"{k['outside']:,} of {k['n']:,}",
+                f"{k['beyond_half_extent']:,} {pass_mark(k['beyond_half_extent'] == 0)}",
+                f"{v['tiles']:,}",
+                f"{v['root_error']:.1f} ({v['measured_root_error']:.1f})",
+                f"{v['error_shortfalls']} {pass_mark(v['error_shortfalls'] == 0)}",
+            ]
+        )
+    if not rows:
+        return []
+    header = [
+        "extract",
+        "buildings",
+        "outside their tile's volume",
+        "beyond their half-extent",
+        "worst overhang m",
+        "blocks outside",
+        "blocks beyond their members'",
+        "tiles",
+        "root error (root tile's own)",
+        "errors below the measured",
+    ]
+    return ["", "## Implicit volumes", "", VOLUMES_NOTE, "", *markdown_table(header, rows, "lrrrrrrrrr")]
 
 
 def _textures_section(results: list[ExtractResult], head: ExtractResult | None) -> list[str]:
@@ -857,6 +911,7 @@ def render(
     ]
     lines += ["", "## Output", "", OUTPUT_NOTE, "", *markdown_table(header, rows, "lrrrrrrr")]
     lines += _views_section(results)
+    lines += _volumes_section(results)
     lines += _textures_section(results, head)
     lines += stream_bench.section_lines([(r.name, r.stream) for r in results if r.stream])
     lines += fidelity_bench.section_lines([(r.name, r.fidelity) for r in results if r.fidelity])

@@ -673,15 +673,13 @@ def _stack_levels(conn: psycopg.Connection, up: int, size: float, srid: int) -> 
             INSERT INTO tiles.tile (level, x, y, is_leaf, n_features, n_triangles, cell, region, geometric_error,
                                     content_uri, height, gen_level, content_error_m)
             SELECT %(lvl)s, c.x >> 1, c.y >> 1, false, sum(c.n_features), sum(c.n_triangles),
-                   ST_MakeEnvelope(gr.origin_x + (c.x >> 1) * %(cs)s, gr.origin_y + (c.y >> 1) * %(cs)s,
-                                   gr.origin_x + ((c.x >> 1) + 1) * %(cs)s, gr.origin_y + ((c.y >> 1) + 1) * %(cs)s,
-                                   %(srid)s),
+                   ST_SetSRID(ST_Extent(c.cell)::geometry, %(srid)s),  -- cells are lon/lat: their children's box
                    ARRAY[min(c.region[1]), min(c.region[2]), max(c.region[3]), max(c.region[4]),
                          min(c.region[5]), max(c.region[6])],
                    max(c.geometric_error), format('content/%%s/%%s/%%s.glb', %(lvl)s, c.x >> 1, c.y >> 1),
                    max(c.height) + 1, gen.level_for_height(max(c.height) + 1, %(root_h)s, %(cs)s), 0
-            FROM tiles.tile c CROSS JOIN tiles.grid gr WHERE c.level = %(child)s
-            GROUP BY c.x >> 1, c.y >> 1, gr.origin_x, gr.origin_y""",
+            FROM tiles.tile c WHERE c.level = %(child)s
+            GROUP BY c.x >> 1, c.y >> 1""",
             {"lvl": lvl, "child": lvl + 1, "cs": cs, "srid": srid, "root_h": root_h},
         )
     with conn.transaction():

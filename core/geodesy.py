@@ -21,6 +21,13 @@ def geodetic_to_ecef(lon: np.ndarray | float, lat: np.ndarray | float, h: np.nda
     )
 
 
+def metres_per_radian(lat: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Metres on the WGS84 ellipsoid per radian of longitude (N cos lat) and of latitude (M) at ``lat``: the
+    radii of curvature tiles.build_quadtree squares the root region with."""
+    s2 = np.sin(lat) ** 2
+    return A * np.cos(lat) / np.sqrt(1.0 - E2 * s2), A * (1.0 - E2) / (1.0 - E2 * s2) ** 1.5
+
+
 def ecef_to_geodetic(xyz: np.ndarray) -> np.ndarray:
     """(lon, lat, h) in radians/metres from ECEF (..., 3); Bowring's method, then two refinements."""
     xyz = np.asarray(xyz, float)

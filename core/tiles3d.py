@@ -146,8 +146,9 @@ def _implicit_tiling(imp: dict[str, Any]) -> tuple[int, int, str]:
     return levels, available, sub_uri
 
 
-def _uniform_region(root_region: list[float], key: tuple[int, int, int]) -> list[float]:
-    """Tile ``key``'s (level, x, y) part of the root region by uniform subdivision, the root's heights."""
+def uniform_region(root_region: list[float], key: tuple[int, int, int]) -> list[float]:
+    """Tile ``key``'s (level, x, y) part of the root region by uniform subdivision, the root's heights: the
+    volume a client that ignores subtree metadata gives the tile."""
     rw, rs, re_, rn, rlo, rhi = root_region
     n = 1 << key[0]
     return [
@@ -174,11 +175,12 @@ def _link_children(tiles: dict[tuple[int, int, int], dict[str, Any]]) -> None:
         parent.setdefault("children", []).append(tiles[(lv, x, y)])
 
 
-def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
+def expand(tileset: dict[str, Any], read: Read, metadata: bool = True) -> dict[str, Any]:
     """The explicit tileset an implicit one stands for (a deep copy; an explicit tileset comes back as is).
     Each expanded tile has boundingVolume, geometricError, content (where available), children, and
-    ``implicit``: [level, x, y]. Raises SubtreeError (a ValueError) for a malformed subtree, OSError when
-    ``read`` cannot read one."""
+    ``implicit``: [level, x, y]. ``metadata=False`` ignores the subtrees' TILE_BOUNDING_REGION and
+    TILE_GEOMETRIC_ERROR, as some clients do (the uniform subdivision of the root, its error halved per level).
+    Raises SubtreeError (a ValueError) for a malformed subtree, OSError when ``read`` cannot read one."""
     root = tileset.get("root", {})
     if "implicitTiling" not in root:
         return tileset
@@ -209,10 +211,14 @@ def expand(tileset: dict[str, Any], read: Read) -> dict[str, Any]:
             n = 1 << key[0]
             region = (
                 meta["TILE_BOUNDING_REGION"][i].tolist()
-                if "TILE_BOUNDING_REGION" in meta
-                else _uniform_region(root_region, key)
+                if metadata and "TILE_BOUNDING_REGION" in meta
+                else uniform_region(root_region, key)
             )
-            error = float(meta["TILE_GEOMETRIC_ERROR"][i]) if "TILE_GEOMETRIC_ERROR" in meta else root_error / n
+            error = (
+                float(meta["TILE_GEOMETRIC_ERROR"][i])
+                if metadata and "TILE_GEOMETRIC_ERROR" in meta
+                else root_error / n
+            )
             t: dict[str, Any] = {"boundingVolume": {"region": region}, "geometricError": error, "implicit": list(key)}
             if has[bit[i]] and content_uri:
                 t["content"] = {"uri": _template(content_uri, *key)}

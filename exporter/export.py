@@ -442,7 +442,14 @@ def tileset_files(
     way)."""
     dataset = conn.execute("SELECT source_sha256 FROM meta.dataset").fetchone()
     version = dataset[0][:16] if dataset and dataset[0] else ""
-    ts, files = build(records, tileset_version=version, single_lod=lod is not None, tiling=stream.tiling)
+    root = conn.execute("SELECT west, south, east, north FROM api.quadtree_root()").fetchone()
+    ts, files = build(
+        records,
+        tileset_version=version,
+        single_lod=lod is not None,
+        tiling=stream.tiling,
+        root_volume=(root[0], root[1], root[2], root[3]) if root and root[0] is not None else None,
+    )
     if stream.compact:
         # the glbs' class with the descriptions they leave out (3D Tiles 1.1 schema; the glbs keep their own
         # EXT_structural_metadata schema, which is what clients read a picked feature's values with)

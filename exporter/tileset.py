@@ -8,11 +8,15 @@
   root's (``node_matrix``), so a glb is the same bytes whatever the tiling.
 * Tiling (``build``): ``explicit`` writes every tile into tileset.json; ``implicit`` writes a 3D Tiles 1.1
   implicit quadtree (the root with ``implicitTiling``, a content URI template and subtree files, subtree.py).
-  The quadtree is cut in the working CRS and a tile's region is the extent of its meshes, neither being the
-  uniform subdivision of the root region that implicit tiling assumes, so each tile's real region and
-  geometric error travel as subtree tile metadata (semantics TILE_BOUNDING_REGION, TILE_GEOMETRIC_ERROR; the
-  class ``TILE_SCHEMA`` in tileset.json). Our (level, x, y) are the implicit coordinates: x east, y north,
-  children (2x + i, 2y + j), and content/{level}/{x}/{y}.glb is the template.
+  The quadtree is cut on the implicit subdivision of its root region (tiles.grid, ``root_volume``): a tile's
+  cell is the root region halved ``level`` times in longitude and latitude, which is the volume a client that
+  ignores subtree metadata computes, and its content stays inside it but for buildings straddling its edges
+  (by at most their half-extent; exporter/volumes.py measures it). The implicit root's geometric error is
+  ``implicit_root_error``: the error such a client computes for level L, root / 2^L, is never below what a
+  tile of that level measured. Each tile's real region (the extent of its meshes) and geometric error travel
+  as subtree tile metadata (semantics TILE_BOUNDING_REGION, TILE_GEOMETRIC_ERROR; the class ``TILE_SCHEMA``
+  in tileset.json) for the clients that read it, which are exact. Our (level, x, y) are the implicit
+  coordinates: x east, y north, children (2x + i, 2y + j), and content/{level}/{x}/{y}.glb is the template.
 * Geometric error: 0 for leaves; above, the value the generalize stage measured (tiles.tile.geometric_error:
   the largest error bound of the tile's content or its children's). The top-level geometricError is at
   least the diagonal of the root region: CesiumJS silently loads nothing when it is too small for the
@@ -196,14 +200,24 @@ def build_tileset(records: Iterable[TileRecord], tileset_version: str = "", sing
     return _top(root, root_region, tileset_version)
 
 
+def implicit_root_error(records: Iterable[TileRecord]) -> float:
+    """The implicit root's geometric error: the least e with e / 2^level >= every tile's measured error, so a
+    client that halves the root's error per level (ignoring TILE_GEOMETRIC_ERROR) never refines later than
+    the tiles' own errors allow."""
+    return max(float(r.geometric_error or 0.0) * 2.0**r.level for r in records)
+
+
 def build_implicit(
     records: Iterable[TileRecord],
     tileset_version: str = "",
     single_lod: bool = False,
     subtree_levels: int | None = None,
+    root_volume: tuple[float, float, float, float] | None = None,
 ) -> tuple[Tileset, dict[str, bytes]]:
     """The implicit tileset and its subtree files by URI (subtree.py); ``subtree_levels`` chosen from the tree
-    (subtree.choose_subtree_levels) when None."""
+    (subtree.choose_subtree_levels) when None. ``root_volume`` (west, south, east, north, radians: the
+    quadtree's root, api.quadtree_root) is the root's region, with the root tile's heights; None takes the root
+    tile's own region (a tree not cut on its subdivision, as in unit tests)."""
     by_key = _checked(records, single_lod)
     for key, r in by_key.items():
         if r.content_uri and r.content_uri != CONTENT_TEMPLATE.format(level=key[0], x=key[1], y=key[2]):
@@ -247,9 +261,10 @@ def build_implicit(
         )
     root_rec = by_key[(0, 0, 0)]
     assert root_rec.geometric_error is not None  # _checked refuses a tile without one
+    root_region = (*root_volume, *root_rec.region[4:6]) if root_volume else root_rec.region
     root: Tile = {
-        "boundingVolume": {"region": [float(v) for v in root_rec.region]},
-        "geometricError": float(root_rec.geometric_error),
+        "boundingVolume": {"region": [float(v) for v in root_region]},
+        "geometricError": implicit_root_error(recs),
         "refine": "ADD" if single_lod else "REPLACE",
         "transform": column_major(leaf_frame(root_rec.region)),
         "content": {"uri": CONTENT_TEMPLATE},
@@ -260,17 +275,22 @@ def build_implicit(
             "subtrees": {"uri": SUBTREE_TEMPLATE},
         },
     }
-    ts = _top(root, root_rec.region, tileset_version)
+    ts = _top(root, root_region, tileset_version)
     ts["schema"] = TILE_SCHEMA
     return ts, files
 
 
 def build(
-    records: Iterable[TileRecord], tileset_version: str = "", single_lod: bool = False, tiling: Tiling = "implicit"
+    records: Iterable[TileRecord],
+    tileset_version: str = "",
+    single_lod: bool = False,
+    tiling: Tiling = "implicit",
+    root_volume: tuple[float, float, float, float] | None = None,
 ) -> tuple[Tileset, dict[str, bytes]]:
-    """(tileset.json's dict, the other files it needs by URI: subtrees, implicit only)."""
+    """(tileset.json's dict, the other files it needs by URI: subtrees, implicit only). ``root_volume``: the
+    implicit root region (build_implicit); an explicit tileset lists every tile's own region."""
     if tiling == "explicit":
         return build_tileset(records, tileset_version, single_lod), {}
     if tiling == "implicit":
-        return build_implicit(records, tileset_version, single_lod)
+        return build_implicit(records, tileset_version, single_lod, root_volume=root_volume)
     raise ValueError(f"tiling must be implicit or explicit, not {tiling!r}")

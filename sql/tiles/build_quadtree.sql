@@ -2,9 +2,12 @@
 -- Builds the tile quadtree, budgeted on the meshes of LOD `lod`, set-based, one statement per level:
 --   * features are grouped by building (an outline with its parts) and placed by the centre of the
 --     outline's bounding box, so a building and its parts always share a tile;
---   * the level-0 cell is the square around all of them in the working CRS; a cell becomes a leaf when it
---     holds at most max_features meshes and max_triangles triangles, holds a single building, or is at
---     max_level; otherwise its groups move on to the four cells of the next level;
+--   * the level-0 cell (tiles.grid) is a region in longitude and latitude around every mesh, square on the
+--     ground at its centre, and a level-L cell is that region halved L times (tiles.cell_region), as implicit
+--     tiling subdivides its root: so a client that computes tile volumes from the root alone gets our cells,
+--     and content overhangs its cell by at most the half-extent of a building that straddles an edge;
+--   * a cell becomes a leaf when it holds at most max_features meshes and max_triangles triangles, holds a
+--     single building, or is at max_level; otherwise its groups move on to the four cells of the next level;
 --   * tiles.tile gets every cell with a content URI, its height above its deepest leaf and the generalization
 --     level of its content (gen.level_for_height), its 3D Tiles bounding region (extent of the meshes of
 --     every LOD below it, from their stored envelopes, heights above the ellipsoid from base_height) and geometric
@@ -31,7 +34,10 @@ DECLARE
     v_ox double precision;
     v_oy double precision;
     v_size double precision;
-    v_cell double precision;
+    v_west double precision;
+    v_south double precision;
+    v_dlon double precision;
+    v_dlat double precision;
     v_level integer := 0;
 BEGIN
     IF v_srid IS NULL THEN
@@ -40,8 +46,8 @@ BEGIN
     DELETE FROM tiles.grid;
 
     CREATE TEMP TABLE _grp ON COMMIT DROP AS
-    SELECT g.group_id, ST_X(c.pt) AS ax, ST_Y(c.pt) AS ay, g.n_features, g.n_triangles,
-           NULL::integer AS lvl, NULL::integer AS tx, NULL::integer AS ty
+    SELECT g.group_id, ST_X(c.pt) AS ax, ST_Y(c.pt) AS ay, radians(ST_X(c.geo)) AS lon, radians(ST_Y(c.geo)) AS lat,
+           g.n_features, g.n_triangles, NULL::integer AS lvl, NULL::integer AS tx, NULL::integer AS ty
     FROM (
         SELECT coalesce(b.parent_id, b.id) AS group_id, count(*) AS n_features, sum(m.n_triangles) AS n_triangles
         FROM lod.building_mesh m JOIN osm.building b ON b.id = m.building_id
@@ -49,7 +55,8 @@ BEGIN
         GROUP BY 1
     ) g
     JOIN osm.building o ON o.id = g.group_id
-    CROSS JOIN LATERAL (SELECT ST_Centroid(ST_Envelope(o.geom_local)) AS pt) c;
+    CROSS JOIN LATERAL (SELECT ST_Centroid(ST_Envelope(o.geom_local)) AS pt) p
+    CROSS JOIN LATERAL (SELECT p.pt, ST_Transform(p.pt, 4326) AS geo) c;
 
     ANALYZE _grp;  -- temporary tables get no statistics from autovacuum: without them every join below is a guess
 
@@ -65,22 +72,48 @@ BEGIN
         RAISE EXCEPTION 'no LOD% meshes: run the lod stage first', lod;
     END IF;
 
-    SELECT min(ax), min(ay), greatest(max(ax) - min(ax), max(ay) - min(ay), 1.0) * (1 + 1e-9)
-    INTO v_ox, v_oy, v_size FROM _grp;
-    INSERT INTO tiles.grid (srid, origin_x, origin_y, size, max_features, max_triangles, max_level)
-    VALUES (v_srid, v_ox, v_oy, v_size, max_features, max_triangles, max_level);
+    -- The root region: the extent of every mesh of every LOD (their stored envelopes), widened to a square on
+    -- the ground at its centre latitude (WGS84 radii of curvature), so that halving it keeps cells near square.
+    WITH e AS (
+        SELECT ST_Extent(m.envelope_4326)::box2d AS ext
+        FROM _grp g
+        JOIN osm.building b ON coalesce(b.parent_id, b.id) = g.group_id
+        JOIN lod.building_mesh m ON m.building_id = b.id
+    ), c AS (
+        SELECT radians((ST_XMin(ext) + ST_XMax(ext)) / 2) AS lon, radians((ST_YMin(ext) + ST_YMax(ext)) / 2) AS lat,
+               radians(ST_XMax(ext) - ST_XMin(ext)) AS dlon, radians(ST_YMax(ext) - ST_YMin(ext)) AS dlat
+        FROM e
+    ), r AS (
+        -- metres per radian east (N cos lat) and north (M) at the centre
+        SELECT c.*, 6378137.0 * cos(c.lat) / sqrt(1 - 0.00669437999014 * sin(c.lat) ^ 2) AS me,
+               6378137.0 * (1 - 0.00669437999014) / (1 - 0.00669437999014 * sin(c.lat) ^ 2) ^ 1.5 AS mn
+        FROM c
+    )
+    SELECT greatest(dlon * me, dlat * mn, 1.0) * (1 + 1e-6), lon, lat, me, mn
+    INTO v_size, v_west, v_south, v_dlon, v_dlat
+    FROM r;
+    -- (v_west, v_south hold the centre and v_dlon, v_dlat the metres per radian until here)
+    v_dlon := v_size / v_dlon;
+    v_dlat := v_size / v_dlat;
+    v_west := v_west - v_dlon / 2;
+    v_south := v_south - v_dlat / 2;
+    SELECT ST_X(o), ST_Y(o) INTO v_ox, v_oy
+    FROM ST_Transform(ST_SetSRID(ST_MakePoint(degrees(v_west), degrees(v_south)), 4326), v_srid) o;
+    INSERT INTO tiles.grid (srid, origin_x, origin_y, size, west, south, east, north, max_features, max_triangles,
+                            max_level)
+    VALUES (v_srid, v_ox, v_oy, v_size, v_west, v_south, v_west + v_dlon, v_south + v_dlat, max_features,
+            max_triangles, max_level);
 
     CREATE TEMP TABLE _cell (level integer, x integer, y integer, nf bigint, nt bigint, is_leaf boolean)
         ON COMMIT DROP;
     LOOP
-        v_cell := v_size / (2 ^ v_level);
         INSERT INTO _cell (level, x, y, nf, nt, is_leaf)
         SELECT v_level, cx, cy, sum(n_features), sum(n_triangles),
                (sum(n_features) <= max_features AND sum(n_triangles) <= max_triangles)
                OR count(*) = 1 OR v_level >= max_level
         FROM (
-            SELECT least(floor((ax - v_ox) / v_cell), 2 ^ v_level - 1)::integer AS cx,
-                   least(floor((ay - v_oy) / v_cell), 2 ^ v_level - 1)::integer AS cy,
+            SELECT least(floor((lon - v_west) / v_dlon * 2 ^ v_level), 2 ^ v_level - 1)::integer AS cx,
+                   least(floor((lat - v_south) / v_dlat * 2 ^ v_level), 2 ^ v_level - 1)::integer AS cy,
                    n_features, n_triangles
             FROM _grp WHERE lvl IS NULL
         ) s
@@ -89,8 +122,8 @@ BEGIN
         UPDATE _grp g SET lvl = c.level, tx = c.x, ty = c.y
         FROM _cell c
         WHERE g.lvl IS NULL AND c.level = v_level AND c.is_leaf
-          AND c.x = least(floor((g.ax - v_ox) / v_cell), 2 ^ v_level - 1)::integer
-          AND c.y = least(floor((g.ay - v_oy) / v_cell), 2 ^ v_level - 1)::integer;
+          AND c.x = least(floor((g.lon - v_west) / v_dlon * 2 ^ v_level), 2 ^ v_level - 1)::integer
+          AND c.y = least(floor((g.lat - v_south) / v_dlat * 2 ^ v_level), 2 ^ v_level - 1)::integer;
 
         EXIT WHEN NOT EXISTS (SELECT 1 FROM _grp WHERE lvl IS NULL);
         v_level := v_level + 1;
@@ -103,9 +136,7 @@ BEGIN
     -- box, reprojected).
     CREATE TEMP TABLE _tile ON COMMIT DROP AS
     SELECT c.level::smallint AS level, c.x, c.y, true AS is_leaf, c.nf::integer AS n_features, c.nt AS n_triangles,
-           ST_MakeEnvelope(v_ox + c.x * v_size / 2 ^ c.level, v_oy + c.y * v_size / 2 ^ c.level,
-                           v_ox + (c.x + 1) * v_size / 2 ^ c.level, v_oy + (c.y + 1) * v_size / 2 ^ c.level, v_srid)
-               AS cell,
+           tiles.cell_envelope(c.level, c.x, c.y) AS cell,
            ARRAY[radians(ST_XMin(e.ext)), radians(ST_YMin(e.ext)), radians(ST_XMax(e.ext)), radians(ST_YMax(e.ext)),
                  base_height + e.zmin, base_height + e.zmax] AS region,
            format('content/%s/%s/%s.glb', c.level, c.x, c.y) AS content_uri,
@@ -126,8 +157,7 @@ BEGIN
     -- Inner tiles: union of the leaves below them (each leaf expanded to all its ancestors).
     INSERT INTO _tile
     SELECT a.level, a.x, a.y, false, sum(l.n_features), sum(l.n_triangles),
-           ST_MakeEnvelope(v_ox + a.x * v_size / 2 ^ a.level, v_oy + a.y * v_size / 2 ^ a.level,
-                           v_ox + (a.x + 1) * v_size / 2 ^ a.level, v_oy + (a.y + 1) * v_size / 2 ^ a.level, v_srid),
+           tiles.cell_envelope(a.level, a.x, a.y),
            ARRAY[min(l.region[1]), min(l.region[2]), max(l.region[3]), max(l.region[4]),
                  min(l.region[5]), max(l.region[6])],
            format('content/%s/%s/%s.glb', a.level, a.x, a.y),

@@ -128,6 +128,44 @@ def test_leaf_region_bounds_its_buildings(small_budget, conn_of) -> None:
     assert fw - metre < w <= fw and fs - metre < s <= fs and fe <= e < fe + metre and fn <= n < fn + metre
 
 
+def test_cells_are_the_implicit_subdivision_of_the_root_region(small_budget, conn_of) -> None:
+    """A client ignoring the subtrees' metadata halves the root region per level: every building sits in the cell
+    so computed that its anchor falls in, the root covers every mesh and is square on the ground, and the
+    working-CRS cell (the GiST filter) holds the anchors of its tile's buildings."""
+    from core.geodesy import metres_per_radian
+    from exporter.volumes import measure
+
+    conn = conn_of(small_budget)
+    w, s, e, n, size = conn.execute("SELECT * FROM api.quadtree_root()").fetchone()
+    me, mn = metres_per_radian((s + n) / 2)
+    assert (e - w) * me == pytest.approx(size, rel=1e-6) and (n - s) * mn == pytest.approx(size, rel=1e-6)
+    ext = conn.execute("SELECT ST_Extent(envelope_4326) FROM lod.building_mesh").fetchone()[0]
+    fw, fs, fe, fn = (
+        math.radians(float(v)) for v in ext.replace("BOX(", "").replace(")", "").replace(",", " ").split()
+    )
+    assert w < fw and s < fs and fe < e and fn < n
+    wrong = conn.execute(
+        """SELECT count(*) FROM tiles.building_tile bt
+           CROSS JOIN LATERAL (SELECT ST_Transform(bt.anchor, 4326) AS a) g
+           CROSS JOIN LATERAL tiles.cell_region(bt.level, bt.x, bt.y) r
+           WHERE NOT (radians(ST_X(g.a)) BETWEEN r[1] AND r[3] AND radians(ST_Y(g.a)) BETWEEN r[2] AND r[4])
+              OR NOT bt.anchor && (SELECT t.cell FROM tiles.tile t
+                                   WHERE (t.level, t.x, t.y) = (bt.level, bt.x, bt.y))"""
+    ).fetchone()[0]
+    assert wrong == 0
+    assert conn.execute("SELECT tiles.cell_region(2, 1, 3)").fetchone()[0] == pytest.approx(
+        [w + (e - w) / 4, s + (n - s) * 3 / 4, w + (e - w) / 2, n], abs=1e-15
+    )
+    # so no building lies further outside its tile's computed volume than its own half-extent, in a deep tree
+    m = measure(conn)
+    assert conn.execute("SELECT max(level) FROM tiles.tile").fetchone()[0] >= 3
+    assert m["buildings"]["beyond_half_extent"] == 0 and m["buildings"]["outside"] > 0
+    assert 0 < m["buildings"]["worst_m"] < 200
+    # the measure sees a displaced tree: the same cells under a root a tenth of a cell off
+    shifted = {"root": {"boundingVolume": {"region": [w + (e - w) / 40, s, e + (e - w) / 40, n]}, "geometricError": 1}}
+    assert measure(conn, shifted)["buildings"]["beyond_half_extent"] > 10
+
+
 def test_tiles_without_lod_is_a_clear_error(new_db) -> None:
     proc = run_etl(new_db("tiles_empty"), "tiles", check=False)
     assert proc.returncode != 0 and "ingest" in proc.stderr

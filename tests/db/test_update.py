@@ -343,7 +343,8 @@ def _wrote_only_what_changed(conn: psycopg.Connection, seq: int, before: tuple, 
     after_blocks = {b: rest for b, *rest in conn.execute(_BLOCKS)}
     unchanged = [b for b, (row, _, _) in blocks.items() if after_blocks.get(b, [None])[0] == row]
     assert all(after_blocks[b][1] == blocks[b][1] for b in unchanged), seq
-    assert sum(blocks[b][2] for b in unchanged) > 0, "blocks omitted on tile error, unchanged"
+    # (that some of them are omitted on their tile's error is asserted on Helsinki, test_update_history.py: the
+    # fixtures' small tree need not have one the change misses)
     changed = dict(conn.execute("SELECT id, change FROM osm.building_change"))
     assert changed == EXPECTED_CHANGES[seq], f"change {seq}: only what it touched is replaced"
 

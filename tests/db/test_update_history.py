@@ -68,7 +68,16 @@ def test_real_creations_update_equals_a_full_rebuild(new_db: Callable[[str], str
     build(inc, base, tmp_path / "inc")
     with psycopg.connect(inc) as conn:
         (before,) = conn.execute("SELECT count(*) FROM osm.building").fetchone()
+        blocks = {b: rest for b, *rest in conn.execute(_BLOCKS)}
     run_etl(inc, "update", "--osc", str(change), "--out", str(tmp_path / "inc"), env=SETTINGS)
+    with psycopg.connect(inc) as conn:
+        after_blocks = {b: rest for b, *rest in conn.execute(_BLOCKS)}
+    # a block whose row did not change keeps its row version, those omitted on their tile's error too (the
+    # omissions are decided again, and only the blocks whose omission changes are written)
+    unchanged = [b for b, (row, _, _) in blocks.items() if after_blocks.get(b, [None])[0] == row]
+    assert unchanged and all(after_blocks[b][1] == blocks[b][1] for b in unchanged)
+    assert sum(blocks[b][2] for b in unchanged) > 0, "blocks omitted on tile error, unchanged"
+
     full = new_db("history_full")
     build(full, real, tmp_path / "full")
 
@@ -98,6 +107,8 @@ def test_real_creations_update_equals_a_full_rebuild(new_db: Callable[[str], str
     # every glb and subtree byte for byte, tileset.json but for its tilesetVersion (the sha256 of the file read)
     assert tileset_differences(tmp_path / "inc", tmp_path / "full") == []
 
+
+_BLOCKS = "SELECT block_id, md5(k::text), xmin::text, built_error_m IS NOT NULL FROM gen.block k"
 
 #: the Oakland history's three days: every change of its buildings falls between them
 DAYS = [

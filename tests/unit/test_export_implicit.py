@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 
 from core.camera import Camera
-from core.tiles3d import content_uris, expand, read_subtree, tileset_files
+from core.geodesy import E2, A, metres_per_radian
+from core.tiles3d import content_uris, expand, read_subtree, tileset_files, uniform_region
 from exporter.checks import check_tileset
 from exporter.gltf import write_glb
 from exporter.serve.paths import BadPath, tile_address
 from exporter.subtree import choose_subtree_levels, morton, write_subtree
-from exporter.tileset import TileRecord, build, build_implicit, build_tileset
+from exporter.tileset import TileRecord, build, build_implicit, build_tileset, implicit_root_error
+from exporter.volumes import error_shortfalls, overhangs
 from tests.support.traverse import select
 from tests.unit.test_export_gltf import cube_primitive
 
@@ -333,3 +335,52 @@ def test_db_server_addresses_subtrees() -> None:
     assert tile_address("subtrees/3/8/2.subtree") is None  # x beyond the level
     with pytest.raises(BadPath):
         tile_address("subtrees/03/5/2.subtree")
+
+
+def test_the_root_volume_is_the_grid_and_its_error_bounds_every_level() -> None:
+    # a deep tile that measured more than root / 2^level: the implicit root error must cover it
+    recs = [
+        r if (r.level, r.is_leaf) != (2, False) else TileRecord(**{**r.__dict__, "geometric_error": 180.0})
+        for r in tree()
+    ]
+    assert implicit_root_error(recs) == 720.0 and max(r.geometric_error for r in recs if r.level == 0) == 400.0
+    grid = (D(24.9), D(60.1), D(25.1), D(60.2))
+    ts, files = build_implicit(recs, root_volume=grid)
+    assert ts["root"]["boundingVolume"]["region"][:4] == list(grid)
+    assert ts["root"]["geometricError"] == 720.0 and ts["geometricError"] >= 720.0
+    assert error_shortfalls(np.array([r.level for r in recs]), np.array([r.geometric_error for r in recs]), 720.0) == 0
+    assert error_shortfalls(np.array([r.level for r in recs]), np.array([r.geometric_error for r in recs]), 400.0) > 0
+    # a client reading the metadata sees every tile's own region and error, as the explicit tree lists them
+    exact = {tuple(t["implicit"]): t for t in walk(expand(json.loads(json.dumps(ts)), files.__getitem__)["root"])}
+    for r in recs:
+        assert exact[(r.level, r.x, r.y)]["boundingVolume"]["region"] == list(r.region)
+        assert exact[(r.level, r.x, r.y)]["geometricError"] == r.geometric_error
+    # one that ignores it halves the grid and the root error
+    blind = {tuple(t["implicit"]): t for t in walk(expand(ts, files.__getitem__, metadata=False)["root"])}
+    root6 = [*grid, *ts["root"]["boundingVolume"]["region"][4:]]
+    for (lv, x, y), t in blind.items():
+        assert t["boundingVolume"]["region"] == uniform_region(root6, (lv, x, y))
+        assert t["geometricError"] == 720.0 / 2**lv
+    assert uniform_region(root6, (2, 1, 3))[:4] == pytest.approx([D(24.95), D(60.175), D(25.0), D(60.2)], abs=1e-15)
+
+
+def test_overhangs_allow_half_an_extent_and_no_more() -> None:
+    root = (D(24.9), D(60.1), D(25.1), D(60.2))
+    me, mn = metres_per_radian(D(60.15))
+    assert metres_per_radian(0.0)[0] == pytest.approx(A) and metres_per_radian(0.0)[1] == pytest.approx(A * (1 - E2))
+    assert me == pytest.approx(A * math.cos(D(60.15)), rel=3e-3) and mn == pytest.approx(6.3e6, rel=0.02)
+    keys = np.array([[1, 0, 0], [1, 0, 0], [1, 0, 0], [1, 1, 1]])
+    ext = np.array(
+        [
+            [24.95, 60.12, 24.96, 60.13],  # inside cell (1, 0, 0): west half, south half
+            [24.995, 60.12, 25.003, 60.121],  # straddles its east edge by 0.003° of its 0.008°
+            [25.01, 60.12, 25.02, 60.121],  # in the next cell east: displaced by its whole width
+            [25.0, 60.15, 25.1, 60.2],  # the north-east cell exactly
+        ]
+    )
+    over, beyond = overhangs(root, keys, ext)
+    me = metres_per_radian(np.radians((ext[:, 1] + ext[:, 3]) / 2))[0]
+    assert over[0] == 0 and over[3] < 1e-6 and beyond[3] < 1e-6
+    assert over[1] == pytest.approx(D(0.003) * me[1], rel=1e-9) and beyond[1] == 0
+    assert over[2] == pytest.approx(D(0.02) * me[2], rel=1e-9)
+    assert beyond[2] == pytest.approx(D(0.015) * me[2], rel=1e-9)
