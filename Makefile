@@ -23,7 +23,7 @@ SETUP_NODE := node_modules/.installed
 help: ## list the targets
 	@awk 'BEGIN {FS = ":.*## "} /^[a-zA-Z_-]+:.*## / {printf "  \033[1m%-21s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
 	@echo "  variables: OSM=$(OSM) OUT=$(OUT) PORT=$(PORT) LOD=1|2|3 (one LOD) DB=1 (serve from the database, LIVE=1 built on request) (DATABASE_URL to use another PostGIS)"
-	@echo "  stream: GEOMETRY=compact|plain TEXTURES=ktx2|webp TILING=implicit|explicit (export, status, update, serve DB=1 LIVE=1; default the first)"
+	@echo "  stream: GEOMETRY=compact|plain TEXTURES=ktx2|webp TILING=implicit|explicit TABLES=plain|meshopt (export, status, update, serve DB=1 LIVE=1; default the first)"
 	@echo "  a stage runs the stages it reads first, and only when its inputs changed; FORCE=1 reruns the stages named"
 
 # --- installation (each step only when something is missing) -----------------------------------------------
@@ -72,7 +72,8 @@ status: db ## which stages are current, and why the others are not (what `make e
 # every stage, and again runs none. FORCE=1 reruns the stage targets named on the command line (make lod FORCE=1).
 STALE = $(if $(and $(FORCE),$(filter $(1),$(MAKECMDGOALS))),,--if-stale)
 # the stream's encoding (exporter/stream.py); unset = the compact defaults
-STREAM = $(if $(GEOMETRY),--geometry $(GEOMETRY)) $(if $(TEXTURES),--textures $(TEXTURES)) $(if $(TILING),--tiling $(TILING))
+STREAM = $(if $(GEOMETRY),--geometry $(GEOMETRY)) $(if $(TEXTURES),--textures $(TEXTURES)) $(if $(TILING),--tiling $(TILING)) \
+         $(if $(TABLES),--tables $(TABLES))
 # a one-LOD export has no textures
 EXPORT_READS = $(if $(LOD),generalize,textures)
 

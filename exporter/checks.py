@@ -499,3 +499,19 @@ class _TileWalk:
             and not _inside(c["boundingVolume"], bv, world, world)
         ):
             problems.append(f"{where}: content bounding volume not inside the tile's")
+
+
+def compressed_metadata_views(gltf: dict[str, Any]) -> list[int]:
+    """The bufferViews EXT_structural_metadata's property tables read (values, arrayOffsets, stringOffsets) that
+    are meshopt-compressed: what a metadata reader without a meshopt decoder (the CesiumGS 3d-tiles-validator)
+    misreads as the table. The default stream has none (exporter/stream.py ``tables``)."""
+    views = gltf.get("bufferViews", [])
+    read = {
+        col[key]
+        for table in _property_tables(gltf)
+        for col in table.get("properties", {}).values()
+        for key in ("values", "arrayOffsets", "stringOffsets")
+        if key in col
+    }
+    meshopt = ("KHR_meshopt_compression", "EXT_meshopt_compression")
+    return sorted(i for i in read if i < len(views) and any(e in views[i].get("extensions", {}) for e in meshopt))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from core import cluster
 from core.settings import REPO, Settings
-from exporter.stream import GEOMETRY, TEXTURES, TILING, StreamOptions
+from exporter.stream import GEOMETRY, TABLES, TEXTURES, TILING, StreamOptions
 
 DEFAULT_OUT = REPO / "build" / "tiles" / "demo"
 
@@ -39,10 +39,17 @@ def stream_arguments(p: argparse.ArgumentParser) -> None:
         default=TILING[0],
         help="implicit: implicitTiling with subtree files; explicit: every tile in tileset.json (default: %(default)s)",
     )
+    p.add_argument(
+        "--tables",
+        choices=TABLES,
+        default=TABLES[0],
+        help="compact geometry's property tables: plain, readable without a meshopt decoder (the 3D Tiles "
+        "validator); meshopt: compressed like the geometry (default: %(default)s)",
+    )
 
 
 def stream_options(args: argparse.Namespace) -> StreamOptions:
-    return StreamOptions(geometry=args.geometry, textures=args.textures, tiling=args.tiling)
+    return StreamOptions(geometry=args.geometry, textures=args.textures, tiling=args.tiling, tables=args.tables)
 
 
 def serve_arguments(srv: argparse.ArgumentParser) -> None:

@@ -295,6 +295,7 @@ def build_tile_glb(
                 compact=True,
                 quantization=q,
                 meshopt_extension=stream.meshopt_extension,
+                compress_tables=stream.tables == "meshopt",
             ), len(arr.indices) // 3
         except CompressionError as e:
             # recorded: the export counts tiles whose glb is not compact (geometry_fallback) and says why

@@ -32,8 +32,9 @@ Compact geometry (``compact=True``; the plain path above is unchanged byte for b
   width, accessors into them by byteOffset (a TRIANGLES view is decoded as one index buffer; each accessor's
   range is whole triangles), so a glb has a handful of geometry views whatever its primitives.
 * KHR_meshopt_compression with vertex codec version 1 (default) or EXT_meshopt_compression with version 0
-  (``meshopt_extension``; exporter/meshopt.py): every vertex, index and property-table view (those a whole
-  number of 4-byte groups long: a padded column breaks CesiumJS's table) whose compressed stream plus its JSON
+  (``meshopt_extension``; exporter/meshopt.py): every vertex and index view, and with ``compress_tables`` every
+  property-table view (those a whole number of 4-byte groups long: a padded column breaks CesiumJS's table;
+  by default tables stay plain, for metadata readers without a meshopt decoder) whose compressed stream plus its JSON
   is smaller than the view is stored compressed in buffer 0 (the BIN chunk) and decoded into
   buffer 1, the fallback buffer (no uri, ``fallback: true``), at 8-byte aligned offsets.
 """
@@ -114,8 +115,11 @@ MESHOPT_JSON_BYTES = 160
 
 
 class _Builder:
-    def __init__(self, compact: bool = False, meshopt_extension: str = meshopt.KHR) -> None:
+    def __init__(
+        self, compact: bool = False, meshopt_extension: str = meshopt.KHR, compress_tables: bool = False
+    ) -> None:
         self.bin = bytearray()
+        self.compress_tables = compress_tables
         self.views: list[dict[str, object]] = []
         self.accessors: list[dict[str, object]] = []
         self.compact = compact
@@ -158,17 +162,20 @@ class _Builder:
 
     def column(self, data: bytes, itemsize: int) -> int:
         """The view of a property-table column of ``itemsize``-byte values."""
-        # property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl decode any view): 4- and
-        # 8-byte values as themselves, narrower ones and string bytes in 4-byte groups when they fill them
-        # exactly. Never padded: CesiumJS counts a column's values by its view's length and drops the whole
-        # table (custom shaders lose their metadata) when that differs from the table's count.
+        # With ``compress_tables``, property-table columns compress as ATTRIBUTES too (CesiumJS and loaders.gl
+        # decode any view): 4- and 8-byte values as themselves, narrower ones and string bytes in 4-byte groups
+        # when they fill them exactly. Never padded: CesiumJS counts a column's values by its view's length and
+        # drops the whole table (custom shaders lose their metadata) when that differs from the table's count.
+        # By default they stay plain: a reader of metadata without a meshopt decoder (the CesiumGS
+        # 3d-tiles-validator) reads a compressed view's bytes as the table.
         stride = itemsize if itemsize % 4 == 0 else 4
         if not self.compact:
             return self.view(data)
         # columns with the same bytes share one view (the landmark columns of tiles without landmarks, ...)
         key = (data, stride)
         if key not in self.columns:
-            self.columns[key] = self.view(data) if len(data) % stride else self.packed(data, stride)
+            plain = len(data) % stride or not self.compress_tables
+            self.columns[key] = self.view(data) if plain else self.packed(data, stride)
         return self.columns[key]
 
     def view(self, data: bytes, target: int | None = None) -> int:
@@ -512,6 +519,7 @@ def write_glb(
     compact: bool = False,
     quantization: Quantization | None = None,
     meshopt_extension: str = meshopt.KHR,
+    compress_tables: bool = False,
 ) -> bytes:
     """The glb of ``prim`` (vertex colours; its properties make the property table), plus the ``textured``
     primitives (uvs and image set) with ``images``. Without textured primitives the output is the single
@@ -522,10 +530,12 @@ def write_glb(
     EXT_meshopt_compression, codec 0; ``quantization`` for SHORT or EXPONENTIAL-filtered positions, None for
     plain FLOAT ones); the node's matrix becomes ``node_matrix @ T(origin) @ S(scale)``, and texcoords are
     integers in quarter texels of their page (KHR_texture_transform scales them back). Raises
-    meshopt.CompressionError when meshoptimizer refuses a stream (the caller writes the tile plain)."""
+    meshopt.CompressionError when meshoptimizer refuses a stream (the caller writes the tile plain).
+    ``compress_tables`` (compact only) meshopt-compresses the property tables' views too; by default they stay
+    plain, readable by tools that read metadata without a meshopt decoder (the 3D Tiles validator)."""
     if quantization is not None and not compact:
         raise ValueError("quantization needs compact=True")
-    b = _Builder(compact, meshopt_extension)
+    b = _Builder(compact, meshopt_extension, compress_tables)
     materials, primitives, transformed = _meshes(b, prim, textured, images, quantization)
     b.flush()
     class_props, table_props = _table_columns(b, prim, class_name, class_description)

@@ -8,6 +8,9 @@
 * ``textures``: ``ktx2`` = KHR_texture_basisu (Basis Universal, full mip chains), ``webp`` = EXT_texture_webp.
 * ``tiling``: ``implicit`` = 3D Tiles 1.1 implicitTiling with subtree files, ``explicit`` = every tile in
   tileset.json.
+* ``tables`` (compact geometry): ``plain`` = the EXT_structural_metadata property tables' views uncompressed,
+  which tools that read metadata without a meshopt decoder (the CesiumGS 3d-tiles-validator) can read;
+  ``meshopt`` = compressed like the geometry (allowed by the extension; ~7 % smaller streams).
 The defaults are the compact choices; every combination is a valid 3D Tiles 1.1 tileset.
 """
 
@@ -21,10 +24,12 @@ from exporter import meshopt
 Geometry = Literal["compact", "compact-ext", "plain"]
 Textures = Literal["ktx2", "webp"]
 Tiling = Literal["implicit", "explicit"]
+Tables = Literal["plain", "meshopt"]
 
 GEOMETRY: tuple[Geometry, ...] = ("compact", "compact-ext", "plain")
 TEXTURES: tuple[Textures, ...] = ("ktx2", "webp")
 TILING: tuple[Tiling, ...] = ("implicit", "explicit")
+TABLES: tuple[Tables, ...] = ("plain", "meshopt")
 
 
 @dataclass(frozen=True)
@@ -32,9 +37,10 @@ class StreamOptions:
     geometry: Geometry = "compact"
     textures: Textures = "ktx2"
     tiling: Tiling = "implicit"
+    tables: Tables = "plain"
 
     def __post_init__(self) -> None:
-        for name, allowed in (("geometry", GEOMETRY), ("textures", TEXTURES), ("tiling", TILING)):
+        for name, allowed in (("geometry", GEOMETRY), ("textures", TEXTURES), ("tiling", TILING), ("tables", TABLES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, not {getattr(self, name)!r}")
 

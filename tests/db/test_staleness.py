@@ -141,6 +141,7 @@ def test_make_export_on_a_fresh_database_runs_every_stage(built: Built) -> None:
         "geometry": "compact",
         "textures": "ktx2",
         "tiling": "implicit",
+        "tables": "plain",
         "publish": built.out.name,
     }
 

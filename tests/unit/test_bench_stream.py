@@ -144,6 +144,8 @@ def test_measure_dir_splits_files_and_finds_the_root(tmp_path: Path) -> None:
     assert (s["subtree"], s["tileset_json"], s["glb_files"]) == (100, js, 1)
     assert s["texture"] == sb.glb_split(data)["texture"] > 0
     assert (m["root_uri"], m["root_bytes"]) == ("content/0/0/0.glb", len(data))
+    # served gzipped: every file is counted, the zero-filled subtree shrinks to a few bytes
+    assert 0 < s["gzip"] < s["bytes"] - 60
 
 
 def test_mean_abs_diff() -> None:
@@ -230,7 +232,7 @@ def test_judge_and_section_when_the_streams_differ() -> None:
         "texture_memory": True,
     }
     res["plain"]["all"]["bytes_per_building"] = 14_000.0
-    res["compact"]["all"]["bytes_per_building"] = 2_750.0  # ≤ 0.2× plain but over 2,700 B
+    res["compact"]["all"]["bytes_per_building"] = 2_950.0  # ≤ 0.22× plain but over 2,900 B
     assert sb.judge(res, headline=True)["all"] is False
     assert sb.judge(res, headline=False)["all"] is True
     res["compact"]["all"]["seconds"] = 13.5  # 1.35× plain
@@ -241,7 +243,7 @@ def test_judge_and_section_when_the_streams_differ() -> None:
     text = "\n".join(sb.section_lines([("liechtenstein_2022-07-24", res)]))
     assert text.startswith("\n## Stream")
     row = next(line for line in text.splitlines() if line.startswith("| liechtenstein_2022-07-24 | compact | 2,"))
-    assert "0.20×" in row and "2,750" in row and "**FAIL**" in row and "1.35×" in row
+    assert "0.21×" in row and "2,950" in row and "**FAIL**" in row and "1.35×" in row
     assert "failed: tiles still loading" in text and "failed: a view failed" in text
     assert "| 1.25 | 1.00 % |" in text and "ASTC yes" in text and "ETC no" in text
     assert "| compact-ext |" not in text  # not measured: no row

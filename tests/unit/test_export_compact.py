@@ -10,7 +10,7 @@ import meshoptimizer
 import numpy as np
 import pytest
 
-from exporter.checks import check_glb
+from exporter.checks import check_glb, compressed_metadata_views
 from exporter.export import LEAF_POSITION_ERROR_M, is_compact, position_error_m
 from exporter.gltf import (
     Image,
@@ -485,3 +485,18 @@ def test_the_tileset_schema_describes_what_compact_glbs_leave_out() -> None:
         "noData": 255,
     }
     assert "mesh frame" in cls["properties"]["lm_centre_x"]["description"]  # compact's words (COMPACT_DOCS)
+
+
+def test_property_tables_stay_plain_unless_asked_and_read_the_same() -> None:
+    # a reader of metadata without a meshopt decoder (the CesiumGS 3d-tiles-validator) reads the views as they
+    # are: the default compact glb compresses its geometry and leaves every view a property table reads plain
+    prim = city_block(np.random.default_rng(7), 150.0)
+    q = quantization([prim.positions], 0.01)
+    plain_tables = write_glb(prim, compact=True, quantization=q)
+    packed_tables = write_glb(prim, compact=True, quantization=q, compress_tables=True)
+    (g0, b0), (g1, b1) = read_glb(plain_tables), read_glb(packed_tables)
+    compressed = [i for i, v in enumerate(g0["bufferViews"]) if "KHR_meshopt_compression" in v.get("extensions", {})]
+    assert set(compressed) & _geometry_views(g0) and compressed_metadata_views(g0) == []
+    assert len(compressed_metadata_views(g1)) >= 3 and len(packed_tables) < len(plain_tables)
+    assert property_table(g0, b0) == property_table(g1, b1) == property_table(*read_glb(write_glb(prim)))
+    assert check_glb(plain_tables) == [] and check_glb(packed_tables) == []
