@@ -551,14 +551,7 @@ def test_an_update_reads_only_what_its_change_touched(
     full = new_db("partial_full")
     run_etl(full, "ingest", "--osm", str(state))
     with psycopg.connect(inc) as a, psycopg.connect(full) as b:
-        for table in (
-            "osm.building",
-            "osm.reject",
-            "osm.building_relation",
-            "osm.building_relation_member",
-            "meta.dataset",
-            "meta.diagnostic",
-        ):
+        for table in (t for t in TABLES if t.split(".")[0] in ("osm", "meta")):  # what ingest writes
             ra, rb = table_rows(a, table), table_rows(b, table)
             assert ra == rb, (table, len(ra), len(rb), sorted(set(ra) ^ set(rb))[:3])
         assert a.execute("SELECT parent_id FROM osm.building WHERE id = 17002").fetchone() == (11001,)
