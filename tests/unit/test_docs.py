@@ -240,3 +240,29 @@ def test_the_checker_finds_what_is_missing(known: dict[str, set[str]]) -> None:
         "6c942bd",
         "e0f9fe7",
     ]
+
+
+def test_readme_client_snippets_use_what_the_tests_run() -> None:
+    """README's client snippets import only pinned packages (deck.gl's are named as untested), and the three.js
+    snippet imports every name from the module the tested client (tests/e2e/three/client.js) imports it from."""
+    import json
+
+    readme = (REPO / "README.md").read_text()
+    section = readme[readme.index("### Clients") :]
+    section = section[: section.index("\n## ")]
+    pinned = set(json.loads((REPO / "package.json").read_text())["dependencies"])
+    imports = re.findall(r'^import (.+?) from "([^"]+)";', section, re.M)
+    assert imports, "no import in README's client snippets"
+    for _names, module in imports:
+        package = "/".join(module.split("/")[:2]) if module.startswith("@") else module.split("/")[0]
+        assert package in pinned or package.startswith("@deck.gl/"), module
+    assert "Tileset3D` traversal is not yet tested" in section  # deck.gl itself: said so
+    client = (REPO / "tests" / "e2e" / "three" / "client.js").read_text()
+    tested = {m: n for n, m in re.findall(r"^import (.+?) from '([^']+)';", client, re.M)}
+    for names, module in imports:
+        if module.startswith(("three", "3d-tiles-renderer")):
+            assert module in tested, module
+            used = set(re.findall(r"\w+", names)) - {"as"}
+            assert used <= set(re.findall(r"\w+", tested[module])), (module, names, tested[module])
+    for client_name in ("CesiumJS", "three.js", "3DTilesRendererJS", "loaders.gl", "deck.gl"):
+        assert client_name in section, client_name
