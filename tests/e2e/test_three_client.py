@@ -17,26 +17,21 @@ error from the root alone (it ignores the subtrees' TILE_BOUNDING_REGION / TILE_
 
 from __future__ import annotations
 
-import copy
 import json
-import math
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import psycopg
 import pytest
 
-from core.camera import Camera
-from core.geodesy import region_box
 from core.settings import Settings
-from core.tiles3d import content_uris, expand
+from core.tiles3d import content_uris
 from exporter.gltf import read_glb
 from tests.conftest import REPO, City
 from tests.e2e.conftest import CHROMIUM, MAX_SSE
 from tests.e2e.test_serve_viewer import PICK_TARGET, run_driver, served
+from tests.support.coverage import cesium_cameras, coverage_report, covered, moved_root, tree
 
 pytestmark = pytest.mark.e2e
 
@@ -46,9 +41,6 @@ VERSION_NOTICE = (
     "TilesRenderer: tiles versions at 1.1 or higher have limited support. "
     "Some new extensions and features may not be supported."
 )
-#: A building's box closer than this to a frustum plane (metres) is on the edge: the two clients test tile volumes
-#: that differ (3DTilesRendererJS an oriented box around the region it computes, CesiumJS the subtree's region).
-EDGE_M = 3.0
 
 
 def three(tiles: Path, *args: str) -> tuple[dict[str, Any], str]:
@@ -59,19 +51,6 @@ def three(tiles: Path, *args: str) -> tuple[dict[str, Any], str]:
         res, context = run_driver(DRIVER, ["--url", base, *args])
     res["base"] = base
     return res, context
-
-
-def tree(tiles: Path) -> dict[str, dict[str, Any]]:
-    """Every tile of the (expanded) tileset by content uri, as a client that reads the subtree metadata has it."""
-    tileset = json.loads((tiles / "tileset.json").read_text())
-    out: dict[str, dict[str, Any]] = {}
-    stack = [expand(tileset, lambda u: (tiles / u).read_bytes())["root"]]
-    while stack:
-        t = stack.pop()
-        if "content" in t:
-            out[t["content"]["uri"]] = t
-        stack.extend(t.get("children", []))
-    return out
 
 
 def glb_triangles(path: Path) -> int:
@@ -161,120 +140,6 @@ def test_roof_gallery_loads_and_draws_every_leaf(city: Callable) -> None:
 # --- the deep tileset at the cameras of test_lod_views, against CesiumJS ----------------------------------------
 
 
-def cesium_cameras(drawn: dict[str, Any]) -> list[dict[str, Any]]:
-    """The cameras as CesiumJS held them, with its vertical field of view and drawing buffer."""
-    out = []
-    for name, v in drawn["by_name"].items():
-        c = v["camera"]
-        out.append(
-            {
-                "name": name,
-                **{k: c[k] for k in ("lon", "lat", "height", "heading", "pitch")},
-                "fovyDeg": v["fovyDeg"],
-                "widthPx": v["drawingBufferWidth"],
-                "heightPx": v["drawingBufferHeight"],
-            }
-        )
-    return out
-
-
-COVERED = """
-    SELECT DISTINCT coalesce(o.parent_id, o.id), format('content/%%s/%%s/%%s.glb', t.level, t.x, t.y)
-    FROM unnest(%s::int[], %s::int[], %s::int[]) AS t(level, x, y)
-    CROSS JOIN LATERAL api.buildings_for_tile(t.level, t.x, t.y) f
-    LEFT JOIN gen.block k ON f.feature_kind = 'block' AND k.block_id = f.building_id
-    CROSS JOIN LATERAL unnest(coalesce(k.members, ARRAY[f.building_id])) AS u(id)
-    JOIN osm.building o ON o.id = u.id
-"""
-BOXES = """
-    SELECT bt.group_id, ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), h
-    FROM (SELECT bt.group_id, ST_Extent(m.envelope_4326) AS e, max(m.height) AS h
-          FROM tiles.building_tile bt JOIN lod.building_mesh m ON m.building_id = bt.building_id
-          WHERE bt.group_id = ANY(%s) GROUP BY 1) bt
-"""
-
-
-def covered(conn: psycopg.Connection, uris: list[str]) -> dict[int, set[str]]:
-    """Building (outline) -> the drawn tiles whose features cover it."""
-    keys = [tuple(int(v) for v in u.removesuffix(".glb").split("/")[1:]) for u in uris]
-    out: dict[int, set[str]] = {}
-    for b, uri in conn.execute(COVERED, ([k[0] for k in keys], [k[1] for k in keys], [k[2] for k in keys])):
-        out.setdefault(b, set()).add(uri)
-    return out
-
-
-def related(a: str, b: str) -> bool:
-    """One tile is the other's ancestor or descendant."""
-    (la, xa, ya), (lb, xb, yb) = (tuple(int(v) for v in u.removesuffix(".glb").split("/")[1:]) for u in (a, b))
-    if la > lb:
-        (la, xa, ya), (lb, xb, yb) = (lb, xb, yb), (la, xa, ya)
-    return la < lb and xb >> (lb - la) == xa and yb >> (lb - la) == ya
-
-
-def coverage_report(conn: psycopg.Connection, view: dict[str, Any], three_view: dict[str, Any]) -> dict[str, Any]:
-    """The buildings CesiumJS and the three.js client cover from one camera, and those covered by one only that
-    neither lie on the frustum's edge (their box within EDGE_M of a plane, or outside) nor are drawn by the other
-    client at another level (in an ancestor or descendant of the tile that covers them)."""
-    cam = Camera(
-        view["camera"]["lon"],
-        view["camera"]["lat"],
-        view["camera"]["height"],
-        view["camera"]["heading"],
-        view["camera"]["pitch"],
-        fov=view["fovyDeg"],
-        viewport_height=int(view["drawingBufferHeight"]),
-        aspect=view["aspect"],
-    )
-    by = {
-        "cesium": covered(conn, [t["uri"] for t in view["tiles"]]),
-        "three": covered(conn, [t["uri"] for t in three_view["tiles"]]),
-    }
-    drawn = {"cesium": [t["uri"] for t in view["tiles"]], "three": [t["uri"] for t in three_view["tiles"]]}
-    only = {k: set(by[k]) - set(by[o]) for k, o in (("cesium", "three"), ("three", "cesium"))}
-    diff = sorted(only["cesium"] | only["three"])
-    boxes = {}
-    if diff:
-        base = Settings.from_env().base_height_m
-        rows = conn.execute(BOXES, (diff,)).fetchall()
-        regions = np.array([[math.radians(v) for v in r[1:5]] + [base, base + float(r[5])] for r in rows])
-        for r, box in zip(rows, region_box(regions, pad=0.0), strict=True):
-            boxes[r[0]] = box
-    pos, planes = cam.position(), cam.planes()
-    unexplained = []
-    for k, o in (("cesium", "three"), ("three", "cesium")):
-        for b in sorted(only[k]):
-            box = boxes[b]
-            c = box[:3] - pos
-            inside = planes @ c - np.abs(planes @ box[3:].reshape(3, 3).T).sum(axis=1)
-            if inside.min() < EDGE_M:
-                continue  # on the frustum's edge or outside
-            if any(related(a, d) for a in by[k][b] for d in drawn[o]):
-                continue  # the other client draws that place at another level
-            unexplained.append(f"building {b}: only {k} ({sorted(by[k][b])})")
-    both = set(by["cesium"]) & set(by["three"])
-    return {
-        "cesium": len(by["cesium"]),
-        "three": len(by["three"]),
-        "both": len(both),
-        "only_cesium": len(only["cesium"]),
-        "only_three": len(only["three"]),
-        "unexplained": unexplained,
-    }
-
-
-def moved_root(tiles: Path, dest: Path) -> Path:
-    """A copy of the tileset whose root region is the root tile's own (from the subtree metadata): the implicit
-    subdivision of that region no longer yields the quadtree's cells."""
-    shutil.copytree(tiles, dest)
-    tileset = json.loads((tiles / "tileset.json").read_text())
-    root = tree(tiles)["content/0/0/0.glb"]
-    doctored = copy.deepcopy(tileset)
-    assert doctored["root"]["boundingVolume"]["region"] != root["boundingVolume"]["region"]
-    doctored["root"]["boundingVolume"]["region"] = root["boundingVolume"]["region"]
-    (dest / "tileset.json").write_text(json.dumps(doctored))
-    return dest
-
-
 def test_three_covers_what_cesium_covers(
     deep: tuple[str, Path], drawn: dict[str, Any], conn_of: Callable, tmp_path: Path
 ) -> None:
@@ -286,7 +151,7 @@ def test_three_covers_what_cesium_covers(
     check_load_all(tiles, res)
     lines = []
     for v in res["views"]:
-        rep = coverage_report(conn, drawn["by_name"][v["name"]], v)
+        rep = coverage_report(conn, drawn["by_name"][v["name"]], [t["uri"] for t in v["tiles"]], "three")
         lines.append(f"{v['name']}: {rep}")
         assert rep["three"] > 0 and rep["unexplained"] == [], lines[-1]
         assert rep["both"] >= 0.8 * max(rep["three"], rep["cesium"]), lines[-1]
