@@ -243,8 +243,9 @@ def test_the_checker_finds_what_is_missing(known: dict[str, set[str]]) -> None:
 
 
 def test_readme_client_snippets_use_what_the_tests_run() -> None:
-    """README's client snippets import only pinned packages (deck.gl's are named as untested), and the three.js
-    snippet imports every name from the module the tested client (tests/e2e/three/client.js) imports it from."""
+    """README's client snippets import only pinned packages (but deck.gl's drawing, named as untested), and the three.js
+    and loaders.gl snippets import every name from the module the tested driver (tests/e2e/three/client.js,
+    tests/e2e/loadersgl_tileset.mjs) imports it from."""
     import json
 
     readme = (REPO / "README.md").read_text()
@@ -255,12 +256,17 @@ def test_readme_client_snippets_use_what_the_tests_run() -> None:
     assert imports, "no import in README's client snippets"
     for _names, module in imports:
         package = "/".join(module.split("/")[:2]) if module.startswith("@") else module.split("/")[0]
-        assert package in pinned or package.startswith("@deck.gl/"), module
-    assert "Tileset3D` traversal is not yet tested" in section  # deck.gl itself: said so
-    client = (REPO / "tests" / "e2e" / "three" / "client.js").read_text()
-    tested = {m: n for n, m in re.findall(r"^import (.+?) from '([^']+)';", client, re.M)}
-    for names, module in imports:
-        if module.startswith(("three", "3d-tiles-renderer")):
+        assert package in pinned or package == "@deck.gl/geo-layers", module
+    assert "deck.gl's drawing itself is not tested" in section and "(not run by the tests)" in section
+    tested = {}
+    for driver in ("three/client.js", "loadersgl_tileset.mjs"):
+        text = (REPO / "tests" / "e2e" / driver).read_text()
+        tested.update({m: n for n, m in re.findall(r"^import (.+?) from '([^']+)';", text, re.M)})
+        # the Node driver imports loaders.gl after its offline setup: const {names} = await import('module');
+        tested.update({m: n for n, m in re.findall(r"^const \{(.+?)\} = await import\('([^']+)'\);", text, re.M)})
+    run = section[: section.index("(not run by the tests)")]  # the deck.gl snippet after it is not
+    for names, module in re.findall(r'^import (.+?) from "([^"]+)";', run, re.M):
+        if module.startswith(("three", "3d-tiles-renderer", "@loaders.gl/", "@deck.gl/")):
             assert module in tested, module
             used = set(re.findall(r"\w+", names)) - {"as"}
             assert used <= set(re.findall(r"\w+", tested[module])), (module, names, tested[module])
